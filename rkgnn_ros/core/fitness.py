@@ -1,0 +1,316 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Batched fitness of a population of RKGNN genomes: rollout error plus the inertia penalty.
+
+The cost of one genome is the paper's eq. (11)::
+
+    J = mean_i ( |θ_i - θ̂_i| + |θ̇_i - θ̂̇_i| ) + w_P · max(0, -min leading minor of M̂)
+
+where θ̂ is the RKG rollout of N_f from the first measured state of each segment (or, with
+multiple shooting, restarted from the measured state after every ``shooting`` samples),
+the mean runs over every sample but the first of each segment, and the minors are those
+of the inertia matrix normalised by its scale (dimensionless), taken at every rollout
+state. A rollout that leaves the
+plausible state range or turns non-finite costs +inf, never NaN.
+
+Three implementations share one :class:`FitnessProblem`: ``cost_loop`` (a per-individual
+Python loop), ``cost_numpy`` (batched over the population: the reference) and ``cost`` (the
+compiled numba kernel of :mod:`rkgnn_ros.core.kernels`, which releases the GIL). Tests hold
+them equal.
+"""
+
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from .data import Dataset
+from .network import BatchedNetwork, NetworkSpec, Scales
+from .rkg import rkg_step
+
+
+def hermite(t_knots, values, slopes, t_eval):
+    """
+    Cubic Hermite interpolation on a uniform grid, held constant outside it.
+
+    Parameters
+    ----------
+    t_knots : ndarray, shape (N,)
+        Uniform knot times.
+    values, slopes : ndarray, shape (N, m)
+        Values and derivatives at the knots.
+    t_eval : ndarray, shape (T,)
+        Where to evaluate.
+
+    Returns
+    -------
+    ndarray, shape (T, m)
+
+    """
+    dt = (t_knots[-1] - t_knots[0]) / (t_knots.size - 1)
+    s = np.clip((np.asarray(t_eval) - t_knots[0]) / dt, 0.0, t_knots.size - 1)
+    i = np.minimum(np.floor(s).astype(int), t_knots.size - 2)
+    u = (s - i)[:, None]
+    h00 = 2 * u ** 3 - 3 * u ** 2 + 1
+    h10 = u ** 3 - 2 * u ** 2 + u
+    h01 = -2 * u ** 3 + 3 * u ** 2
+    h11 = u ** 3 - u ** 2
+    return (h00 * values[i] + h10 * dt * slopes[i] + h01 * values[i + 1]
+            + h11 * dt * slopes[i + 1])
+
+
+def stage_times(t0, dt, n_intervals, substeps):
+    """Stage times t, t + h/2, t + h of every substep, shape (n_intervals, substeps, 3)."""
+    h = dt / substeps
+    base = t0 + dt * np.arange(n_intervals)[:, None] + h * np.arange(substeps)[None, :]
+    return base[:, :, None] + np.array([0.0, 0.5 * h, h])[None, None, :]
+
+
+def stage_inputs(spec: NetworkSpec, data: Dataset, substeps: int, reference=None,
+                 torque_interpolation='hold'):
+    """
+    Return the input u at every RKG stage of a segment, shape (N-1, substeps, 3, m).
+
+    Case 'torque': the measured τ (m = n), held over each sampling interval ('hold') or
+    interpolated linearly ('linear'). Other cases: [θd, θ̇d] (m = 2n) at the stage times,
+    from ``reference.evaluate`` when a reference object is given, else by cubic Hermite
+    interpolation of the desired samples (θ̇d as the slope of θd; finite differences of θ̇d
+    as its own slope).
+    """
+    n_int = data.n_samples - 1
+    n = data.n_joints
+    if spec.case == 'torque':
+        if data.tau is None:
+            raise ValueError("case 'torque' needs measured torque (Dataset.tau)")
+        if torque_interpolation == 'hold':
+            u = np.broadcast_to(data.tau[:-1, None, None, :], (n_int, substeps, 3, n))
+            return np.ascontiguousarray(u)
+        if torque_interpolation != 'linear':
+            raise ValueError(f"torque_interpolation must be 'hold' or 'linear', "
+                             f'got {torque_interpolation!r}')
+        frac = (stage_times(0.0, data.dt, n_int, substeps)
+                - data.dt * np.arange(n_int)[:, None, None]) / data.dt
+        tau0 = data.tau[:-1, None, None, :]
+        tau1 = data.tau[1:, None, None, :]
+        return np.ascontiguousarray(tau0 + frac[..., None] * (tau1 - tau0))
+    times = stage_times(data.t[0], data.dt, n_int, substeps).reshape(-1)
+    if reference is not None:
+        qd, qd_dot = reference.evaluate(times)
+    else:
+        if data.theta_d is None or data.theta_d_dot is None:
+            raise ValueError(f'case {spec.case!r} needs the desired trajectory '
+                             '(Dataset.theta_d, theta_d_dot)')
+        qd = hermite(data.t, data.theta_d, data.theta_d_dot, times)
+        acc = np.gradient(data.theta_d_dot, data.dt, axis=0)
+        qd_dot = hermite(data.t, data.theta_d_dot, acc, times)
+    u = np.concatenate([np.asarray(qd), np.asarray(qd_dot)], axis=-1)
+    return np.ascontiguousarray(u.reshape(n_int, substeps, 3, 2 * n))
+
+
+class FitnessProblem:
+    """
+    Everything a generation needs that does not depend on the genome, prepared once.
+
+    Parameters
+    ----------
+    spec : NetworkSpec
+        Network structure.
+    datasets : Dataset or list of Dataset
+        Gap-free segments, all with the same sampling interval.
+    scales : Scales, optional
+        Physical scales; measured on ``datasets`` when omitted.
+    substeps : int
+        RKG steps per sampling interval.
+    kp, kd : array_like, shape (n,), optional
+        Known PD gains (case 'pd_gains').
+    references : list, optional
+        One reference object (or None) per segment, evaluated exactly at the stage times.
+    shooting : int
+        0 for one rollout per segment; k > 0 restarts from the measured state every k
+        samples (multiple shooting).
+    penalty_weight : float
+        Weight of the leading-minor penalty.
+    bound : float
+        A rollout is diverged when a state leaves ``center ± bound × scale``.
+    torque_interpolation : str
+        'hold' or 'linear' (case 'torque').
+
+    """
+
+    def __init__(self, spec: NetworkSpec, datasets, scales: Optional[Scales] = None,
+                 substeps=4, kp=None, kd=None, references: Optional[Sequence] = None,
+                 shooting=0, penalty_weight=1.0, bound=100.0, torque_interpolation='hold'):
+        if isinstance(datasets, Dataset):
+            datasets = [datasets]
+        datasets = list(datasets)
+        if not datasets:
+            raise ValueError('FitnessProblem needs at least one dataset')
+        n = spec.n_joints
+        for d in datasets:
+            if d.n_joints != n:
+                raise ValueError(f'dataset has {d.n_joints} joints, the network {n}')
+        dts = np.array([d.dt for d in datasets])
+        if not np.allclose(dts, dts[0], rtol=1e-6):
+            raise ValueError(f'all segments need one sampling interval, got {sorted(set(dts))}')
+        substeps = int(substeps)
+        if substeps < 1:
+            raise ValueError(f'substeps must be >= 1, got {substeps}')
+        if int(shooting) < 0:
+            raise ValueError(f'shooting must be >= 0, got {shooting}')
+        if spec.case == 'pd_gains':
+            if kp is None or kd is None:
+                raise ValueError("case 'pd_gains' needs kp and kd")
+            kp = np.asarray(kp, dtype=float).reshape(-1)
+            kd = np.asarray(kd, dtype=float).reshape(-1)
+            if kp.size != n or kd.size != n:
+                raise ValueError(f'kp and kd need {n} values each')
+        else:
+            kp = np.zeros(n) if kp is None else np.asarray(kp, dtype=float).reshape(-1)
+            kd = np.zeros(n) if kd is None else np.asarray(kd, dtype=float).reshape(-1)
+        self.spec = spec
+        self.datasets = datasets
+        self.scales = scales if scales is not None else Scales.from_datasets(
+            datasets, spec.case, kp, kd)
+        self.substeps = substeps
+        self.dt = float(dts[0])
+        self.h = self.dt / substeps
+        self.kp = kp
+        self.kd = kd
+        self.shooting = int(shooting)
+        self.penalty_weight = float(penalty_weight)
+        self.bound = float(bound)
+        refs = list(references) if references is not None else [None] * len(datasets)
+        if len(refs) != len(datasets):
+            raise ValueError('one reference (or None) per dataset')
+        self.inputs: List[np.ndarray] = [
+            stage_inputs(spec, d, substeps, r, torque_interpolation)
+            for d, r in zip(datasets, refs)]
+        # flat arrays for the compiled kernel
+        self.x_meas = np.ascontiguousarray(np.vstack([d.state for d in datasets]))
+        self.seg_start = np.cumsum([0] + [d.n_samples for d in datasets]).astype(np.int64)
+        self.u_flat = np.ascontiguousarray(np.concatenate(self.inputs, axis=0))
+        self.bound_center = np.concatenate([self.scales.theta_center, np.zeros(n)])
+        self.bound_scale = self.bound * np.concatenate(
+            [self.scales.theta_spread + 1.0, self.scales.velocity * 10.0 + 1.0])
+        self.n_predicted = sum(self._predicted(d.n_samples) for d in datasets)
+
+    @staticmethod
+    def _predicted(n_samples):
+        """Predicted samples of a segment: all but the first (restarts come after a sample)."""
+        return n_samples - 1
+
+    @property
+    def genome_size(self) -> int:
+        """Genome length of the network."""
+        return self.spec.genome_size
+
+    def network(self, genomes) -> BatchedNetwork:
+        """Return the batched network of a population."""
+        return BatchedNetwork(self.spec, self.spec.decode(genomes, self.scales), self.scales,
+                              self.kp, self.kd)
+
+    # ----- numpy reference
+    def rollout_numpy(self, genomes, segment=0):
+        """
+        Predicted states of one segment for a population (numpy reference).
+
+        Returns
+        -------
+        states : ndarray, shape (P, N, 2n)
+            Predicted states (rows at shooting restarts equal the measurements).
+        diverged : ndarray of bool, shape (P,)
+
+        """
+        net = self.network(genomes)
+        data = self.datasets[segment]
+        u = self.inputs[segment]
+        pop = net.p['centres'].shape[0]
+        x_meas = data.state
+        out = np.empty((pop, data.n_samples, x_meas.shape[1]))
+        x = np.repeat(x_meas[:1], pop, axis=0)
+        out[:, 0] = x
+        diverged = np.zeros(pop, dtype=bool)
+        with np.errstate(all='ignore'):
+            for i in range(data.n_samples - 1):
+                if self.shooting and i > 0 and i % self.shooting == 0:
+                    x = np.repeat(x_meas[i:i + 1], pop, axis=0)
+                for s in range(self.substeps):
+                    x = rkg_step(net.rhs, x, self.h, u[i, s, 0], u[i, s, 1], u[i, s, 2])
+                x = np.where(diverged[:, None], np.nan, x)
+                diverged |= self._diverged(x)
+                out[:, i + 1] = x
+        return out, diverged
+
+    def _diverged(self, x):
+        dev = np.abs(x - self.bound_center) > self.bound_scale
+        return ~np.all(np.isfinite(x), axis=1) | np.any(dev, axis=1)
+
+    def cost_numpy(self, genomes):
+        """Costs of a population, batched numpy reference: (P, N) -> (P,)."""
+        genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
+        pop = genomes.shape[0]
+        n = self.spec.n_joints
+        total = np.zeros(pop)
+        worst_minor = np.full(pop, np.inf)
+        bad = np.zeros(pop, dtype=bool)
+        net = self.network(genomes) if self.spec.inertia == 'penalty' else None
+        for seg, data in enumerate(self.datasets):
+            pred, diverged = self.rollout_numpy(genomes, seg)
+            bad |= diverged
+            err = pred - data.state[None]
+            with np.errstate(invalid='ignore'):
+                per_sample = (np.linalg.norm(err[..., :n], axis=-1)
+                              + np.linalg.norm(err[..., n:], axis=-1))
+            total += np.sum(per_sample[:, 1:], axis=1)
+            if net is not None:
+                for i in range(data.n_samples):
+                    worst_minor = np.minimum(worst_minor, net.min_minor(pred[:, i, :n]))
+        cost = total / self.n_predicted
+        if net is not None:
+            cost = cost + self.penalty_weight * np.maximum(0.0, -worst_minor)
+        cost[bad | ~np.isfinite(cost)] = np.inf
+        return cost
+
+    def cost_loop(self, genomes):
+        """Costs one individual at a time (the straightforward implementation)."""
+        genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
+        return np.array([self.cost_numpy(g[None, :])[0] for g in genomes])
+
+    # ----- compiled fast path
+    def kernel_args(self, genomes):
+        """Decode into contiguous arrays for :func:`rkgnn_ros.core.kernels.population_cost`."""
+        p = self.spec.decode(genomes, self.scales)
+        spec = self.spec
+        case_id = {'torque': 0, 'pd_gains': 1, 'unknown': 2}[spec.case]
+        c = np.ascontiguousarray
+        return (self.x_meas, self.seg_start, self.u_flat, self.h, self.substeps,
+                self.shooting, case_id, spec.inertia == 'cholesky',
+                c(self.kp), c(self.kd), c(spec.inertia_epsilon(self.scales)),
+                c(1.0 / np.sqrt(self.scales.inertia)), spec.coulomb_velocity,
+                c(p['centres']), c(p['inv_width2']), c(p['weights']), c(p['bias']),
+                c(p['viscous']), c(p['coulomb']),
+                c(p['p_centres']), c(p['p_inv_width2']), c(p['p_weights']),
+                c(p['d_centres']), c(p['d_inv_width2']), c(p['d_weights']),
+                c(p['kp']), c(p['kd']),
+                self.penalty_weight, self.bound_center, self.bound_scale,
+                float(self.n_predicted))
+
+    def cost(self, genomes):
+        """Costs of a population with the compiled kernel: (P, N) -> (P,)."""
+        from .kernels import population_cost
+        genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
+        return population_cost(*self.kernel_args(genomes))
+
+    __call__ = cost
