@@ -29,7 +29,7 @@ import numpy as np
 from .rkg import ALPHA, BETA, D, E, G, GAMMA
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy', inline='always')
 def _solve(a, b, out):
     """Solve a @ out = b by Gaussian elimination with partial pivoting (a, b overwritten)."""
     n = b.shape[0]
@@ -65,7 +65,7 @@ def _solve(a, b, out):
         out[r] = acc / a[r, r]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _det(a, k):
     """Return the determinant of the leading k x k block of a (a is overwritten)."""
     det = 1.0
@@ -92,14 +92,15 @@ def _det(a, k):
     return det
 
 
-@njit(cache=True, nogil=True)
-def _theta_outputs(theta, centres, inv_w2, weights, bias, phi, out):
+@njit(cache=True, nogil=True, error_model='numpy')
+def _theta_outputs(x, centres, inv_w2, weights, bias, phi, out):
+    # x holds [θ, θ̇]; only θ (the first centres.shape[1] entries) is used
     n_units = centres.shape[0]
-    n = theta.shape[0]
+    n = centres.shape[1]
     for k in range(n_units):
         d2 = 0.0
         for j in range(n):
-            diff = theta[j] - centres[k, j]
+            diff = x[j] - centres[k, j]
             d2 += diff * diff
         phi[k] = math.exp(-d2 * inv_w2[k])
     for o in range(out.shape[0]):
@@ -109,11 +110,13 @@ def _theta_outputs(theta, centres, inv_w2, weights, bias, phi, out):
         out[o] = acc + bias[o]
 
 
-@njit(cache=True, nogil=True)
-def _mass(out, n, chol, eps, mat):
+@njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def _mass(out, n, chol, eps, mat, lmat):
     idx = 0
     if chol:
-        lmat = np.zeros((n, n))
+        for i in range(n):
+            for j in range(n):
+                lmat[i, j] = 0.0
         for i in range(n):
             for j in range(i + 1):
                 lmat[i, j] = out[idx]
@@ -121,7 +124,7 @@ def _mass(out, n, chol, eps, mat):
         for i in range(n):
             for j in range(n):
                 acc = 0.0
-                for k in range(n):
+                for k in range(min(i, j) + 1):
                     acc += lmat[i, k] * lmat[j, k]
                 mat[i, j] = acc
             mat[i, i] += eps[i]
@@ -133,59 +136,12 @@ def _mass(out, n, chol, eps, mat):
                 idx += 1
 
 
-@njit(cache=True, nogil=True)
-def _rhs(x, u, dx, n, case_id, chol, kp_known, kd_known, eps, vc,
-         centres, inv_w2, weights, bias, viscous, coulomb,
-         pc, piw, pw, dc, diw, dw, kp, kd, phi, out, mat, rhs, acc):
-    """Evaluate dx = N_f(x, u) for one individual (work arrays phi, out, mat, rhs, acc)."""
-    theta = x[:n]
-    _theta_outputs(theta, centres, inv_w2, weights, bias, phi, out)
-    _mass(out, n, chol, eps, mat)
-    n_pairs = n * (n - 1) // 2
-    off_b = n * (n + 1) // 2
-    off_c = off_b + n * n_pairs
-    off_g = off_c + n * n
-    for i in range(n):
-        qd = x[n + i]
-        # torque
-        if case_id == 0:
-            tau = u[i]
-        else:
-            err = u[i] - x[i]
-            derr = u[n + i] - qd
-            if case_id == 1:
-                tau = kp_known[i] * err + kd_known[i] * derr
-            else:
-                tau = kp[i] * err + kd[i] * derr
-                for k in range(pc.shape[1]):
-                    diff = err - pc[i, k]
-                    tau += pw[i, k] * math.exp(-diff * diff * piw[i, k])
-                for k in range(dc.shape[1]):
-                    diff = derr - dc[i, k]
-                    tau += dw[i, k] * math.exp(-diff * diff * diw[i, k])
-        v = 0.0
-        p = 0
-        for j in range(n):
-            for k in range(j + 1, n):
-                v += out[off_b + i * n_pairs + p] * x[n + j] * x[n + k]
-                p += 1
-        for j in range(n):
-            v += out[off_c + i * n + j] * x[n + j] * x[n + j]
-        f = viscous[i] * qd + coulomb[i] * math.tanh(qd / vc)
-        rhs[i] = tau - v - out[off_g + i] - f
-        dx[i] = qd
-    _solve(mat, rhs, acc)
-    for i in range(n):
-        dx[n + i] = acc[i]
-
-
-@njit(cache=True, nogil=True)
-def _min_minor(theta, n, chol, eps, inv_sqrt_ms, centres, inv_w2, weights, bias, phi, out,
-               mat):
-    _theta_outputs(theta, centres, inv_w2, weights, bias, phi, out)
-    _mass(out, n, chol, eps, mat)
+@njit(cache=True, nogil=True, error_model='numpy')
+def _min_minor(x, n, chol, eps, inv_sqrt_ms, centres, inv_w2, weights, bias, phi, out,
+               mat, lmat, work):
+    _theta_outputs(x, centres, inv_w2, weights, bias, phi, out)
+    _mass(out, n, chol, eps, mat, lmat)
     worst = np.inf
-    work = np.empty((n, n))
     for k in range(1, n + 1):
         for i in range(n):
             for j in range(n):
@@ -196,18 +152,29 @@ def _min_minor(theta, n, chol, eps, inv_sqrt_ms, centres, inv_w2, weights, bias,
     return worst
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model='numpy')
 def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
                      kp_known, kd_known, eps, inv_sqrt_ms, vc,
                      centres, inv_w2, weights, bias, viscous, coulomb,
                      pc, piw, pw, dc, diw, dw, kp, kd,
                      penalty_weight, bound_center, bound_scale, n_predicted):
+    # N_f is written out inline in the stage loop: a call per evaluation with ~25 array
+    # arguments costs reference-count traffic that dominated the arithmetic.
     n2 = x_meas.shape[1]
     n = n2 // 2
     n_out = weights.shape[0]
-    phi = np.empty(centres.shape[0])
+    n_units = centres.shape[0]
+    n_pairs = n * (n - 1) // 2
+    off_b = n * (n + 1) // 2
+    off_c = off_b + n * n_pairs
+    off_g = off_c + n * n
+    n_pu = pc.shape[1]
+    n_du = dc.shape[1]
+    phi = np.empty(n_units)
     out = np.empty(n_out)
     mat = np.empty((n, n))
+    lmat = np.empty((n, n))
+    work = np.empty((n, n))
     rhs = np.empty(n)
     acc = np.empty(n)
     x = np.empty(n2)
@@ -223,44 +190,81 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
         for j in range(n2):
             x[j] = x_meas[start, j]
         if not chol:
-            m = _min_minor(x[:n], n, chol, eps, inv_sqrt_ms, centres, inv_w2, weights, bias,
-                           phi, out, mat)
-            worst = min(worst, m)
+            worst = min(worst, _min_minor(x, n, chol, eps, inv_sqrt_ms, centres, inv_w2,
+                                          weights, bias, phi, out, mat, lmat, work))
         for i in range(n_samples - 1):
             if shooting > 0 and i > 0 and i % shooting == 0:
                 for j in range(n2):
                     x[j] = x_meas[start + i, j]
+            row = u_row + i
             for s in range(substeps):
-                u0 = u_flat[u_row + i, s, 0]
-                uh = u_flat[u_row + i, s, 1]
-                u1 = u_flat[u_row + i, s, 2]
-                # Runge-Kutta-Gill, Gill's form (see rkg.py)
-                _rhs(x, u0, k, n, case_id, chol, kp_known, kd_known, eps, vc, centres, inv_w2,
-                     weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw, kp, kd,
-                     phi, out, mat, rhs, acc)
                 for j in range(n2):
-                    k[j] *= h
-                    xs[j] = x[j] + 0.5 * k[j]
-                    q[j] = k[j]
-                _rhs(xs, uh, k, n, case_id, chol, kp_known, kd_known, eps, vc, centres,
-                     inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw, kp, kd,
-                     phi, out, mat, rhs, acc)
-                for j in range(n2):
-                    k[j] *= h
-                    xs[j] = xs[j] + ALPHA * (k[j] - q[j])
-                    q[j] = BETA * q[j] + E * k[j]
-                _rhs(xs, uh, k, n, case_id, chol, kp_known, kd_known, eps, vc, centres,
-                     inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw, kp, kd,
-                     phi, out, mat, rhs, acc)
-                for j in range(n2):
-                    k[j] *= h
-                    xs[j] = xs[j] + D * (k[j] - q[j])
-                    q[j] = GAMMA * q[j] + G * k[j]
-                _rhs(xs, u1, k, n, case_id, chol, kp_known, kd_known, eps, vc, centres,
-                     inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw, kp, kd,
-                     phi, out, mat, rhs, acc)
-                for j in range(n2):
-                    x[j] = xs[j] + h * k[j] / 6.0 - q[j] / 3.0
+                    xs[j] = x[j]
+                for stage in range(4):
+                    ui = 0 if stage == 0 else (2 if stage == 3 else 1)  # t, t+h/2, t+h/2, t+h
+                    # ---- k = N_f(xs, u): θ-RBF outputs
+                    for kk in range(n_units):
+                        d2 = 0.0
+                        for j in range(n):
+                            diff = xs[j] - centres[kk, j]
+                            d2 += diff * diff
+                        phi[kk] = math.exp(-d2 * inv_w2[kk])
+                    for o in range(n_out):
+                        val = 0.0
+                        for kk in range(n_units):
+                            val += weights[o, kk] * phi[kk]
+                        out[o] = val + bias[o]
+                    _mass(out, n, chol, eps, mat, lmat)
+                    for a in range(n):
+                        qd = xs[n + a]
+                        if case_id == 0:
+                            tau = u_flat[row, s, ui, a]
+                        else:
+                            err = u_flat[row, s, ui, a] - xs[a]
+                            derr = u_flat[row, s, ui, n + a] - qd
+                            if case_id == 1:
+                                tau = kp_known[a] * err + kd_known[a] * derr
+                            else:
+                                tau = kp[a] * err + kd[a] * derr
+                                for kk in range(n_pu):
+                                    diff = err - pc[a, kk]
+                                    tau += pw[a, kk] * math.exp(-diff * diff * piw[a, kk])
+                                for kk in range(n_du):
+                                    diff = derr - dc[a, kk]
+                                    tau += dw[a, kk] * math.exp(-diff * diff * diw[a, kk])
+                        v = 0.0
+                        p = 0
+                        for j in range(n):
+                            for jj in range(j + 1, n):
+                                v += out[off_b + a * n_pairs + p] * xs[n + j] * xs[n + jj]
+                                p += 1
+                        for j in range(n):
+                            v += out[off_c + a * n + j] * xs[n + j] * xs[n + j]
+                        f = viscous[a] * qd + coulomb[a] * math.tanh(qd / vc)
+                        rhs[a] = tau - v - out[off_g + a] - f
+                        k[a] = qd
+                    _solve(mat, rhs, acc)
+                    for a in range(n):
+                        k[n + a] = acc[a]
+                    # ---- Runge-Kutta-Gill update, Gill's form (see rkg.py)
+                    if stage == 0:
+                        for j in range(n2):
+                            k[j] *= h
+                            xs[j] = x[j] + 0.5 * k[j]
+                            q[j] = k[j]
+                    elif stage == 1:
+                        for j in range(n2):
+                            k[j] *= h
+                            xs[j] = xs[j] + ALPHA * (k[j] - q[j])
+                            q[j] = BETA * q[j] + E * k[j]
+                    elif stage == 2:
+                        for j in range(n2):
+                            k[j] *= h
+                            xs[j] = xs[j] + D * (k[j] - q[j])
+                            q[j] = GAMMA * q[j] + G * k[j]
+                    else:
+                        for j in range(n2):
+                            x[j] = xs[j] + h * k[j] / 6.0 - q[j] / 3.0
             e_pos = 0.0
             e_vel = 0.0
             for j in range(n2):
@@ -274,9 +278,8 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
                     e_vel += diff * diff
             total += math.sqrt(e_pos) + math.sqrt(e_vel)
             if not chol:
-                m = _min_minor(x[:n], n, chol, eps, inv_sqrt_ms, centres, inv_w2, weights,
-                               bias, phi, out, mat)
-                worst = min(worst, m)
+                worst = min(worst, _min_minor(x, n, chol, eps, inv_sqrt_ms, centres, inv_w2,
+                                              weights, bias, phi, out, mat, lmat, work))
         u_row += n_samples - 1
     cost = total / n_predicted
     if not chol and worst < 0.0:
@@ -286,7 +289,7 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
     return cost
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, error_model='numpy')
 def population_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
                     kp_known, kd_known, eps, inv_sqrt_ms, vc,
                     centres, inv_w2, weights, bias, viscous, coulomb,
@@ -303,10 +306,12 @@ def population_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, c
     pop = centres.shape[0]
     costs = np.empty(pop)
     for p in prange(pop):
+        # private copies: views would share their parent's reference count between threads
         costs[p] = _individual_cost(
-            x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
+            x_meas.copy(), seg_start, u_flat, h, substeps, shooting, case_id, chol,
             kp_known, kd_known, eps, inv_sqrt_ms, vc,
-            centres[p], inv_w2[p], weights[p], bias[p], viscous[p], coulomb[p],
-            pc[p], piw[p], pw[p], dc[p], diw[p], dw[p], kp[p], kd[p],
+            centres[p].copy(), inv_w2[p].copy(), weights[p].copy(), bias[p].copy(),
+            viscous[p].copy(), coulomb[p].copy(), pc[p].copy(), piw[p].copy(), pw[p].copy(),
+            dc[p].copy(), diw[p].copy(), dw[p].copy(), kp[p].copy(), kd[p].copy(),
             penalty_weight, bound_center, bound_scale, n_predicted)
     return costs
