@@ -1,0 +1,496 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The one boundary between ROS 2 messages and numpy arrays.
+
+Incoming messages become arrays here, once, and outgoing arrays become messages here. The
+module imports message classes only (never rclpy), so it is tested with plain pytest.
+
+Parsing never raises on message content. :func:`joint_state_to_arrays` and
+:func:`joint_trajectory_to_arrays` return either a result tuple (``result.ok`` is True) or
+a :class:`Rejection` (``result.ok`` is False) carrying a stable reason code from
+:data:`REJECTION_REASONS` and a human message naming the sizes or the joint involved. The
+caller logs the message (throttled) and counts the reason.
+
+JointState policy
+-----------------
+Values are mapped by name to the configured joint order; extra joints (a gripper) are
+ignored, a duplicate name anywhere in the message is rejected. The checks run in this
+order, and the first failing one gives the reason:
+
+1. ``'empty'``: ``name`` or ``position`` is empty.
+2. ``'size_mismatch'``: ``position``, or a non-empty ``velocity`` or ``effort``, has a
+   length different from ``name`` (a malformed message, whatever fields are needed).
+3. ``'duplicate_name'``, then ``'missing_joint'`` (the first configured joint absent).
+4. ``'zero_stamp'``: a stamp of exactly zero (``use_sim_time`` before the first clock
+   message); ``'invalid_stamp'``: a negative stamp.
+5. ``'non_finite'``: NaN or inf in the position of a configured joint.
+6. Velocity, when ``need_velocity``: empty, or NaN for a configured joint, means *missing*
+   (NaN is the ROS convention for "not filled"), rejected as ``'missing_velocity'``; the
+   sample is dropped, velocities are never estimated from positions here. An infinite
+   velocity is ``'non_finite'``. When velocity is not needed, a missing or non-finite
+   velocity is returned as None and never causes a rejection.
+7. Effort, when ``need_effort``: the same rule with ``'missing_effort'``.
+
+Any other failure (an object that is not a JointState at all) is ``'malformed'``.
+"""
+
+from functools import lru_cache
+import math
+from typing import NamedTuple, Optional, Sequence, Tuple, Union
+
+from builtin_interfaces.msg import Duration, Time
+import numpy as np
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+__all__ = [
+    'REJECTION_REASONS', 'Rejection', 'JointSample', 'TrajectorySample',
+    'joint_state_to_arrays', 'joint_trajectory_to_arrays', 'make_joint_state',
+    'make_joint_trajectory', 'make_float64_multiarray', 'stamp_to_seconds',
+    'seconds_to_stamp', 'duration_to_seconds', 'seconds_to_duration',
+]
+
+#: Every reason code the parsing functions can return.
+REJECTION_REASONS = (
+    'empty',             # no names, no positions, or (trajectory) no points
+    'size_mismatch',     # an array's length differs from the number of names
+    'duplicate_name',    # a joint name appears twice in one message
+    'missing_joint',     # a configured joint is absent
+    'zero_stamp',        # header stamp exactly zero
+    'invalid_stamp',     # negative stamp
+    'non_finite',        # NaN/inf in a used position, inf in a used velocity/effort
+    'missing_velocity',  # velocity needed but empty or NaN
+    'missing_effort',    # effort needed but empty or NaN
+    'non_increasing_time',  # trajectory time_from_start negative or not increasing
+    'malformed',         # not the expected message at all
+)
+
+_NANO = 1_000_000_000
+
+
+class Rejection(NamedTuple):
+    """
+    Why a message was not turned into arrays.
+
+    ``reason`` is a stable code from :data:`REJECTION_REASONS` (for counters), ``message``
+    a sentence for the log naming sizes or the joint.
+    """
+
+    reason: str
+    message: str
+
+    @property
+    def ok(self) -> bool:
+        """Return False: a rejection carries no data."""
+        return False
+
+
+class JointSample(NamedTuple):
+    """
+    One JointState as arrays in the configured joint order.
+
+    ``stamp`` is in seconds; ``position`` has shape (n,); ``velocity`` and ``effort`` have
+    shape (n,) or are None when not available (only possible when not needed).
+    """
+
+    stamp: float
+    position: np.ndarray
+    velocity: Optional[np.ndarray]
+    effort: Optional[np.ndarray]
+
+    @property
+    def ok(self) -> bool:
+        """Return True: the message was converted."""
+        return True
+
+
+class TrajectorySample(NamedTuple):
+    """
+    A JointTrajectory as arrays in the configured joint order.
+
+    ``t0`` is the header stamp in seconds, ``times`` (K,) the strictly increasing
+    ``time_from_start`` values, ``positions`` (K, n), ``velocities`` (K, n) or None when
+    the points carry no (or NaN) velocities.
+    """
+
+    t0: float
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: Optional[np.ndarray]
+
+    @property
+    def ok(self) -> bool:
+        """Return True: the message was converted."""
+        return True
+
+
+def stamp_to_seconds(stamp) -> float:
+    """Return a ``builtin_interfaces`` Time (or Duration) as float seconds."""
+    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+def duration_to_seconds(duration) -> float:
+    """Return a ``builtin_interfaces`` Duration as float seconds."""
+    return stamp_to_seconds(duration)
+
+
+def _split_seconds(seconds: float, what: str) -> Tuple[int, int]:
+    """Split finite seconds into (sec, nanosec) with ``0 <= nanosec < 1e9``."""
+    seconds = float(seconds)
+    if not math.isfinite(seconds):
+        raise ValueError(f'{what} must be finite, got {seconds}')
+    sec = math.floor(seconds)
+    nanosec = int(round((seconds - sec) * _NANO))
+    if nanosec >= _NANO:
+        sec, nanosec = sec + 1, nanosec - _NANO
+    if not -2 ** 31 <= sec < 2 ** 31:
+        raise ValueError(f'{what} {seconds} s does not fit a 32-bit seconds field')
+    return int(sec), nanosec
+
+
+def seconds_to_stamp(seconds: float) -> Time:
+    """Return float seconds (finite, >= 0) as a ``builtin_interfaces`` Time."""
+    if not seconds >= 0.0:
+        raise ValueError(f'a stamp must be >= 0, got {seconds}')
+    sec, nanosec = _split_seconds(seconds, 'stamp')
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def seconds_to_duration(seconds: float) -> Duration:
+    """Return finite float seconds as a ``builtin_interfaces`` Duration."""
+    sec, nanosec = _split_seconds(seconds, 'duration')
+    return Duration(sec=sec, nanosec=nanosec)
+
+
+@lru_cache(maxsize=64)
+def _name_index(names: Tuple[str, ...], joints: Tuple[str, ...]):
+    """
+    Map configured joints to their columns in a message.
+
+    Returns ``(index array, None)`` or ``(None, Rejection)``. Cached: a stream normally
+    repeats the same name list in every message.
+    """
+    lookup = {}
+    for i, name in enumerate(names):
+        if name in lookup:
+            return None, Rejection('duplicate_name', f'duplicate joint name {name!r}')
+        lookup[name] = i
+    index = []
+    for joint in joints:
+        if joint not in lookup:
+            return None, Rejection(
+                'missing_joint', f'missing joint {joint!r} (message has {list(names)})')
+        index.append(lookup[joint])
+    return np.asarray(index, dtype=np.intp), None
+
+
+def _stamp_rejection(seconds: float) -> Optional[Rejection]:
+    if seconds == 0.0:
+        return Rejection('zero_stamp', 'stamp is zero (no clock yet under use_sim_time?)')
+    if not seconds > 0.0:
+        return Rejection('invalid_stamp', f'stamp {seconds} s is negative')
+    return None
+
+
+def _optional_field(values, index, joints, field_name, needed, missing_reason):
+    """
+    Pick a velocity/effort field; returns ``(array or None, Rejection or None)``.
+
+    Empty or NaN means missing; inf is non-finite. Only a needed field can reject.
+    """
+    if values.size == 0:
+        if needed:
+            return None, Rejection(missing_reason, f'{field_name} is empty')
+        return None, None
+    used = values[index]
+    finite = np.isfinite(used)
+    if finite.all():
+        return used, None
+    if not needed:
+        return None, None
+    bad = int(np.flatnonzero(~finite)[0])
+    if np.isnan(used[bad]):
+        return None, Rejection(missing_reason, f'{field_name} is NaN for joint {joints[bad]!r}')
+    return None, Rejection(
+        'non_finite', f'{field_name} is {used[bad]} for joint {joints[bad]!r}')
+
+
+def joint_state_to_arrays(
+        msg: JointState, joints: Sequence[str], need_velocity: bool = True,
+        need_effort: bool = False) -> Union[JointSample, Rejection]:
+    """
+    Turn a JointState into arrays ordered as ``joints``, or say why not.
+
+    Parameters
+    ----------
+    msg : sensor_msgs.msg.JointState
+        The incoming message (θ in position, θ̇ in velocity, τ in effort).
+    joints : sequence of str
+        The configured joint names, in column order (n of them).
+    need_velocity, need_effort : bool
+        Whether a missing velocity / effort rejects the sample.
+
+    Returns
+    -------
+    JointSample or Rejection
+        ``JointSample(stamp, position (n,), velocity (n,) or None, effort (n,) or None)``
+        or ``Rejection(reason, message)``; see the module docstring for the rules. Never
+        raises on message content.
+
+    """
+    try:
+        joints = tuple(joints)
+        names = tuple(msg.name)
+        position = np.asarray(msg.position, dtype=float)
+        velocity = np.asarray(msg.velocity, dtype=float)
+        effort = np.asarray(msg.effort, dtype=float)
+        if not names or position.size == 0:
+            return Rejection(
+                'empty', f'empty JointState: {len(names)} names, {position.size} positions')
+        for field_name, values, may_be_empty in (('position', position, False),
+                                                 ('velocity', velocity, True),
+                                                 ('effort', effort, True)):
+            if values.ndim != 1 or (values.size != len(names)
+                                    and not (may_be_empty and values.size == 0)):
+                return Rejection(
+                    'size_mismatch',
+                    f'{field_name} has {values.size} values for {len(names)} names')
+        index, rejection = _name_index(names, joints)
+        if rejection is not None:
+            return rejection
+        stamp = stamp_to_seconds(msg.header.stamp)
+        rejection = _stamp_rejection(stamp)
+        if rejection is not None:
+            return rejection
+        pos = position[index]
+        finite = np.isfinite(pos)
+        if not finite.all():
+            bad = int(np.flatnonzero(~finite)[0])
+            return Rejection('non_finite', f'position is {pos[bad]} for joint {joints[bad]!r}')
+        vel, rejection = _optional_field(
+            velocity, index, joints, 'velocity', need_velocity, 'missing_velocity')
+        if rejection is not None:
+            return rejection
+        eff, rejection = _optional_field(
+            effort, index, joints, 'effort', need_effort, 'missing_effort')
+        if rejection is not None:
+            return rejection
+        return JointSample(stamp, pos, vel, eff)
+    except Exception as error:  # last resort: parsing must never raise
+        return Rejection('malformed', f'cannot read JointState: {error!r}')
+
+
+def joint_trajectory_to_arrays(
+        msg: JointTrajectory, joints: Sequence[str],
+        now: Optional[float] = None) -> Union[TrajectorySample, Rejection]:
+    """
+    Turn a JointTrajectory (the planned reference) into arrays, or say why not.
+
+    Parameters
+    ----------
+    msg : trajectory_msgs.msg.JointTrajectory
+        The reference: θd in ``positions``, θ̇d in ``velocities`` of each point.
+    joints : sequence of str
+        The configured joint names, in column order (n of them).
+    now : float, optional
+        A zero header stamp means "start now" (the joint_trajectory_controller
+        convention); it is replaced by ``now`` when given, else rejected as
+        ``'zero_stamp'``.
+
+    Returns
+    -------
+    TrajectorySample or Rejection
+        ``TrajectorySample(t0, times (K,), positions (K, n), velocities (K, n) or None)``.
+        Rejected: no names or no points (``'empty'``), ``'duplicate_name'``,
+        ``'missing_joint'``, a point whose positions (or non-empty velocities) differ in
+        size from ``joint_names`` (``'size_mismatch'``, naming the point), a negative or
+        non-increasing ``time_from_start`` (``'non_increasing_time'``, naming the point),
+        NaN/inf in a used position or inf in a used velocity (``'non_finite'``). Velocities
+        that are empty in every point, or NaN anywhere, are returned as None (missing);
+        empty in some points only is ``'size_mismatch'``. Never raises on message content.
+
+    """
+    try:
+        joints = tuple(joints)
+        names = tuple(msg.joint_names)
+        points = list(msg.points)
+        if not names or not points:
+            return Rejection(
+                'empty', f'empty JointTrajectory: {len(names)} joint names, '
+                f'{len(points)} points')
+        index, rejection = _name_index(names, joints)
+        if rejection is not None:
+            return rejection
+        t0 = stamp_to_seconds(msg.header.stamp)
+        if t0 == 0.0 and now is not None:
+            t0 = float(now)
+        rejection = _stamp_rejection(t0)
+        if rejection is not None:
+            return rejection
+        n_names = len(names)
+        times = np.empty(len(points))
+        positions = np.empty((len(points), len(joints)))
+        velocities = np.empty((len(points), len(joints)))
+        velocity_sizes = set()
+        for k, point in enumerate(points):
+            pos = np.asarray(point.positions, dtype=float)
+            vel = np.asarray(point.velocities, dtype=float)
+            if pos.ndim != 1 or pos.size != n_names:
+                return Rejection(
+                    'size_mismatch',
+                    f'point {k} has {pos.size} positions for {n_names} joint names')
+            if vel.ndim != 1 or vel.size not in (0, n_names):
+                return Rejection(
+                    'size_mismatch',
+                    f'point {k} has {vel.size} velocities for {n_names} joint names')
+            velocity_sizes.add(vel.size)
+            times[k] = duration_to_seconds(point.time_from_start)
+            if not (times[k] >= 0.0 and (k == 0 or times[k] > times[k - 1])):
+                previous = f' after {times[k - 1]} s' if k else ''
+                return Rejection(
+                    'non_increasing_time',
+                    f'point {k} has time_from_start {times[k]} s{previous}; times must be '
+                    '>= 0 and strictly increasing')
+            positions[k] = pos[index]
+            if vel.size:
+                velocities[k] = vel[index]
+        if len(velocity_sizes) > 1:
+            return Rejection(
+                'size_mismatch', 'velocities are given in some points and empty in others')
+        finite = np.isfinite(positions)
+        if not finite.all():
+            k, j = np.argwhere(~finite)[0]
+            return Rejection(
+                'non_finite',
+                f'point {k} position is {positions[k, j]} for joint {joints[j]!r}')
+        if velocity_sizes == {0} or np.isnan(velocities).any():
+            velocities = None
+        elif not np.isfinite(velocities).all():
+            k, j = np.argwhere(~np.isfinite(velocities))[0]
+            return Rejection(
+                'non_finite',
+                f'point {k} velocity is {velocities[k, j]} for joint {joints[j]!r}')
+        return TrajectorySample(t0, times, positions, velocities)
+    except Exception as error:  # last resort: parsing must never raise
+        return Rejection('malformed', f'cannot read JointTrajectory: {error!r}')
+
+
+def _stamp(stamp) -> Time:
+    if isinstance(stamp, Time):
+        return stamp
+    return seconds_to_stamp(stamp)
+
+
+def _column(values, n: int, what: str) -> list:
+    """Return ``values`` (n,) as a float list; None gives NaN (a field we cannot fill)."""
+    if values is None:
+        return [math.nan] * n
+    arr = np.asarray(values, dtype=float).reshape(-1)
+    if arr.size != n:
+        raise ValueError(f'{what} has {arr.size} values for {n} names')
+    return arr.tolist()
+
+
+def make_joint_state(stamp, names: Sequence[str], position,
+                     velocity=None, effort=None) -> JointState:
+    """
+    Build a JointState.
+
+    ``stamp`` is float seconds or a Time message. Each of ``position``, ``velocity``,
+    ``effort`` is an array (n,) or None; None becomes NaN in every entry (a field we
+    cannot fill), never zeros. Raises ValueError on a size mismatch (a programming
+    error: our own data has the wrong shape).
+    """
+    names = [str(name) for name in names]
+    msg = JointState()
+    msg.header.stamp = _stamp(stamp)
+    msg.name = names
+    msg.position = _column(position, len(names), 'position')
+    msg.velocity = _column(velocity, len(names), 'velocity')
+    msg.effort = _column(effort, len(names), 'effort')
+    return msg
+
+
+def make_joint_trajectory(stamp, names: Sequence[str], times, positions,
+                          velocities=None) -> JointTrajectory:
+    """
+    Build a JointTrajectory.
+
+    ``times`` (K,) are seconds from ``stamp`` (>= 0, strictly increasing), written as
+    ``time_from_start`` Durations; ``positions`` and ``velocities`` have shape (K, n).
+    ``velocities=None`` leaves each point's velocities empty ("not specified" in the
+    message definition). Raises ValueError on bad shapes or times.
+    """
+    names = [str(name) for name in names]
+    times = np.asarray(times, dtype=float).reshape(-1)
+    positions = np.asarray(positions, dtype=float)
+    if positions.shape != (times.size, len(names)):
+        raise ValueError(
+            f'positions have shape {positions.shape}, expected {(times.size, len(names))}')
+    if velocities is not None:
+        velocities = np.asarray(velocities, dtype=float)
+        if velocities.shape != positions.shape:
+            raise ValueError(
+                f'velocities have shape {velocities.shape}, expected {positions.shape}')
+    if times.size and not (times[0] >= 0.0 and np.all(np.diff(times) > 0.0)):
+        raise ValueError('times must be >= 0 and strictly increasing')
+    msg = JointTrajectory()
+    msg.header.stamp = _stamp(stamp)
+    msg.joint_names = names
+    points = []
+    for k in range(times.size):
+        point = JointTrajectoryPoint()
+        point.time_from_start = seconds_to_duration(times[k])
+        point.positions = positions[k].tolist()
+        if velocities is not None:
+            point.velocities = velocities[k].tolist()
+        points.append(point)
+    msg.points = points
+    return msg
+
+
+def make_float64_multiarray(values, labels: Sequence[str]) -> Float64MultiArray:
+    """
+    Build a Float64MultiArray whose layout names its fields.
+
+    Layout
+    ------
+    ``values`` of shape (F,) (one record) gives one dimension whose ``label`` is the
+    comma-joined field names, e.g. ``'generation,best_cost,mean_cost,spread,evaluations,
+    validation_nrmse'``, with ``size = stride = F``. ``values`` of shape (R, F) (R records,
+    row-major) gives two dimensions: ``('rows', R, R*F)`` then ``(fields, F, F)``.
+    ``data_offset`` is 0. Raises ValueError when ``len(labels) != F`` or a label contains
+    a comma.
+    """
+    labels = [str(label) for label in labels]
+    if any(',' in label for label in labels):
+        raise ValueError(f'labels must not contain commas: {labels}')
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim not in (1, 2) or arr.shape[-1] != len(labels):
+        raise ValueError(
+            f'values of shape {arr.shape} do not match {len(labels)} labels')
+    msg = Float64MultiArray()
+    dims = []
+    if arr.ndim == 2:
+        dims.append(MultiArrayDimension(
+            label='rows', size=arr.shape[0], stride=arr.shape[0] * arr.shape[1]))
+    dims.append(MultiArrayDimension(
+        label=','.join(labels), size=len(labels), stride=len(labels)))
+    msg.layout.dim = dims
+    msg.layout.data_offset = 0
+    msg.data = arr.reshape(-1).tolist()
+    return msg

@@ -1,0 +1,695 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Sliding window of joint streams, paired and resampled into :class:`Dataset` segments.
+
+Pure Python and numpy (no ROS imports), thread-safe: ROS callbacks add samples while the
+optimizer thread takes snapshots. Every method takes absolute times in seconds (message
+stamps); every add returns an :class:`AddResult` and counts what it drops, per stream and
+per reason (:data:`DROP_REASONS`). Nothing raises on bad sample content.
+
+Policies
+--------
+Time base
+    Samples are stored relative to ``time_origin`` (the whole second at or below the first
+    sample after construction or a clear), and the snapshot's ``Dataset.t`` uses that base:
+    wall-clock stamps (~1.7e9 s) resolve only 0.24 µs in float64, too coarse for the
+    uniform-grid check of ``Dataset``. The grid is ``k * model_step`` in that base, so the
+    grids of successive snapshots line up.
+Validation
+    A sample with a shape other than (n,) is ``'bad_shape'``; a non-finite stamp
+    ``'bad_stamp'``; NaN/inf in a value ``'non_finite'``; a value beyond
+    ``max_abs_value`` ``'out_of_range'`` (it would overflow the interpolation). When
+    ``need_tau``, a state without τ (None or NaN) is ``'missing_tau'``; otherwise τ is
+    ignored and not stored.
+Order, duplicates, bursts
+    Each stream is kept sorted. A stamp older than the stream's newest by at most
+    ``reorder_tolerance`` is inserted in place; older than that, ``'out_of_order'``. An
+    exactly repeated stamp keeps the first sample and counts ``'duplicate_stamp'``. A
+    sample closer than ``1 / max_rate_hz`` to an accepted neighbour is decimated as
+    ``'rate_limited'``, so stored samples are at least that far apart (never a zero or
+    negative dt) and the stored count is bounded by ``(window + gap_threshold +
+    reorder_tolerance) * max_rate_hz`` whatever the input rate. Set ``max_rate_hz``
+    comfortably above the sensor rate (2x) so jitter does not decimate a normal stream.
+    Samples older than the window (plus ``gap_threshold``) are evicted; ``'overflow'``
+    (the hard cap ``max_samples`` reached inside the window) stays 0 unless that cap is
+    set below the rate bound.
+Clock jumps
+    A stamp older than its stream's newest by more than ``clock_jump_threshold`` means the
+    clock went backwards (a simulator reset): every buffer and the reference are cleared,
+    the sample starts the new timeline, ``'clock_jump'`` is counted and the result has
+    ``clock_jump=True`` so the caller logs one warning. A stamp newer than everything
+    buffered by more than ``window + gap_threshold`` (a forward jump, or both streams
+    paused) clears the same way, counted as ``'clock_jump_forward'``, since nothing
+    buffered could still be used.
+Gaps
+    Consecutive state samples farther apart than ``gap_threshold`` end a segment; no
+    segment crosses a gap. Grid points the command stream does not cover (below) end a
+    segment too.
+Pairing (only when ``need_desired``)
+    The command stream (θd, θ̇d) is interpolated linearly at each time it is needed, from
+    the two command samples around it, provided they are at most ``gap_threshold`` apart.
+    A time is *covered* when it lies in such an interval, or within ``pair_tolerance``
+    (default ``model_step``) of a command sample (the nearest command is then held). A
+    state sample newer than the newest command plus ``pair_tolerance`` *waits* (it stays
+    buffered and is paired when the commands catch up;
+    ``stats()['waiting_for_command']``). A state sample that can no longer be covered
+    (older than the first command, or inside a command gap) is excluded from every
+    snapshot and counted once as ``'no_command'``. Nothing is overwritten:
+    unlike message_filters' ApproximateTimeSynchronizer, no pair replaces another.
+    In a snapshot the grid times are paired this way (θd, θ̇d interpolated at the grid
+    times), and only covered grid times make up segments.
+Resampling
+    θ, θ̇, τ are interpolated linearly between the state samples at each grid time (τ is
+    then held by the model over ``[t[k], t[k+1])`` as ``Dataset`` states). Only the newest
+    ``window`` seconds (before the newest state) are used; segments shorter than
+    ``min_samples`` grid points are left out.
+Reference (optional)
+    :meth:`StreamBuffer.add_reference` keeps the newest planned trajectory;
+    :meth:`StreamBuffer.reference_at` interpolates it linearly, and outside its span holds
+    the first / last position with zero velocity (the controller holds a point at rest).
+"""
+
+from dataclasses import dataclass
+import math
+import threading
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from rkgnn_ros.core.data import Dataset
+
+__all__ = ['DROP_REASONS', 'AddResult', 'Snapshot', 'StreamBuffer']
+
+#: Counter keys of the buffer (callers add their own, e.g. conversions', by count_drop).
+#: All are drops decided when a sample is added, except: 'clock_jump' and
+#: 'clock_jump_forward' (events: the sample that triggers them is accepted), 'no_command'
+#: (a buffered state the commands can no longer cover, counted once when that is known)
+#: and 'resample_failed' (a segment a snapshot could not build; should stay 0).
+DROP_REASONS = (
+    'bad_stamp', 'bad_shape', 'non_finite', 'out_of_range', 'missing_tau', 'out_of_order',
+    'duplicate_stamp', 'rate_limited', 'overflow', 'clock_jump', 'clock_jump_forward',
+    'no_command', 'non_increasing_time', 'resample_failed',
+)
+
+STREAMS = ('state', 'command', 'reference')
+
+
+@dataclass(frozen=True)
+class AddResult:
+    """
+    What happened to one added sample.
+
+    ``accepted`` (also the truth value), ``reason`` the drop reason when not accepted, and
+    ``clock_jump`` True when this sample made the buffer clear itself (log a warning).
+    """
+
+    accepted: bool
+    reason: Optional[str] = None
+    clock_jump: bool = False
+
+    def __bool__(self) -> bool:
+        return self.accepted
+
+
+_ACCEPTED = AddResult(True)
+_EPS = 1e-9  # s: slack for tolerance comparisons of stamps rounded in float64
+
+
+class Snapshot(list):
+    """
+    A list of :class:`Dataset` segments, oldest first, with their shared time base.
+
+    Attributes
+    ----------
+    time_origin : float
+        Absolute time (s) of ``Dataset.t == 0``.
+    epoch : int
+        Incremented at every clear (clock jump or :meth:`StreamBuffer.clear`): datasets of
+        different epochs do not share a timeline.
+
+    """
+
+    def __init__(self, segments=(), time_origin: float = 0.0, epoch: int = 0):
+        super().__init__(segments)
+        self.time_origin = time_origin
+        self.epoch = epoch
+
+
+class _Series:
+    """
+    Time-sorted samples in preallocated arrays: bounded, amortised O(1) append.
+
+    Rows live in ``[lo, hi)`` of arrays twice the capacity; when the end is reached the
+    live rows move to the front. Not thread-safe (the buffer locks).
+    """
+
+    def __init__(self, capacity: int, width: int):
+        self.capacity = capacity
+        self._t = np.empty(2 * capacity)
+        self._v = np.empty((2 * capacity, width))
+        self._lo = 0
+        self._hi = 0
+
+    def __len__(self) -> int:
+        return self._hi - self._lo
+
+    @property
+    def t(self) -> np.ndarray:
+        return self._t[self._lo:self._hi]
+
+    @property
+    def values(self) -> np.ndarray:
+        return self._v[self._lo:self._hi]
+
+    def last_t(self) -> Optional[float]:
+        return float(self._t[self._hi - 1]) if self._hi > self._lo else None
+
+    def clear(self):
+        self._lo = self._hi = 0
+
+    def drop_before(self, t_min: float):
+        """Evict samples older than ``t_min`` (relative time)."""
+        self._lo += int(np.searchsorted(self.t, t_min, side='left'))
+
+    def drop_oldest(self):
+        self._lo += 1
+
+    def insert(self, k: int, t: float, row: np.ndarray):
+        """Insert at sorted position ``k`` (0..len); the caller keeps len < capacity."""
+        if self._hi == self._t.size:
+            n = len(self)
+            self._t[:n] = self._t[self._lo:self._hi]
+            self._v[:n] = self._v[self._lo:self._hi]
+            self._lo, self._hi = 0, n
+        at = self._lo + k
+        if at < self._hi:  # numpy copes with the overlapping shift
+            self._t[at + 1:self._hi + 1] = self._t[at:self._hi]
+            self._v[at + 1:self._hi + 1] = self._v[at:self._hi]
+        self._t[at] = t
+        self._v[at] = row
+        self._hi += 1
+
+
+def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray,
+                 gap: float = math.inf) -> np.ndarray:
+    """
+    Interpolate rows ``fp`` (M, W) given at sorted ``xp`` (M,) to ``x`` (K,): (K, W).
+
+    Linear inside intervals at most ``gap`` long; the nearest sample inside longer ones;
+    the end values held outside ``[xp[0], xp[-1]]``.
+    """
+    if xp.size == 1:
+        return np.repeat(fp[:1], x.size, axis=0)
+    lo = np.clip(np.searchsorted(xp, x, side='right') - 1, 0, xp.size - 2)
+    span = xp[lo + 1] - xp[lo]  # > 0: stored stamps are strictly increasing
+    w = np.clip((x - xp[lo]) / span, 0.0, 1.0)
+    out = fp[lo] * (1.0 - w)[:, None] + fp[lo + 1] * w[:, None]
+    gapped = span > gap + _EPS
+    if gapped.any():
+        nearest = np.where(w < 0.5, lo, lo + 1)
+        out[gapped] = fp[nearest[gapped]]
+    return out
+
+
+def _covered(x: np.ndarray, xp: np.ndarray, gap: float, tol: float) -> np.ndarray:
+    """Return which times ``x`` the sorted command stamps ``xp`` cover (see pairing)."""
+    m = xp.size
+    if m == 0:
+        return np.zeros(x.shape, dtype=bool)
+    idx = np.searchsorted(xp, x, side='right')  # xp[idx-1] <= x < xp[idx]
+    lo = np.clip(idx - 1, 0, m - 1)
+    hi = np.clip(idx, 0, m - 1)
+    inside = (idx > 0) & (idx < m) & (xp[hi] - xp[lo] <= gap + _EPS)
+    near = np.minimum(np.abs(x - xp[lo]), np.abs(xp[hi] - x)) <= tol + _EPS
+    return inside | near
+
+
+def _runs(mask: np.ndarray) -> List[Tuple[int, int]]:
+    """Return ``[start, stop)`` index pairs of the True runs in a boolean array."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+class StreamBuffer:
+    """
+    Bounded, thread-safe window of joint states and commands for identification.
+
+    Parameters
+    ----------
+    joints : sequence of str
+        The n joint names, in column order.
+    model_step : float
+        Grid step (s) of the snapshot datasets.
+    window : float
+        Seconds of newest data a snapshot covers.
+    gap_threshold : float
+        Longer intervals between samples split segments.
+    need_tau : bool
+        States must carry τ ('torque' case); Datasets then have ``tau``.
+    need_desired : bool
+        Pair states with commands θd, θ̇d ('pd_gains', 'unknown'); Datasets then have
+        ``theta_d`` and ``theta_d_dot``.
+    max_rate_hz : float
+        Samples closer than ``1 / max_rate_hz`` are decimated (default 2000).
+    reorder_tolerance : float
+        How late (s) a sample may arrive and still be inserted in order (default 0.01).
+    clock_jump_threshold : float
+        A stamp this much (s) older than the newest means the clock jumped back
+        (default 1.0; must exceed ``reorder_tolerance``).
+    pair_tolerance : float, optional
+        How far (s) from a command sample a time counts as covered; default
+        ``model_step``.
+    max_abs_value : float
+        Larger magnitudes are rejected as ``'out_of_range'`` (default 1e6).
+    max_samples : int, optional
+        Hard cap per stream; default from the rate bound above, at most 2**20.
+
+    """
+
+    def __init__(self, joints: Sequence[str], model_step: float, window: float,
+                 gap_threshold: float, need_tau: bool, need_desired: bool,
+                 max_rate_hz: float = 2000.0, reorder_tolerance: float = 0.01,
+                 clock_jump_threshold: float = 1.0, pair_tolerance: Optional[float] = None,
+                 max_abs_value: float = 1e6, max_samples: Optional[int] = None):
+        self.joints = tuple(str(joint) for joint in joints)
+        if not self.joints or len(set(self.joints)) != len(self.joints):
+            raise ValueError(f'joints must be non-empty and unique, got {self.joints}')
+        self.model_step = float(model_step)
+        self.window = float(window)
+        self.gap_threshold = float(gap_threshold)
+        self.max_rate_hz = float(max_rate_hz)
+        self.reorder_tolerance = float(reorder_tolerance)
+        self.clock_jump_threshold = float(clock_jump_threshold)
+        self.pair_tolerance = self.model_step if pair_tolerance is None else float(
+            pair_tolerance)
+        self.max_abs_value = float(max_abs_value)
+        for name in ('model_step', 'window', 'gap_threshold', 'max_rate_hz',
+                     'clock_jump_threshold', 'max_abs_value'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name} must be finite and > 0, got {value}')
+        for name in ('reorder_tolerance', 'pair_tolerance'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {value}')
+        if self.window < self.model_step:
+            raise ValueError(f'window {self.window} s is shorter than model_step '
+                             f'{self.model_step} s')
+        if self.clock_jump_threshold <= self.reorder_tolerance:
+            raise ValueError('clock_jump_threshold must exceed reorder_tolerance')
+        self.need_tau = bool(need_tau)
+        self.need_desired = bool(need_desired)
+        self.min_spacing = 1.0 / self.max_rate_hz
+        span = self.window + self.gap_threshold + self.reorder_tolerance
+        if max_samples is None:
+            max_samples = min(int(math.ceil(span * self.max_rate_hz)) + 16, 2 ** 20)
+        self.max_samples = int(max_samples)
+        if self.max_samples < 2:
+            raise ValueError(f'max_samples must be >= 2, got {self.max_samples}')
+        n = len(self.joints)
+        self._n = n
+        self._lock = threading.Lock()
+        self._series = {
+            'state': _Series(self.max_samples, 3 * n if self.need_tau else 2 * n),
+            'command': _Series(self.max_samples, 2 * n),
+        }
+        self._drops = {stream: dict.fromkeys(DROP_REASONS, 0) for stream in STREAMS}
+        self._accepted = dict.fromkeys(STREAMS, 0)
+        self._origin: Optional[float] = None
+        self._epoch = 0
+        self._settled = -math.inf  # states up to this relative time are paired or counted
+        self._reference = None
+
+    # ------------------------------------------------------------------ adding samples
+
+    def add_state(self, t: float, theta, theta_dot, tau=None) -> AddResult:
+        """
+        Add a measured state at stamp ``t`` (s): θ, θ̇ and τ, each shape (n,).
+
+        Returns an :class:`AddResult`; never raises on bad content.
+        """
+        parts = [theta, theta_dot]
+        if self.need_tau:
+            if tau is None:
+                return self._drop('state', 'missing_tau')
+            parts.append(tau)
+        row, reason = self._row(parts)
+        if reason == 'non_finite' and self.need_tau and np.isfinite(row[:2 * self._n]).all() \
+                and np.isnan(row[2 * self._n:]).any():
+            reason = 'missing_tau'  # NaN effort means "not filled", as in conversions
+        return self._add('state', t, row, reason)
+
+    def add_command(self, t: float, theta_d, theta_d_dot) -> AddResult:
+        """
+        Add a desired sample at stamp ``t`` (s): θd and θ̇d, each shape (n,).
+
+        Commands are stored (and their staleness tracked) whether or not ``need_desired``.
+        """
+        row, reason = self._row([theta_d, theta_d_dot])
+        return self._add('command', t, row, reason)
+
+    def count_drop(self, stream: str, reason: str):
+        """Count a drop decided elsewhere (e.g. a conversions Rejection) with the others."""
+        with self._lock:
+            counts = self._drops.setdefault(str(stream), {})
+            counts[str(reason)] = counts.get(str(reason), 0) + 1
+
+    def _row(self, parts):
+        """Return ``(row (len(parts) * n,), None)`` or ``(row or None, reason)``."""
+        try:
+            arrays = [np.asarray(part, dtype=float) for part in parts]
+        except Exception:
+            return None, 'bad_shape'
+        if any(arr.shape != (self._n,) for arr in arrays):
+            return None, 'bad_shape'
+        row = np.concatenate(arrays)
+        if not np.isfinite(row).all():
+            return row, 'non_finite'
+        if np.abs(row).max() > self.max_abs_value:
+            return row, 'out_of_range'
+        return row, None
+
+    def _drop(self, stream: str, reason: str) -> AddResult:
+        with self._lock:
+            self._drops[stream][reason] += 1
+        return AddResult(False, reason)
+
+    def _add(self, stream: str, t, row, reason) -> AddResult:
+        try:
+            t = float(t)
+        except Exception:
+            t = math.nan
+        if reason is None and not math.isfinite(t):
+            reason = 'bad_stamp'
+        if reason is not None:
+            return self._drop(stream, reason)
+        with self._lock:
+            return self._insert_locked(stream, t, row)
+
+    def _insert_locked(self, stream: str, t_abs: float, row: np.ndarray) -> AddResult:
+        series = self._series[stream]
+        drops = self._drops[stream]
+        jump = False
+        if self._origin is None:
+            self._origin = float(math.floor(t_abs))
+        rel = t_abs - self._origin
+        newest = series.last_t()
+        if newest is not None and rel < newest - self.reorder_tolerance:
+            if rel >= newest - self.clock_jump_threshold:
+                drops['out_of_order'] += 1
+                return AddResult(False, 'out_of_order')
+            self._clear_locked()
+            drops['clock_jump'] += 1
+            jump = True
+        newest_any = self._newest_locked()
+        if newest_any is not None and rel > newest_any + self.window + self.gap_threshold:
+            self._clear_locked()
+            drops['clock_jump_forward'] += 1
+            jump = True
+        if jump:
+            self._origin = float(math.floor(t_abs))
+            rel = t_abs - self._origin
+        stamps = series.t
+        size = stamps.size
+        if size == 0 or rel > stamps[-1]:
+            k = size
+        else:
+            k = int(np.searchsorted(stamps, rel, side='left'))
+        if k < size and stamps[k] == rel:
+            drops['duplicate_stamp'] += 1
+            return AddResult(False, 'duplicate_stamp', jump)
+        if (k > 0 and rel - stamps[k - 1] < self.min_spacing) or \
+                (k < size and stamps[k] - rel < self.min_spacing):
+            drops['rate_limited'] += 1
+            return AddResult(False, 'rate_limited', jump)
+        horizon = max(rel, stamps[-1] if size else rel) - self.window - self.gap_threshold
+        before = len(series)
+        series.drop_before(horizon)
+        k -= before - len(series)
+        if k < 0:  # older than the window: nothing to keep
+            drops['out_of_order'] += 1
+            return AddResult(False, 'out_of_order', jump)
+        if len(series) >= series.capacity:
+            if k == 0:
+                drops['overflow'] += 1
+                return AddResult(False, 'overflow', jump)
+            series.drop_oldest()
+            drops['overflow'] += 1
+            k -= 1
+        series.insert(k, rel, row)
+        self._accepted[stream] += 1
+        return AddResult(True, None, True) if jump else _ACCEPTED
+
+    def _newest_locked(self) -> Optional[float]:
+        stamps = [s.last_t() for s in self._series.values() if len(s)]
+        return max(stamps) if stamps else None
+
+    def _clear_locked(self):
+        for series in self._series.values():
+            series.clear()
+        self._reference = None
+        self._origin = None
+        self._settled = -math.inf
+        self._epoch += 1
+
+    def clear(self):
+        """Forget every sample and the reference (counters are kept)."""
+        with self._lock:
+            self._clear_locked()
+
+    # ------------------------------------------------------------------ reference
+
+    def add_reference(self, t0: float, times, positions, velocities=None) -> AddResult:
+        """
+        Keep a planned reference: ``t0 + times`` (K,), θd ``positions`` (K, n).
+
+        ``velocities`` (K, n) θ̇d, or None to estimate them from the positions
+        (``np.gradient``; zero for a single point). Replaces the previous reference.
+        """
+        try:
+            t0 = float(t0)
+            times = np.array(times, dtype=float).reshape(-1)
+            positions = np.array(positions, dtype=float)
+            if velocities is not None:
+                velocities = np.array(velocities, dtype=float)
+        except Exception:
+            return self._drop('reference', 'bad_shape')
+        k = times.size
+        if k == 0 or positions.shape != (k, self._n) or (
+                velocities is not None and velocities.shape != (k, self._n)):
+            return self._drop('reference', 'bad_shape')
+        values = [positions] if velocities is None else [positions, velocities]
+        if not (math.isfinite(t0) and np.isfinite(times).all()):
+            return self._drop('reference', 'bad_stamp')
+        if not all(np.isfinite(v).all() for v in values):
+            return self._drop('reference', 'non_finite')
+        if any(np.abs(v).max() > self.max_abs_value for v in values):
+            return self._drop('reference', 'out_of_range')
+        if k > 1 and not np.all(np.diff(times) > 0.0):
+            return self._drop('reference', 'non_increasing_time')
+        if velocities is None:
+            velocities = np.gradient(positions, times, axis=0) if k > 1 else \
+                np.zeros_like(positions)
+            if not np.isfinite(velocities).all():
+                return self._drop('reference', 'non_finite')
+        with self._lock:
+            self._reference = (t0, times, positions, velocities)
+            self._accepted['reference'] += 1
+        return _ACCEPTED
+
+    def reference_at(self, t) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+        """
+        Return the reference (θd, θ̇d), each (M, n), at absolute times ``t`` (M,).
+
+        Linear inside the reference; before its first point the first position and after
+        its last point the last position is held, with zero velocity. None when there is
+        no reference.
+        """
+        with self._lock:
+            reference = self._reference
+        if reference is None:
+            return None
+        t0, times, positions, velocities = reference
+        s = np.atleast_1d(np.asarray(t, dtype=float)) - t0
+        theta_d = _interp_rows(s, times, positions)
+        theta_d_dot = _interp_rows(s, times, velocities)
+        theta_d_dot[(s < times[0]) | (s > times[-1])] = 0.0
+        return theta_d, theta_d_dot
+
+    # ------------------------------------------------------------------ reading
+
+    def latest_state(self) -> Optional[Tuple[float, np.ndarray, np.ndarray]]:
+        """Return ``(t, θ (n,), θ̇ (n,))`` of the newest buffered state, or None."""
+        with self._lock:
+            series = self._series['state']
+            if not len(series):
+                return None
+            row = series.values[-1].copy()
+            t = series.last_t() + self._origin
+        return t, row[:self._n], row[self._n:2 * self._n]
+
+    def staleness(self, now: float, stream: str = 'command') -> Optional[float]:
+        """
+        Return the age (s) at ``now`` of the newest sample of a stream, or None.
+
+        None means nothing arrived since construction or the last clear (waiting).
+        """
+        with self._lock:
+            last = self._series[stream].last_t()
+            if last is None:
+                return None
+            return float(now) - (last + self._origin)
+
+    def stream_status(self, now: float, stale_after: float, stream: str = 'command') -> str:
+        """Return ``'waiting'`` (nothing yet), ``'stale'`` or ``'ok'`` for a stream."""
+        age = self.staleness(now, stream)
+        if age is None:
+            return 'waiting'
+        return 'stale' if age > stale_after else 'ok'
+
+    @property
+    def time_origin(self) -> Optional[float]:
+        """Absolute time (s) of relative time zero (None while empty)."""
+        with self._lock:
+            return self._origin
+
+    @property
+    def counters(self) -> Dict[str, int]:
+        """Return the drops per reason, summed over the streams (a copy)."""
+        with self._lock:
+            self._settle_locked()
+            return self._counters_locked()
+
+    def _counters_locked(self) -> Dict[str, int]:
+        total: Dict[str, int] = {}
+        for counts in self._drops.values():
+            for reason, count in counts.items():
+                total[reason] = total.get(reason, 0) + count
+        return total
+
+    def stats(self) -> dict:
+        """
+        Return buffered sample counts and counters (copies).
+
+        Keys: ``state_samples``, ``command_samples``, ``waiting_for_command`` (states newer
+        than the command coverage), ``has_reference``, ``epoch``, ``time_origin``,
+        ``accepted`` (per stream, since construction), ``drops`` (per stream and reason),
+        ``counters`` (per reason, all streams).
+        """
+        with self._lock:
+            self._settle_locked()
+            states, commands = self._series['state'], self._series['command']
+            waiting = 0
+            if self.need_desired and len(states):
+                last = commands.last_t()
+                limit = -math.inf if last is None else last + self.pair_tolerance
+                waiting = len(states) - int(np.searchsorted(states.t, limit, side='right'))
+            return {
+                'state_samples': len(states),
+                'command_samples': len(commands),
+                'waiting_for_command': waiting,
+                'has_reference': self._reference is not None,
+                'epoch': self._epoch,
+                'time_origin': self._origin,
+                'accepted': dict(self._accepted),
+                'drops': {stream: dict(c) for stream, c in self._drops.items()},
+                'counters': self._counters_locked(),
+            }
+
+    def _settle_locked(self):
+        """Count, once, the states the command stream can no longer cover."""
+        if not self.need_desired:
+            return
+        commands, states = self._series['command'], self._series['state']
+        last = commands.last_t()
+        if last is None or not len(states):
+            return
+        limit = last - self.reorder_tolerance - self.pair_tolerance
+        stamps = states.t
+        a = int(np.searchsorted(stamps, self._settled, side='right'))
+        b = int(np.searchsorted(stamps, limit, side='right'))
+        if b > a:
+            covered = _covered(stamps[a:b], commands.t, self.gap_threshold,
+                               self.pair_tolerance)
+            self._drops['state']['no_command'] += int((~covered).sum())
+            self._settled = float(stamps[b - 1])
+
+    def snapshot(self, min_samples: int = 2) -> Snapshot:
+        """
+        Return the newest ``window`` seconds as uniformly resampled segments.
+
+        A consistent copy taken under the lock and resampled outside it: callbacks keep
+        adding meanwhile, and changing the returned arrays never touches the buffer.
+        Segments have at least ``max(2, min_samples)`` points at ``model_step``.
+        """
+        with self._lock:
+            self._settle_locked()
+            states = self._series['state']
+            t_states = states.t.copy()
+            v_states = states.values.copy()
+            commands = self._series['command']
+            if self.need_desired:
+                t_commands = commands.t.copy()
+                v_commands = commands.values.copy()
+            else:
+                t_commands = v_commands = None
+            origin, epoch = self._origin, self._epoch
+        segments, failures = self._resample(
+            t_states, v_states, t_commands, v_commands, max(2, int(min_samples)))
+        if failures:
+            with self._lock:
+                self._drops['state']['resample_failed'] += failures
+        return Snapshot(segments, 0.0 if origin is None else origin, epoch)
+
+    def _resample(self, ts, vs, tc, vc, min_samples):
+        n, h = self._n, self.model_step
+        if ts.size < 2:
+            return [], 0
+        t_start = ts[-1] - self.window
+        first = max(int(np.searchsorted(ts, t_start, side='right')) - 1, 0)
+        ts, vs = ts[first:], vs[first:]
+        segments: List[Dataset] = []
+        failures = 0
+        breaks = np.flatnonzero(np.diff(ts) > self.gap_threshold + _EPS) + 1
+        for a, b in zip(np.concatenate(([0], breaks)), np.concatenate((breaks, [ts.size]))):
+            if b - a < 2:
+                continue
+            k0 = math.ceil(max(ts[a], t_start) / h - 1e-9)
+            k1 = math.floor(ts[b - 1] / h + 1e-9)
+            if k1 - k0 + 1 < min_samples:
+                continue
+            grid = np.arange(k0, k1 + 1) * h
+            if self.need_desired:
+                runs = _runs(_covered(grid, tc, self.gap_threshold, self.pair_tolerance))
+            else:
+                runs = [(0, grid.size)]
+            for r0, r1 in runs:
+                if r1 - r0 < min_samples:
+                    continue
+                t = grid[r0:r1]
+                state = _interp_rows(t, ts[a:b], vs[a:b])
+                fields = {'theta': state[:, :n], 'theta_dot': state[:, n:2 * n]}
+                if self.need_tau:
+                    fields['tau'] = state[:, 2 * n:]
+                if self.need_desired:
+                    desired = _interp_rows(t, tc, vc, self.gap_threshold)
+                    fields['theta_d'] = desired[:, :n]
+                    fields['theta_d_dot'] = desired[:, n:]
+                try:
+                    segments.append(Dataset(t=t, joint_names=self.joints, **fields))
+                except ValueError:  # defensive: validation above should make this unreachable
+                    failures += 1
+        return segments, failures
