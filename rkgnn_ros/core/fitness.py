@@ -78,45 +78,68 @@ def stage_times(t0, dt, n_intervals, substeps):
     return base[:, :, None] + np.array([0.0, 0.5 * h, h])[None, None, :]
 
 
-def stage_inputs(spec: NetworkSpec, data: Dataset, substeps: int, reference=None,
+def stage_inputs(case, t, substeps, tau=None, theta_d=None, theta_d_dot=None, reference=None,
                  torque_interpolation='hold'):
     """
-    Return the input u at every RKG stage of a segment, shape (N-1, substeps, 3, m).
+    Return the input u at every RKG stage of a uniformly sampled segment.
 
-    Case 'torque': the measured τ (m = n), held over each sampling interval ('hold') or
-    interpolated linearly ('linear'). Other cases: [θd, θ̇d] (m = 2n) at the stage times,
-    from ``reference.evaluate`` when a reference object is given, else by cubic Hermite
-    interpolation of the desired samples (θ̇d as the slope of θd; finite differences of θ̇d
-    as its own slope).
+    Parameters
+    ----------
+    case : str
+        'torque', 'pd_gains' or 'unknown'.
+    t : ndarray, shape (N,)
+        Uniform sample times.
+    substeps : int
+        RKG steps per sampling interval.
+    tau : ndarray, shape (N, n), optional
+        Case 'torque': the measured torque, held over each interval ('hold') or
+        interpolated linearly ('linear': first-order hold).
+    theta_d, theta_d_dot : ndarray, shape (N, n), optional
+        Other cases: desired samples, interpolated by cubic Hermite (θ̇d as the slope of θd,
+        finite differences of θ̇d as its own slope) unless ``reference`` is given.
+    reference : object with ``evaluate(times) -> (θd, θ̇d)``, optional
+        Evaluated exactly at the stage times.
+    torque_interpolation : str
+        'hold' or 'linear'.
+
+    Returns
+    -------
+    ndarray, shape (N-1, substeps, 3, m)
+        m = n (torque) or 2n ([θd, θ̇d]); the stages are t, t + h/2 and t + h.
+
     """
-    n_int = data.n_samples - 1
-    n = data.n_joints
-    if spec.case == 'torque':
-        if data.tau is None:
+    t = np.asarray(t, dtype=float)
+    n_int = t.size - 1
+    dt = (t[-1] - t[0]) / n_int
+    if case == 'torque':
+        if tau is None:
             raise ValueError("case 'torque' needs measured torque (Dataset.tau)")
+        tau = np.asarray(tau, dtype=float)
+        n = tau.shape[1]
         if torque_interpolation == 'hold':
-            u = np.broadcast_to(data.tau[:-1, None, None, :], (n_int, substeps, 3, n))
+            u = np.broadcast_to(tau[:-1, None, None, :], (n_int, substeps, 3, n))
             return np.ascontiguousarray(u)
         if torque_interpolation != 'linear':
             raise ValueError(f"torque_interpolation must be 'hold' or 'linear', "
                              f'got {torque_interpolation!r}')
-        frac = (stage_times(0.0, data.dt, n_int, substeps)
-                - data.dt * np.arange(n_int)[:, None, None]) / data.dt
-        tau0 = data.tau[:-1, None, None, :]
-        tau1 = data.tau[1:, None, None, :]
+        frac = (stage_times(0.0, dt, n_int, substeps)
+                - dt * np.arange(n_int)[:, None, None]) / dt
+        tau0 = tau[:-1, None, None, :]
+        tau1 = tau[1:, None, None, :]
         return np.ascontiguousarray(tau0 + frac[..., None] * (tau1 - tau0))
-    times = stage_times(data.t[0], data.dt, n_int, substeps).reshape(-1)
+    times = stage_times(t[0], dt, n_int, substeps).reshape(-1)
     if reference is not None:
         qd, qd_dot = reference.evaluate(times)
     else:
-        if data.theta_d is None or data.theta_d_dot is None:
-            raise ValueError(f'case {spec.case!r} needs the desired trajectory '
-                             '(Dataset.theta_d, theta_d_dot)')
-        qd = hermite(data.t, data.theta_d, data.theta_d_dot, times)
-        acc = np.gradient(data.theta_d_dot, data.dt, axis=0)
-        qd_dot = hermite(data.t, data.theta_d_dot, acc, times)
-    u = np.concatenate([np.asarray(qd), np.asarray(qd_dot)], axis=-1)
-    return np.ascontiguousarray(u.reshape(n_int, substeps, 3, 2 * n))
+        if theta_d is None or theta_d_dot is None:
+            raise ValueError(f'case {case!r} needs the desired trajectory '
+                             '(Dataset.theta_d, theta_d_dot) or a reference')
+        qd = hermite(t, theta_d, theta_d_dot, times)
+        acc = np.gradient(theta_d_dot, dt, axis=0)
+        qd_dot = hermite(t, theta_d_dot, acc, times)
+    qd = np.asarray(qd)
+    u = np.concatenate([qd, np.asarray(qd_dot)], axis=-1)
+    return np.ascontiguousarray(u.reshape(n_int, substeps, 3, 2 * qd.shape[-1]))
 
 
 class FitnessProblem:
@@ -195,7 +218,8 @@ class FitnessProblem:
         if len(refs) != len(datasets):
             raise ValueError('one reference (or None) per dataset')
         self.inputs: List[np.ndarray] = [
-            stage_inputs(spec, d, substeps, r, torque_interpolation)
+            stage_inputs(spec.case, d.t, substeps, d.tau, d.theta_d, d.theta_d_dot, r,
+                         torque_interpolation)
             for d, r in zip(datasets, refs)]
         # flat arrays for the compiled kernel
         self.x_meas = np.ascontiguousarray(np.vstack([d.state for d in datasets]))
@@ -314,3 +338,25 @@ class FitnessProblem:
         return population_cost(*self.kernel_args(genomes))
 
     __call__ = cost
+
+    def rollouts(self, genomes):
+        """
+        Predicted states of a population for every measured row (compiled kernel).
+
+        Returns
+        -------
+        ndarray, shape (P, N_total, 2n)
+            Row k predicts ``self.x_meas[k]``; NaN after a divergence (until the next
+            shooting restart).
+
+        """
+        from .kernels import population_rollouts
+        args = self.kernel_args(np.atleast_2d(np.asarray(genomes, dtype=float)))
+        # the cost-only arguments (minor scaling, penalty, normaliser) are not needed here
+        (x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol, kp_known, kd_known,
+         eps, _inv_sqrt_ms, vc, *params) = args
+        bound_center, bound_scale = params[15], params[16]
+        params = params[:14]
+        return population_rollouts(x_meas, seg_start, u_flat, h, substeps, shooting, case_id,
+                                   chol, kp_known, kd_known, eps, vc, *params, bound_center,
+                                   bound_scale)

@@ -153,14 +153,17 @@ def _min_minor(x, n, chol, eps, inv_sqrt_ms, centres, inv_w2, weights, bias, phi
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
-                     kp_known, kd_known, eps, inv_sqrt_ms, vc,
-                     centres, inv_w2, weights, bias, viscous, coulomb,
-                     pc, piw, pw, dc, diw, dw, kp, kd,
-                     penalty_weight, bound_center, bound_scale, n_predicted):
-    # N_f is written out inline in the stage loop: a call per evaluation with ~25 array
-    # arguments costs reference-count traffic that dominated the arithmetic.
-    n2 = x_meas.shape[1]
+def _advance(x, u_flat, row, h, substeps, case_id, chol, kp_known, kd_known, eps, vc,
+             centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw, kp,
+             kd, phi, out, mat, lmat, rhs, acc, xs, k, q):
+    """
+    Advance x in place over one sampling interval: ``substeps`` RKG steps of N_f.
+
+    N_f is written out inline in the stage loop: a call per evaluation with ~25 array
+    arguments costs more reference counting than the arithmetic itself (one call per sample
+    is cheap beside 4 x substeps evaluations). u = u_flat[row, substep, stage].
+    """
+    n2 = x.shape[0]
     n = n2 // 2
     n_out = weights.shape[0]
     n_units = centres.shape[0]
@@ -170,8 +173,86 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
     off_g = off_c + n * n
     n_pu = pc.shape[1]
     n_du = dc.shape[1]
-    phi = np.empty(n_units)
-    out = np.empty(n_out)
+    for s in range(substeps):
+        for j in range(n2):
+            xs[j] = x[j]
+        for stage in range(4):
+            ui = 0 if stage == 0 else (2 if stage == 3 else 1)  # t, t+h/2, t+h/2, t+h
+            # ---- k = N_f(xs, u): θ-RBF outputs
+            for kk in range(n_units):
+                d2 = 0.0
+                for j in range(n):
+                    diff = xs[j] - centres[kk, j]
+                    d2 += diff * diff
+                phi[kk] = math.exp(-d2 * inv_w2[kk])
+            for o in range(n_out):
+                val = 0.0
+                for kk in range(n_units):
+                    val += weights[o, kk] * phi[kk]
+                out[o] = val + bias[o]
+            _mass(out, n, chol, eps, mat, lmat)
+            for a in range(n):
+                qd = xs[n + a]
+                if case_id == 0:
+                    tau = u_flat[row, s, ui, a]
+                else:
+                    err = u_flat[row, s, ui, a] - xs[a]
+                    derr = u_flat[row, s, ui, n + a] - qd
+                    if case_id == 1:
+                        tau = kp_known[a] * err + kd_known[a] * derr
+                    else:
+                        tau = kp[a] * err + kd[a] * derr
+                        for kk in range(n_pu):
+                            diff = err - pc[a, kk]
+                            tau += pw[a, kk] * math.exp(-diff * diff * piw[a, kk])
+                        for kk in range(n_du):
+                            diff = derr - dc[a, kk]
+                            tau += dw[a, kk] * math.exp(-diff * diff * diw[a, kk])
+                v = 0.0
+                p = 0
+                for j in range(n):
+                    for jj in range(j + 1, n):
+                        v += out[off_b + a * n_pairs + p] * xs[n + j] * xs[n + jj]
+                        p += 1
+                for j in range(n):
+                    v += out[off_c + a * n + j] * xs[n + j] * xs[n + j]
+                f = viscous[a] * qd + coulomb[a] * math.tanh(qd / vc)
+                rhs[a] = tau - v - out[off_g + a] - f
+                k[a] = qd
+            _solve(mat, rhs, acc)
+            for a in range(n):
+                k[n + a] = acc[a]
+            # ---- Runge-Kutta-Gill update, Gill's form (see rkg.py)
+            if stage == 0:
+                for j in range(n2):
+                    k[j] *= h
+                    xs[j] = x[j] + 0.5 * k[j]
+                    q[j] = k[j]
+            elif stage == 1:
+                for j in range(n2):
+                    k[j] *= h
+                    xs[j] = xs[j] + ALPHA * (k[j] - q[j])
+                    q[j] = BETA * q[j] + E * k[j]
+            elif stage == 2:
+                for j in range(n2):
+                    k[j] *= h
+                    xs[j] = xs[j] + D * (k[j] - q[j])
+                    q[j] = GAMMA * q[j] + G * k[j]
+            else:
+                for j in range(n2):
+                    x[j] = xs[j] + h * k[j] / 6.0 - q[j] / 3.0
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
+                     kp_known, kd_known, eps, inv_sqrt_ms, vc,
+                     centres, inv_w2, weights, bias, viscous, coulomb,
+                     pc, piw, pw, dc, diw, dw, kp, kd,
+                     penalty_weight, bound_center, bound_scale, n_predicted):
+    n2 = x_meas.shape[1]
+    n = n2 // 2
+    phi = np.empty(centres.shape[0])
+    out = np.empty(weights.shape[0])
     mat = np.empty((n, n))
     lmat = np.empty((n, n))
     work = np.empty((n, n))
@@ -196,75 +277,9 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
             if shooting > 0 and i > 0 and i % shooting == 0:
                 for j in range(n2):
                     x[j] = x_meas[start + i, j]
-            row = u_row + i
-            for s in range(substeps):
-                for j in range(n2):
-                    xs[j] = x[j]
-                for stage in range(4):
-                    ui = 0 if stage == 0 else (2 if stage == 3 else 1)  # t, t+h/2, t+h/2, t+h
-                    # ---- k = N_f(xs, u): θ-RBF outputs
-                    for kk in range(n_units):
-                        d2 = 0.0
-                        for j in range(n):
-                            diff = xs[j] - centres[kk, j]
-                            d2 += diff * diff
-                        phi[kk] = math.exp(-d2 * inv_w2[kk])
-                    for o in range(n_out):
-                        val = 0.0
-                        for kk in range(n_units):
-                            val += weights[o, kk] * phi[kk]
-                        out[o] = val + bias[o]
-                    _mass(out, n, chol, eps, mat, lmat)
-                    for a in range(n):
-                        qd = xs[n + a]
-                        if case_id == 0:
-                            tau = u_flat[row, s, ui, a]
-                        else:
-                            err = u_flat[row, s, ui, a] - xs[a]
-                            derr = u_flat[row, s, ui, n + a] - qd
-                            if case_id == 1:
-                                tau = kp_known[a] * err + kd_known[a] * derr
-                            else:
-                                tau = kp[a] * err + kd[a] * derr
-                                for kk in range(n_pu):
-                                    diff = err - pc[a, kk]
-                                    tau += pw[a, kk] * math.exp(-diff * diff * piw[a, kk])
-                                for kk in range(n_du):
-                                    diff = derr - dc[a, kk]
-                                    tau += dw[a, kk] * math.exp(-diff * diff * diw[a, kk])
-                        v = 0.0
-                        p = 0
-                        for j in range(n):
-                            for jj in range(j + 1, n):
-                                v += out[off_b + a * n_pairs + p] * xs[n + j] * xs[n + jj]
-                                p += 1
-                        for j in range(n):
-                            v += out[off_c + a * n + j] * xs[n + j] * xs[n + j]
-                        f = viscous[a] * qd + coulomb[a] * math.tanh(qd / vc)
-                        rhs[a] = tau - v - out[off_g + a] - f
-                        k[a] = qd
-                    _solve(mat, rhs, acc)
-                    for a in range(n):
-                        k[n + a] = acc[a]
-                    # ---- Runge-Kutta-Gill update, Gill's form (see rkg.py)
-                    if stage == 0:
-                        for j in range(n2):
-                            k[j] *= h
-                            xs[j] = x[j] + 0.5 * k[j]
-                            q[j] = k[j]
-                    elif stage == 1:
-                        for j in range(n2):
-                            k[j] *= h
-                            xs[j] = xs[j] + ALPHA * (k[j] - q[j])
-                            q[j] = BETA * q[j] + E * k[j]
-                    elif stage == 2:
-                        for j in range(n2):
-                            k[j] *= h
-                            xs[j] = xs[j] + D * (k[j] - q[j])
-                            q[j] = GAMMA * q[j] + G * k[j]
-                    else:
-                        for j in range(n2):
-                            x[j] = xs[j] + h * k[j] / 6.0 - q[j] / 3.0
+            _advance(x, u_flat, u_row + i, h, substeps, case_id, chol, kp_known, kd_known, eps,
+                     vc, centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw,
+                     dw, kp, kd, phi, out, mat, lmat, rhs, acc, xs, k, q)
             e_pos = 0.0
             e_vel = 0.0
             for j in range(n2):
@@ -287,6 +302,47 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
     if not math.isfinite(cost):
         return np.inf
     return cost
+
+
+@njit(cache=True, nogil=True, error_model='numpy')
+def rollout(x0, u_flat, h, substeps, case_id, chol, kp_known, kd_known, eps, vc,
+            centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw, kp, kd,
+            bound_center, bound_scale):
+    """
+    Predicted states of one model from x0 over ``u_flat.shape[0]`` sampling intervals.
+
+    Returns
+    -------
+    ndarray, shape (u_flat.shape[0] + 1, 2n)
+        States at the sample times; rows after a divergence are NaN.
+
+    """
+    n2 = x0.shape[0]
+    n = n2 // 2
+    n_int = u_flat.shape[0]
+    states = np.full((n_int + 1, n2), np.nan)
+    phi = np.empty(centres.shape[0])
+    out = np.empty(weights.shape[0])
+    mat = np.empty((n, n))
+    lmat = np.empty((n, n))
+    rhs = np.empty(n)
+    acc = np.empty(n)
+    x = x0.copy()
+    xs = np.empty(n2)
+    k = np.empty(n2)
+    q = np.empty(n2)
+    for j in range(n2):
+        states[0, j] = x[j]
+    for i in range(n_int):
+        _advance(x, u_flat, i, h, substeps, case_id, chol, kp_known, kd_known, eps, vc,
+                 centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw,
+                 kp, kd, phi, out, mat, lmat, rhs, acc, xs, k, q)
+        for j in range(n2):
+            if not (abs(x[j] - bound_center[j]) <= bound_scale[j]):
+                return states
+        for j in range(n2):
+            states[i + 1, j] = x[j]
+    return states
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model='numpy')
@@ -315,3 +371,75 @@ def population_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, c
             dc[p].copy(), diw[p].copy(), dw[p].copy(), kp[p].copy(), kd[p].copy(),
             penalty_weight, bound_center, bound_scale, n_predicted)
     return costs
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model='numpy')
+def population_rollouts(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
+                        kp_known, kd_known, eps, vc,
+                        centres, inv_w2, weights, bias, viscous, coulomb,
+                        pc, piw, pw, dc, diw, dw, kp, kd, bound_center, bound_scale):
+    """
+    Predicted states of a population over all segments, with multiple shooting.
+
+    Row k of the result predicts ``x_meas[k]``; the first row of each segment is the
+    measurement itself. Rows after a divergence (within the same shooting window) are NaN.
+
+    Returns
+    -------
+    ndarray, shape (P, x_meas.shape[0], 2n)
+
+    """
+    pop = centres.shape[0]
+    n_rows, n2 = x_meas.shape
+    n = n2 // 2
+    result = np.full((pop, n_rows, n2), np.nan)
+    for p in prange(pop):
+        cen = centres[p].copy()
+        iw2 = inv_w2[p].copy()
+        wts = weights[p].copy()
+        bia = bias[p].copy()
+        vis = viscous[p].copy()
+        cou = coulomb[p].copy()
+        pc_ = pc[p].copy()
+        piw_ = piw[p].copy()
+        pw_ = pw[p].copy()
+        dc_ = dc[p].copy()
+        diw_ = diw[p].copy()
+        dw_ = dw[p].copy()
+        kp_ = kp[p].copy()
+        kd_ = kd[p].copy()
+        phi = np.empty(cen.shape[0])
+        out = np.empty(wts.shape[0])
+        mat = np.empty((n, n))
+        lmat = np.empty((n, n))
+        rhs = np.empty(n)
+        acc = np.empty(n)
+        x = np.empty(n2)
+        xs = np.empty(n2)
+        k = np.empty(n2)
+        q = np.empty(n2)
+        u_row = 0
+        for seg in range(seg_start.shape[0] - 1):
+            start = seg_start[seg]
+            n_samples = seg_start[seg + 1] - start
+            alive = True
+            for j in range(n2):
+                x[j] = x_meas[start, j]
+                result[p, start, j] = x[j]
+            for i in range(n_samples - 1):
+                if shooting > 0 and i > 0 and i % shooting == 0:
+                    alive = True
+                    for j in range(n2):
+                        x[j] = x_meas[start + i, j]
+                if alive:
+                    _advance(x, u_flat, u_row + i, h, substeps, case_id, chol, kp_known,
+                             kd_known, eps, vc, cen, iw2, wts, bia, vis, cou, pc_, piw_, pw_,
+                             dc_, diw_, dw_, kp_, kd_, phi, out, mat, lmat, rhs, acc, xs, k, q)
+                    for j in range(n2):
+                        if not (abs(x[j] - bound_center[j]) <= bound_scale[j]):
+                            alive = False
+                    if alive:
+                        for j in range(n2):
+                            result[p, start + i + 1, j] = x[j]
+            u_row += n_samples - 1
+    return result

@@ -380,8 +380,9 @@ class NetworkSpec:
                      else np.zeros((pop, out_scale.size))),
         }
         if self.friction:
-            p['viscous'] = 0.1 * s.torque / s.velocity * blk['friction'][:, 0]
-            p['coulomb'] = 0.1 * s.torque * blk['friction'][:, 1]
+            # friction dissipates: both coefficients are |g| (never negative damping)
+            p['viscous'] = 0.1 * s.torque / s.velocity * np.abs(blk['friction'][:, 0])
+            p['coulomb'] = 0.1 * s.torque * np.abs(blk['friction'][:, 1])
         else:
             p['viscous'] = p['coulomb'] = np.zeros((pop, n))
         for name, scale_in in (('p', s.error), ('d', s.error_rate)):
@@ -471,9 +472,13 @@ class BatchedNetwork:
     def theta_outputs(self, theta):
         """θ-RBF outputs, ``theta`` shape (P, n) -> (P, n_out)."""
         p = self.p
+        # one model (P = 1) broadcasts over any number of states, else one state per model
         d2 = np.sum(np.square(theta[:, None, :] - p['centres']), axis=-1)  # (P, K)
         phi = np.exp(-d2 * p['inv_width2'])
-        return np.einsum('pk,pok->po', phi, p['weights']) + p['bias']
+        if p['weights'].shape[0] == phi.shape[0]:
+            # same summation order as the compiled kernel (BLAS matmul may use FMA)
+            return np.einsum('pk,pok->po', phi, p['weights']) + p['bias']
+        return np.matmul(p['weights'], phi[:, :, None])[:, :, 0] + p['bias']
 
     def mass_matrix(self, theta):
         """M(θ) for each individual, ``theta`` shape (P, n) -> (P, n, n)."""
