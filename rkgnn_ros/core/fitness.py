@@ -321,7 +321,7 @@ class FitnessProblem:
         c = np.ascontiguousarray
         return (self.x_meas, self.seg_start, self.u_flat, self.h, self.substeps,
                 self.shooting, case_id, spec.inertia == 'cholesky',
-                c(self.kp), c(self.kd), c(spec.inertia_epsilon(self.scales)),
+                spec.velocity == 'christoffel', c(self.kp), c(self.kd), c(spec.inertia_epsilon(self.scales)),
                 c(1.0 / np.sqrt(self.scales.inertia)), spec.coulomb_velocity,
                 c(p['centres']), c(p['inv_width2']), c(p['weights']), c(p['bias']),
                 c(p['viscous']), c(p['coulomb']),
@@ -353,10 +353,10 @@ class FitnessProblem:
         from .kernels import population_rollouts
         args = self.kernel_args(np.atleast_2d(np.asarray(genomes, dtype=float)))
         # the cost-only arguments (minor scaling, penalty, normaliser) are not needed here
-        (x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol, kp_known, kd_known,
-         eps, _inv_sqrt_ms, vc, *params) = args
+        (x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol, christ, kp_known,
+         kd_known, eps, _inv_sqrt_ms, vc, *params) = args
         bound_center, bound_scale = params[15], params[16]
         params = params[:14]
         return population_rollouts(x_meas, seg_start, u_flat, h, substeps, shooting, case_id,
-                                   chol, kp_known, kd_known, eps, vc, *params, bound_center,
-                                   bound_scale)
+                                   chol, christ, kp_known, kd_known, eps, vc, *params,
+                                   bound_center, bound_scale)

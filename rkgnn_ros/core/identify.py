@@ -273,7 +273,7 @@ class RKGNNModel:
         bound_scale = 100.0 * np.concatenate([self.scales.theta_spread + 1.0,
                                               self.scales.velocity * 10.0 + 1.0])
         return rollout(c(x0, dtype=float), c(u_flat), float(h), substeps, case_id,
-                       self.spec.inertia == 'cholesky',
+                       self.spec.inertia == 'cholesky', self.spec.velocity == 'christoffel',
                        c(kp), c(kd), c(self.spec.inertia_epsilon(self.scales)),
                        self.spec.coulomb_velocity, c(p['centres'][0]), c(p['inv_width2'][0]),
                        c(p['weights'][0]), c(p['bias'][0]), c(p['viscous'][0]),

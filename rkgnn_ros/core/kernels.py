@@ -152,16 +152,67 @@ def _min_minor(x, n, chol, eps, inv_sqrt_ms, centres, inv_w2, weights, bias, phi
     return worst
 
 
+@njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def _christoffel(xs, n, chol, centres, inv_w2, weights, phi, out, lmat, dout, dl, dmat, vvec):
+    """
+    Fill vvec with V = Ṁθ̇ - ½ ∂(θ̇ᵀMθ̇)/∂θ from the RBF inertia outputs (phi, out, lmat set).
+
+    dmat[k] = ∂M/∂θ_k; with M = L Lᵀ + εI, ∂M/∂θ_k = (∂L/∂θ_k) Lᵀ + L (∂L/∂θ_k)ᵀ.
+    """
+    n_in = n * (n + 1) // 2
+    n_units = centres.shape[0]
+    for kk in range(n):
+        for o in range(n_in):
+            val = 0.0
+            for u in range(n_units):
+                val += weights[o, u] * phi[u] * (-2.0 * inv_w2[u] * (xs[kk] - centres[u, kk]))
+            dout[kk, o] = val
+    for kk in range(n):
+        if chol:
+            for i in range(n):
+                for j in range(n):
+                    dl[i, j] = 0.0
+            idx = 0
+            for i in range(n):
+                for j in range(i + 1):
+                    dl[i, j] = dout[kk, idx]
+                    idx += 1
+            for i in range(n):
+                for j in range(n):
+                    acc = 0.0
+                    for m in range(n):
+                        acc += dl[i, m] * lmat[j, m] + lmat[i, m] * dl[j, m]
+                    dmat[kk, i, j] = acc
+        else:
+            idx = 0
+            for i in range(n):
+                for j in range(i, n):
+                    dmat[kk, i, j] = dout[kk, idx]
+                    dmat[kk, j, i] = dout[kk, idx]
+                    idx += 1
+    for a in range(n):
+        v = 0.0
+        for kk in range(n):
+            for j in range(n):
+                v += xs[n + kk] * dmat[kk, a, j] * xs[n + j]
+        for j in range(n):
+            for kk in range(n):
+                v -= 0.5 * xs[n + j] * dmat[a, j, kk] * xs[n + kk]
+        vvec[a] = v
+
+
 @njit(cache=True, nogil=True, error_model='numpy')
-def _advance(x, u_flat, row, h, substeps, case_id, chol, kp_known, kd_known, eps, vc,
-             centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw, kp,
-             kd, phi, out, mat, lmat, rhs, acc, xs, k, q):
+def _advance(x, u_flat, row, h, substeps, case_id, chol, christ, kp_known, kd_known, eps,
+             vc, centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw,
+             kp, kd, phi, out, mat, lmat, rhs, acc, xs, k, q, dout, dl, dmat, vvec):
     """
     Advance x in place over one sampling interval: ``substeps`` RKG steps of N_f.
 
     N_f is written out inline in the stage loop: a call per evaluation with ~25 array
     arguments costs more reference counting than the arithmetic itself (one call per sample
     is cheap beside 4 x substeps evaluations). u = u_flat[row, substep, stage].
+    With ``christ``, V comes from the Christoffel symbols of M (work arrays dout, dl, dmat,
+    vvec); otherwise from the learned B and C outputs.
     """
     n2 = x.shape[0]
     n = n2 // 2
@@ -171,6 +222,8 @@ def _advance(x, u_flat, row, h, substeps, case_id, chol, kp_known, kd_known, eps
     off_b = n * (n + 1) // 2
     off_c = off_b + n * n_pairs
     off_g = off_c + n * n
+    if christ:
+        off_g = off_b
     n_pu = pc.shape[1]
     n_du = dc.shape[1]
     for s in range(substeps):
@@ -191,6 +244,9 @@ def _advance(x, u_flat, row, h, substeps, case_id, chol, kp_known, kd_known, eps
                     val += weights[o, kk] * phi[kk]
                 out[o] = val + bias[o]
             _mass(out, n, chol, eps, mat, lmat)
+            if christ:
+                _christoffel(xs, n, chol, centres, inv_w2, weights, phi, out, lmat, dout, dl,
+                             dmat, vvec)
             for a in range(n):
                 qd = xs[n + a]
                 if case_id == 0:
@@ -208,14 +264,17 @@ def _advance(x, u_flat, row, h, substeps, case_id, chol, kp_known, kd_known, eps
                         for kk in range(n_du):
                             diff = derr - dc[a, kk]
                             tau += dw[a, kk] * math.exp(-diff * diff * diw[a, kk])
-                v = 0.0
-                p = 0
-                for j in range(n):
-                    for jj in range(j + 1, n):
-                        v += out[off_b + a * n_pairs + p] * xs[n + j] * xs[n + jj]
-                        p += 1
-                for j in range(n):
-                    v += out[off_c + a * n + j] * xs[n + j] * xs[n + j]
+                if christ:
+                    v = vvec[a]
+                else:
+                    v = 0.0
+                    p = 0
+                    for j in range(n):
+                        for jj in range(j + 1, n):
+                            v += out[off_b + a * n_pairs + p] * xs[n + j] * xs[n + jj]
+                            p += 1
+                    for j in range(n):
+                        v += out[off_c + a * n + j] * xs[n + j] * xs[n + j]
                 f = viscous[a] * qd + coulomb[a] * math.tanh(qd / vc)
                 rhs[a] = tau - v - out[off_g + a] - f
                 k[a] = qd
@@ -244,7 +303,7 @@ def _advance(x, u_flat, row, h, substeps, case_id, chol, kp_known, kd_known, eps
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
+def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol, christ,
                      kp_known, kd_known, eps, inv_sqrt_ms, vc,
                      centres, inv_w2, weights, bias, viscous, coulomb,
                      pc, piw, pw, dc, diw, dw, kp, kd,
@@ -262,6 +321,10 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
     xs = np.empty(n2)
     k = np.empty(n2)
     q = np.empty(n2)
+    dout = np.empty((n, n * (n + 1) // 2))
+    dl = np.empty((n, n))
+    dmat = np.empty((n, n, n))
+    vvec = np.empty(n)
     total = 0.0
     worst = np.inf
     u_row = 0
@@ -277,9 +340,10 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
             if shooting > 0 and i > 0 and i % shooting == 0:
                 for j in range(n2):
                     x[j] = x_meas[start + i, j]
-            _advance(x, u_flat, u_row + i, h, substeps, case_id, chol, kp_known, kd_known, eps,
-                     vc, centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw,
-                     dw, kp, kd, phi, out, mat, lmat, rhs, acc, xs, k, q)
+            _advance(x, u_flat, u_row + i, h, substeps, case_id, chol, christ, kp_known,
+                     kd_known, eps, vc, centres, inv_w2, weights, bias, viscous, coulomb, pc, piw,
+                     pw, dc, diw, dw, kp, kd, phi, out, mat, lmat, rhs, acc, xs, k, q, dout, dl,
+                     dmat, vvec)
             e_pos = 0.0
             e_vel = 0.0
             for j in range(n2):
@@ -305,7 +369,7 @@ def _individual_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, 
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def rollout(x0, u_flat, h, substeps, case_id, chol, kp_known, kd_known, eps, vc,
+def rollout(x0, u_flat, h, substeps, case_id, chol, christ, kp_known, kd_known, eps, vc,
             centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw, kp, kd,
             bound_center, bound_scale):
     """
@@ -331,12 +395,16 @@ def rollout(x0, u_flat, h, substeps, case_id, chol, kp_known, kd_known, eps, vc,
     xs = np.empty(n2)
     k = np.empty(n2)
     q = np.empty(n2)
+    dout = np.empty((n, n * (n + 1) // 2))
+    dl = np.empty((n, n))
+    dmat = np.empty((n, n, n))
+    vvec = np.empty(n)
     for j in range(n2):
         states[0, j] = x[j]
     for i in range(n_int):
-        _advance(x, u_flat, i, h, substeps, case_id, chol, kp_known, kd_known, eps, vc,
-                 centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw,
-                 kp, kd, phi, out, mat, lmat, rhs, acc, xs, k, q)
+        _advance(x, u_flat, i, h, substeps, case_id, chol, christ, kp_known, kd_known, eps,
+                 vc, centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw,
+                 kp, kd, phi, out, mat, lmat, rhs, acc, xs, k, q, dout, dl, dmat, vvec)
         for j in range(n2):
             if not (abs(x[j] - bound_center[j]) <= bound_scale[j]):
                 return states
@@ -346,7 +414,7 @@ def rollout(x0, u_flat, h, substeps, case_id, chol, kp_known, kd_known, eps, vc,
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model='numpy')
-def population_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
+def population_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol, christ,
                     kp_known, kd_known, eps, inv_sqrt_ms, vc,
                     centres, inv_w2, weights, bias, viscous, coulomb,
                     pc, piw, pw, dc, diw, dw, kp, kd,
@@ -364,7 +432,7 @@ def population_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, c
     for p in prange(pop):
         # private copies: views would share their parent's reference count between threads
         costs[p] = _individual_cost(
-            x_meas.copy(), seg_start, u_flat, h, substeps, shooting, case_id, chol,
+            x_meas.copy(), seg_start, u_flat, h, substeps, shooting, case_id, chol, christ,
             kp_known, kd_known, eps, inv_sqrt_ms, vc,
             centres[p].copy(), inv_w2[p].copy(), weights[p].copy(), bias[p].copy(),
             viscous[p].copy(), coulomb[p].copy(), pc[p].copy(), piw[p].copy(), pw[p].copy(),
@@ -375,7 +443,7 @@ def population_cost(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, c
 
 @njit(cache=True, nogil=True, parallel=True, error_model='numpy')
 def population_rollouts(x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol,
-                        kp_known, kd_known, eps, vc,
+                        christ, kp_known, kd_known, eps, vc,
                         centres, inv_w2, weights, bias, viscous, coulomb,
                         pc, piw, pw, dc, diw, dw, kp, kd, bound_center, bound_scale):
     """
@@ -418,6 +486,10 @@ def population_rollouts(x_meas, seg_start, u_flat, h, substeps, shooting, case_i
         xs = np.empty(n2)
         k = np.empty(n2)
         q = np.empty(n2)
+        dout = np.empty((n, n * (n + 1) // 2))
+        dl = np.empty((n, n))
+        dmat = np.empty((n, n, n))
+        vvec = np.empty(n)
         u_row = 0
         for seg in range(seg_start.shape[0] - 1):
             start = seg_start[seg]
@@ -432,9 +504,10 @@ def population_rollouts(x_meas, seg_start, u_flat, h, substeps, shooting, case_i
                     for j in range(n2):
                         x[j] = x_meas[start + i, j]
                 if alive:
-                    _advance(x, u_flat, u_row + i, h, substeps, case_id, chol, kp_known,
-                             kd_known, eps, vc, cen, iw2, wts, bia, vis, cou, pc_, piw_, pw_,
-                             dc_, diw_, dw_, kp_, kd_, phi, out, mat, lmat, rhs, acc, xs, k, q)
+                    _advance(x, u_flat, u_row + i, h, substeps, case_id, chol, christ,
+                             kp_known, kd_known, eps, vc, cen, iw2, wts, bia, vis, cou, pc_,
+                             piw_, pw_, dc_, diw_, dw_, kp_, kd_, phi, out, mat, lmat, rhs, acc,
+                             xs, k, q, dout, dl, dmat, vvec)
                     for j in range(n2):
                         if not (abs(x[j] - bound_center[j]) <= bound_scale[j]):
                             alive = False

@@ -49,6 +49,7 @@ import numpy as np
 
 CASES = ('torque', 'pd_gains', 'unknown')
 INERTIA_MODES = ('penalty', 'cholesky')
+VELOCITY_MODES = ('learned', 'christoffel')
 
 
 @dataclass(frozen=True)
@@ -181,8 +182,17 @@ class NetworkSpec:
         Viscous and Coulomb friction per joint (F = f_v θ̇ + f_c tanh(θ̇ / v_c)).
     torque_linear : bool
         Linear P and D gains beside the RBF torque sub-networks (case 3).
+    velocity : str
+        'learned' (the paper: B and C are RBF outputs of their own) or 'christoffel'
+        (V = Ṁθ̇ - ½ ∂(θ̇ᵀMθ̇)/∂θ from the Christoffel symbols of the identified M, as for any
+        rigid-body arm: the model is then energy-consistent, so M positive definite and
+        dissipative friction make it passive and stable under PD control).
     coulomb_velocity : float
         v_c of the smoothed Coulomb friction (rad/s).
+    inertia_floor : float
+        ε of M = L Lᵀ + diag(ε) as a fraction of the inertia scale ('cholesky'). A floor
+        keeps identified models from growing needlessly stiff (a tiny eigenvalue of M makes
+        the closed loop's fastest mode exceed what the RKG step can integrate).
 
     """
 
@@ -194,7 +204,9 @@ class NetworkSpec:
     bias: bool = False
     friction: bool = True
     torque_linear: bool = False
+    velocity: str = 'learned'
     coulomb_velocity: float = 0.05
+    inertia_floor: float = 1e-3
 
     def __post_init__(self):
         if not isinstance(self.n_joints, (int, np.integer)) or self.n_joints < 1:
@@ -203,12 +215,16 @@ class NetworkSpec:
             raise ValueError(f'case must be one of {CASES}, got {self.case!r}')
         if self.inertia not in INERTIA_MODES:
             raise ValueError(f'inertia must be one of {INERTIA_MODES}, got {self.inertia!r}')
+        if self.velocity not in VELOCITY_MODES:
+            raise ValueError(f'velocity must be one of {VELOCITY_MODES}, got {self.velocity!r}')
         if int(self.theta_units) < 0 or int(self.torque_units) < 0:
             raise ValueError('theta_units and torque_units must be >= 0')
         if self.theta_units == 0 and not self.bias:
             raise ValueError('theta_units = 0 needs bias = true (M would be zero)')
         if self.case == 'unknown' and self.torque_units == 0 and not self.torque_linear:
             raise ValueError("case 'unknown' needs torque_units > 0 or torque_linear = true")
+        if not (np.isfinite(self.inertia_floor) and 0.0 < self.inertia_floor < 1.0):
+            raise ValueError(f'inertia_floor must be in (0, 1), got {self.inertia_floor}')
         if not (np.isfinite(self.coulomb_velocity) and self.coulomb_velocity > 0):
             raise ValueError(f'coulomb_velocity must be > 0, got {self.coulomb_velocity}')
 
@@ -219,9 +235,16 @@ class NetworkSpec:
 
     @classmethod
     def recommended(cls, n_joints=3, case='torque') -> 'NetworkSpec':
-        """Return our default structure: SPD inertia by construction, bias terms, linear PD."""
+        """
+        Return our default structure.
+
+        M = L Lᵀ + εI (positive definite by construction), V from M's Christoffel symbols
+        (energy-consistent), constant terms beside the RBF units and linear PD gains beside
+        the torque sub-networks.
+        """
         return cls(n_joints=n_joints, case=case, theta_units=3, torque_units=2,
-                   inertia='cholesky', bias=True, torque_linear=True)
+                   inertia='cholesky', bias=True, torque_linear=True, velocity='christoffel',
+                   inertia_floor=0.05)
 
     def to_dict(self) -> dict:
         """Plain values, for YAML."""
@@ -254,14 +277,17 @@ class NetworkSpec:
     def n_outputs(self) -> int:
         """Return the θ-RBF output count: inertia, B (n × n(n-1)/2), C (n × n), G (n)."""
         n = self.n_joints
+        if self.velocity == 'christoffel':
+            return self.n_inertia + n
         return self.n_inertia + n * self.n_pairs + n * n + n
 
     def output_slices(self) -> Dict[str, slice]:
         """Where each term sits in the θ-RBF output vector."""
         n = self.n_joints
         a = self.n_inertia
-        b = a + n * self.n_pairs
-        c = b + n * n
+        learned = self.velocity == 'learned'
+        b = a + n * self.n_pairs * learned
+        c = b + n * n * learned
         return {'inertia': slice(0, a), 'coriolis': slice(a, b),
                 'centrifugal': slice(b, c), 'gravity': slice(c, c + n)}
 
@@ -416,6 +442,8 @@ class NetworkSpec:
                         inertia[idx] = np.sqrt(ms[i] * ms[j])
                     else:  # L's row i scales like sqrt(M_ii)
                         inertia[idx] = np.sqrt(ms[i])
+        if self.velocity == 'christoffel':
+            return np.concatenate([inertia, s.torque])
         pairs = [(j, k) for j in range(n) for k in range(j + 1, n)]
         coriolis = np.array([s.torque[i] / (s.velocity[j] * s.velocity[k])
                              for i in range(n) for (j, k) in pairs])
@@ -425,7 +453,7 @@ class NetworkSpec:
 
     def inertia_epsilon(self, scales: Scales) -> np.ndarray:
         """ε of M = L Lᵀ + diag(ε) in the Cholesky mode, shape (n,)."""
-        return 1e-3 * scales.inertia
+        return self.inertia_floor * scales.inertia
 
 
 def pair_products(theta_dot):
@@ -484,6 +512,30 @@ class BatchedNetwork:
         """M(θ) for each individual, ``theta`` shape (P, n) -> (P, n, n)."""
         return self._assemble_mass(self.theta_outputs(theta))
 
+    def mass_derivatives(self, theta):
+        """∂M/∂θ_k for each individual: ``theta`` (P, n) -> (P, n (k), n, n)."""
+        p = self.p
+        n = self.n
+        diff = theta[:, None, :] - p['centres']  # (P, K, n)
+        phi = np.exp(-np.sum(np.square(diff), axis=-1) * p['inv_width2'])
+        dphi = phi[:, :, None] * (-2.0 * p['inv_width2'][:, :, None] * diff)  # (P, K, n)
+        sl = self.slices['inertia']
+        w = p['weights'][:, sl, :]
+        if w.shape[0] == theta.shape[0]:
+            dtri = np.einsum('pok,pkn->pno', w, dphi)
+        else:
+            dtri = np.matmul(np.swapaxes(dphi, 1, 2), np.swapaxes(w[0], 0, 1)[None])
+        pop = theta.shape[0]
+        dmat = np.zeros((pop, n, n, n))
+        dmat[:, :, self.tri[0], self.tri[1]] = dtri
+        if self.spec.inertia == 'penalty':
+            dmat[:, :, self.tri[1], self.tri[0]] = dtri
+            return dmat
+        lmat = np.zeros((pop, n, n))
+        lmat[:, self.tri[0], self.tri[1]] = self.theta_outputs(theta)[:, sl]
+        dl_lt = np.matmul(dmat, np.swapaxes(lmat, 1, 2)[:, None])
+        return dl_lt + np.swapaxes(dl_lt, 2, 3)
+
     def _assemble_mass(self, out):
         n = self.n
         tri = out[:, self.slices['inertia']]
@@ -519,10 +571,15 @@ class BatchedNetwork:
         out = self.theta_outputs(theta)
         sl = self.slices
         pop = x.shape[0]
-        b = out[:, sl['coriolis']].reshape(pop, n, self.spec.n_pairs)
-        c = out[:, sl['centrifugal']].reshape(pop, n, n)
-        v = (np.einsum('pij,pj->pi', b, pair_products(theta_dot))
-             + np.einsum('pij,pj->pi', c, np.square(theta_dot)))
+        if self.spec.velocity == 'christoffel':
+            dmat = self.mass_derivatives(theta)  # dmat[p, k, i, j] = ∂M_ij / ∂θ_k
+            v = (np.einsum('pk,pkij,pj->pi', theta_dot, dmat, theta_dot)
+                 - 0.5 * np.einsum('pj,pijk,pk->pi', theta_dot, dmat, theta_dot))
+        else:
+            b = out[:, sl['coriolis']].reshape(pop, n, self.spec.n_pairs)
+            c = out[:, sl['centrifugal']].reshape(pop, n, n)
+            v = (np.einsum('pij,pj->pi', b, pair_products(theta_dot))
+                 + np.einsum('pij,pj->pi', c, np.square(theta_dot)))
         f = (self.p['viscous'] * theta_dot
              + self.p['coulomb'] * np.tanh(theta_dot / self.spec.coulomb_velocity))
         return {'M': self._assemble_mass(out), 'V': v, 'G': out[:, sl['gravity']], 'F': f,

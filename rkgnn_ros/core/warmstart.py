@@ -181,6 +181,8 @@ def least_squares_genome(spec: NetworkSpec, datasets: Sequence, scales: Scales,
     ndarray, shape (N,)
 
     """
+    if spec.velocity != 'learned':
+        raise ValueError("the least-squares warm start needs velocity='learned'")
     if spec.inertia != 'penalty':
         raise ValueError("the least-squares warm start needs inertia='penalty' "
                          '(M = L Lᵀ is not linear in the weights)')
