@@ -321,7 +321,8 @@ class FitnessProblem:
         c = np.ascontiguousarray
         return (self.x_meas, self.seg_start, self.u_flat, self.h, self.substeps,
                 self.shooting, case_id, spec.inertia == 'cholesky',
-                spec.velocity == 'christoffel', c(self.kp), c(self.kd), c(spec.inertia_epsilon(self.scales)),
+                spec.velocity == 'christoffel', c(self.kp), c(self.kd),
+                c(spec.inertia_epsilon(self.scales)),
                 c(1.0 / np.sqrt(self.scales.inertia)), spec.coulomb_velocity,
                 c(p['centres']), c(p['inv_width2']), c(p['weights']), c(p['bias']),
                 c(p['viscous']), c(p['coulomb']),
