@@ -24,6 +24,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
+            'sim_arm = rkgnn_ros.sim_arm:main',
         ],
     },
 )
