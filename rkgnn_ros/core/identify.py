@@ -636,3 +636,68 @@ def nrmse(predicted, measured) -> float:
         return float('inf')
     rmse = np.sqrt(np.mean(np.square(predicted - measured), axis=0))
     return float(np.mean(rmse / np.maximum(np.std(measured, axis=0), 1e-12)))
+
+
+def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = None, kp=None,
+             kd=None, seed=0, shootings=(20, 0), lm_fraction=0.7, lm_nfev=30,
+             polish_sigma=0.05, callback: Optional[Callable[[dict], None]] = None,
+             **evolution_kw) -> FitResult:
+    """
+    Identify with our best pipeline inside a wall-time budget.
+
+    1. Levenberg-Marquardt on the rollout residuals, over a continuation of multiple-shooting
+       windows (``shootings``), for at most ``lm_fraction`` of the budget
+       (:func:`rkgnn_ros.core.refine.refine_lm`);
+    2. CMA-ES around that genome on the paper's cost J of the full rollout for the rest of
+       the budget (it tolerates the diverged candidates that stop a gradient method).
+
+    The structure defaults to :meth:`NetworkSpec.recommended`. History entries carry a
+    ``phase`` ('lm' or 'cmaes').
+    """
+    from .refine import refine_lm
+    if isinstance(datasets, Dataset):
+        datasets = [datasets]
+    case = normalize_case(case)
+    n = datasets[0].n_joints
+    spec = spec if spec is not None else NetworkSpec.recommended(n, case)
+    t0 = time.perf_counter()
+    evo = Evolution(spec, datasets, 'cmaes', {'sigma': polish_sigma}, seed, kp, kd,
+                    **evolution_kw)
+
+    def problem_for(shooting):
+        return FitnessProblem(spec, datasets, scales=evo.scales, substeps=evo.substeps,
+                              kp=kp, kd=kd, shooting=shooting,
+                              torque_interpolation=evo.torque_interpolation)
+
+    history: List[dict] = []
+
+    def on_stage(entry):
+        entry = dict(entry, wall_s=time.perf_counter() - t0)
+        history.append(entry)
+        if callback is not None:
+            callback(entry)
+
+    start = evo.optimizer.best_x if evo.optimizer.best_x is not None else spec.initial_genome()
+    genome, lm_hist = refine_lm(problem_for, start, shootings, lm_nfev,
+                                deadline=t0 + lm_fraction * time_budget, callback=on_stage)
+    lm_evals = lm_hist[-1]['evaluations'] if lm_hist else 0
+    lm_cost = float(evo.problem.cost(genome[None])[0])
+    evo.optimizer.restart(genome, polish_sigma)
+    best_g, best_cost = genome, lm_cost
+    while time.perf_counter() - t0 < time_budget:
+        stats = evo.step()
+        stats.update(phase='cmaes', wall_s=time.perf_counter() - t0,
+                     evaluations=stats['evaluations'] + lm_evals)
+        history.append(stats)
+        if callback is not None:
+            callback(stats)
+        if evo.optimizer.best_cost < best_cost:
+            best_g, best_cost = evo.optimizer.best_x.copy(), float(evo.optimizer.best_cost)
+    info = {'cost': best_cost, 'pipeline': 'lm+cmaes'}
+    model = RKGNNModel(spec, evo.scales, best_g, datasets[0].joint_names, kp, kd,
+                       dt=evo.problem.dt, substeps=evo.substeps,
+                       torque_interpolation=evo.torque_interpolation, info=info)
+    evaluations = lm_evals + evo.optimizer.evaluations
+    return FitResult(model=model, history=history, evaluations=evaluations,
+                     generations=evo.optimizer.generation,
+                     wall_s=time.perf_counter() - t0, final_cost=best_cost)
