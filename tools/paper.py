@@ -241,7 +241,7 @@ def main(argv=None):
         log(f'== {TITLES[case]}')
         runs = {}
         model, history, wall = run_paper_ea(case, fit_data, kp, kd, args.generations,
-                                             args.seed, log)
+                                            args.seed, log)
         runs['paper_ea'] = {'model': model, 'history': history, 'wall_s': wall,
                             'evaluations': history[-1]['evaluations'],
                             'final_cost': history[-1]['best_cost']}
