@@ -83,8 +83,9 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from .conversions import make_joint_state, make_joint_trajectory
-from .core.plant import (_forward_kernel, ArmParameters, MASS_MODELS, max_stable_rkg_step,
-                         PDController, PlanarArm, RK4_REAL_STABILITY_LIMIT)
+from .core.plant import (ArmParameters, forward_dynamics_kernel, MASS_MODELS,
+                         max_stable_rkg_step, PDController, PlanarArm,
+                         RK4_REAL_STABILITY_LIMIT)
 from .core.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
 from .core.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
 
@@ -135,7 +136,7 @@ def _pd_rate(x, ref, j, tau_held, kp, kd, d, gh, fv, fc, vc, out):
     else:
         tau = tau_held
     out[:n] = theta_dot
-    out[n:] = _forward_kernel(theta, theta_dot, tau, d, gh, fv, fc, vc)
+    out[n:] = forward_dynamics_kernel(theta, theta_dot, tau, d, gh, fv, fc, vc)
 
 
 @njit(cache=True, nogil=True)
@@ -220,10 +221,8 @@ class ArmSimulator:
         self.max_speed = float(max_speed)
         self.control_period = 1.0 / control_rate if control_rate else None
         self.compiled = bool(compiled)
-        p = arm.params
-        # the constants of the plant's compiled kernel (see PlanarArm._forward_single)
-        self._constants = (self._kp, self._kd, arm._d, arm._gh, p.viscous, p.coulomb,
-                           float(p.coulomb_velocity))
+        # the constants of the plant's compiled kernel (PlanarArm.kernel_constants)
+        self._constants = (self._kp, self._kd) + tuple(arm.kernel_constants())
         self._no_ref = np.empty((0, 2, n))
         self._no_tau = np.zeros(n)
         theta_d, theta_d_dot = reference.evaluate(0.0)

@@ -17,7 +17,8 @@
 import numpy as np
 import pytest
 from rkgnn_ros.core.plant import (
-    ArmParameters, MASS_MODELS, max_stable_rkg_step, PDController, PlanarArm,
+    _forward_kernel, ArmParameters, forward_dynamics_into, forward_dynamics_kernel,
+    KernelConstants, MASS_MODELS, max_stable_rkg_step, PDController, PlanarArm,
     RK4_IMAG_STABILITY_LIMIT, RK4_REAL_STABILITY_LIMIT, rk4_stability_radius)
 from rkgnn_ros.core.trajectories import paper_reference
 from scipy.integrate import solve_ivp
@@ -189,6 +190,38 @@ def test_forward_inverts_inverse_dynamics(n, mass_model, rng):
                                rtol=1e-12, atol=1e-12)
     x = np.concatenate([theta, theta_dot], axis=-1)
     np.testing.assert_allclose(arm.dynamics(x, tau)[:, n:], theta_ddot, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize('mass_model', MASS_MODELS)
+@pytest.mark.parametrize('n', SIZES)
+def test_public_compiled_kernels_match_numpy(n, mass_model, rng):
+    arm = random_arm(n, mass_model, rng)
+    theta, theta_dot, theta_ddot = random_states(n, rng)
+    tau = arm.inverse_dynamics(theta, theta_dot, theta_ddot)
+    expected = arm.forward_dynamics(theta, theta_dot, tau)           # batched numpy path
+    constants = arm.kernel_constants()
+    assert isinstance(constants, KernelConstants)
+    assert constants.d.shape == (n, n) and constants.gh.shape == (n,)
+    assert isinstance(constants.coulomb_velocity, float)
+    work, out = np.full((n + 3, n), np.nan), np.full(n, np.nan)
+    for k in range(theta.shape[0]):
+        np.testing.assert_allclose(
+            forward_dynamics_kernel(theta[k], theta_dot[k], tau[k], *constants), expected[k],
+            rtol=1e-12, atol=1e-12)
+        forward_dynamics_into(theta[k], theta_dot[k], tau[k], *constants, work, out)
+        np.testing.assert_allclose(out, expected[k], rtol=1e-12, atol=1e-12)
+    assert _forward_kernel is forward_dynamics_kernel     # the former private name
+
+
+def test_kernel_constants_are_copies():
+    arm = PlanarArm.paper()
+    before = arm.forward_dynamics(np.zeros(3), np.zeros(3), np.zeros(3))
+    constants = arm.kernel_constants()
+    constants.d[:] = 0.0
+    constants.gh[:] = 0.0
+    np.testing.assert_array_equal(arm.forward_dynamics(np.zeros(3), np.zeros(3), np.zeros(3)),
+                                  before)
+    assert np.all(arm.kernel_constants().gh != 0.0)
 
 
 def test_friction_terms():

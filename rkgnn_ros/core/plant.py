@@ -39,11 +39,16 @@ g Σ h_i sin φ_i, and Lagrange's equations give, with w_i = Σ_j d_ij sin(φ_i 
     M = Sᵀ D S,   V = Sᵀ w,   G = Sᵀ (g h ∘ cos φ)
 
 All of it is analytic (no finite differences) and vectorised over leading batch axes.
+
+For compiled code, :func:`forward_dynamics_kernel` (allocating) and
+:func:`forward_dynamics_into` (caller-owned buffers, for inner loops) are numba versions of
+``forward_dynamics`` for one state; they take the constants of
+:meth:`PlanarArm.kernel_constants`.
 """
 
 from dataclasses import dataclass
 import math
-from typing import Optional, Tuple, Union
+from typing import NamedTuple, Optional, Tuple, Union
 
 from numba import njit
 import numpy as np
@@ -206,6 +211,30 @@ class ArmParameters:
         """Return a copy with zero viscous and Coulomb friction."""
         return ArmParameters(self.masses, self.lengths, self.mass_model, self.gravity,
                              coulomb_velocity=self.coulomb_velocity)
+
+
+class KernelConstants(NamedTuple):
+    """
+    Constants of the compiled forward-dynamics kernels, in their argument order.
+
+    Attributes
+    ----------
+    d : ndarray, shape (n, n)
+        The symmetric link constants d_ij of the module docstring (D(φ) = d ∘ cos(φ_i - φ_j)).
+    gh : ndarray, shape (n,)
+        The gravity moments g h_i.
+    viscous, coulomb : ndarray, shape (n,)
+        Friction coefficients (:class:`ArmParameters`).
+    coulomb_velocity : float
+        Coulomb smoothing velocity.
+
+    """
+
+    d: np.ndarray
+    gh: np.ndarray
+    viscous: np.ndarray
+    coulomb: np.ndarray
+    coulomb_velocity: float
 
 
 class PlanarArm:
@@ -388,8 +417,26 @@ class PlanarArm:
     def _forward_single(self, theta, theta_dot, tau):
         """Return :meth:`forward_dynamics` for one state, shapes (n,), by the compiled kernel."""
         p = self.params
-        return _forward_kernel(theta, theta_dot, tau, self._d, self._gh, p.viscous, p.coulomb,
-                               p.coulomb_velocity)
+        return forward_dynamics_kernel(theta, theta_dot, tau, self._d, self._gh, p.viscous,
+                                       p.coulomb, p.coulomb_velocity)
+
+    def kernel_constants(self) -> 'KernelConstants':
+        """
+        Return the constant arrays of the compiled forward-dynamics kernels.
+
+        ``forward_dynamics_kernel(theta, theta_dot, tau, *arm.kernel_constants())`` equals
+        ``arm.forward_dynamics(theta, theta_dot, tau)`` for one state (shapes (n,)); see
+        :func:`forward_dynamics_kernel` and the allocation-free
+        :func:`forward_dynamics_into`. The arrays are fresh C-contiguous float64 copies,
+        so a caller may keep them (e.g. in a compiled simulation) without aliasing the arm.
+        """
+        p = self.params
+        return KernelConstants(
+            d=np.array(self._d, dtype=float, order='C'),
+            gh=np.array(self._gh, dtype=float, order='C'),
+            viscous=np.array(p.viscous, dtype=float, order='C'),
+            coulomb=np.array(p.coulomb, dtype=float, order='C'),
+            coulomb_velocity=float(p.coulomb_velocity))
 
     def dynamics(self, x: ArrayLike, tau: ArrayLike) -> np.ndarray:
         """
@@ -634,38 +681,61 @@ class PlanarArm:
 
 
 @njit(cache=True, nogil=True)
-def _forward_kernel(theta, theta_dot, tau, d, gh, viscous, coulomb, coulomb_velocity):
+def forward_dynamics_into(theta, theta_dot, tau, d, gh, viscous, coulomb, coulomb_velocity,
+                          work, out):
     """
-    Compute θ̈ of one state: the arithmetic of the batched numpy ``forward_dynamics``.
+    Write θ̈ of one state into ``out``, allocating nothing: compiled forward dynamics.
 
-    Builds D(φ) and the right-hand side in absolute angles and solves by Cholesky (D is
-    symmetric positive definite). All vectors have shape (n,), ``d`` (n, n).
+    The arithmetic of :meth:`PlanarArm.forward_dynamics` for a single state: builds D(φ)
+    and the right-hand side in absolute angles and solves by Cholesky (D is symmetric
+    positive definite), then θ̈ = S⁻¹ φ̈. A numba function (``nogil``), callable from other
+    compiled code in inner loops (integrators, population kernels) with caller-owned
+    buffers. The constants come from :meth:`PlanarArm.kernel_constants`::
+
+        forward_dynamics_into(theta, theta_dot, tau, *arm.kernel_constants(), work, out)
+
+    Parameters
+    ----------
+    theta, theta_dot, tau : ndarray, shape (n,)
+        Joint angles (rad), velocities (rad/s) and applied torques (N m).
+    d : ndarray, shape (n, n)
+        The link constants d_ij (see the module docstring).
+    gh : ndarray, shape (n,)
+        g h_i, the gravity moments.
+    viscous, coulomb : ndarray, shape (n,)
+        Friction coefficients.
+    coulomb_velocity : float
+        Coulomb smoothing velocity.
+    work : ndarray, shape (n + 3, n)
+        Scratch space, overwritten.
+    out : ndarray, shape (n,)
+        Receives θ̈ (rad/s²). Must not alias the inputs.
+
     """
     n = theta.shape[0]
-    phi = np.empty(n)
-    phi_dot = np.empty(n)
+    a = work[:n]                # D(φ), then its Cholesky factor in the lower triangle
+    c = work[n]                 # cos φ
+    s = work[n + 1]             # sin φ
+    phi_dot = work[n + 2]
     acc, acc_dot = 0.0, 0.0
     for i in range(n):
         acc += theta[i]
         acc_dot += theta_dot[i]
-        phi[i] = acc
+        c[i] = math.cos(acc)
+        s[i] = math.sin(acc)
         phi_dot[i] = acc_dot
-    c = np.cos(phi)
-    s = np.sin(phi)
-    q = np.empty(n)
+    # q = τ - F in out, then (in place, ascending) the right-hand side S⁻ᵀ q - w - g h cos φ
     for i in range(n):
-        q[i] = (tau[i] - viscous[i] * theta_dot[i]
-                - coulomb[i] * math.tanh(theta_dot[i] / coulomb_velocity))
-    rhs = np.empty(n)
-    a = np.empty((n, n))
+        out[i] = (tau[i] - viscous[i] * theta_dot[i]
+                  - coulomb[i] * math.tanh(theta_dot[i] / coulomb_velocity))
     for i in range(n):
-        r = q[i] - gh[i] * c[i]
+        r = out[i] - gh[i] * c[i]
         if i + 1 < n:
-            r -= q[i + 1]
+            r -= out[i + 1]
         for j in range(n):
             r -= d[i, j] * (s[i] * c[j] - c[i] * s[j]) * phi_dot[j] * phi_dot[j]
             a[i, j] = d[i, j] * (c[i] * c[j] + s[i] * s[j])
-        rhs[i] = r
+        out[i] = r
     # Cholesky a = L Lᵀ in the lower triangle of a
     for j in range(n):
         diag = a[j, j]
@@ -679,20 +749,42 @@ def _forward_kernel(theta, theta_dot, tau, d, gh, viscous, coulomb, coulomb_velo
                 v -= a[i, k] * a[j, k]
             a[i, j] = v / diag
     for i in range(n):
-        v = rhs[i]
+        v = out[i]
         for k in range(i):
-            v -= a[i, k] * rhs[k]
-        rhs[i] = v / a[i, i]
+            v -= a[i, k] * out[k]
+        out[i] = v / a[i, i]
     for i in range(n - 1, -1, -1):
-        v = rhs[i]
+        v = out[i]
         for k in range(i + 1, n):
-            v -= a[k, i] * rhs[k]
-        rhs[i] = v / a[i, i]
+            v -= a[k, i] * out[k]
+        out[i] = v / a[i, i]
+    # θ̈ = S⁻¹ φ̈ (descending, in place)
+    for i in range(n - 1, 0, -1):
+        out[i] -= out[i - 1]
+
+
+@njit(cache=True, nogil=True)
+def forward_dynamics_kernel(theta, theta_dot, tau, d, gh, viscous, coulomb,
+                            coulomb_velocity):
+    """
+    Return θ̈ of one state, shape (n,): compiled forward dynamics.
+
+    :func:`forward_dynamics_into` with freshly allocated buffers, for compiled code that
+    is not in a hot loop and for use from Python::
+
+        theta_ddot = forward_dynamics_kernel(theta, theta_dot, tau, *arm.kernel_constants())
+
+    The arguments are those of :func:`forward_dynamics_into` without ``work`` and ``out``.
+    """
+    n = theta.shape[0]
     out = np.empty(n)
-    out[0] = rhs[0]
-    for i in range(1, n):
-        out[i] = rhs[i] - rhs[i - 1]
+    forward_dynamics_into(theta, theta_dot, tau, d, gh, viscous, coulomb, coulomb_velocity,
+                          np.empty((n + 3, n)), out)
     return out
+
+
+#: Former private name of :func:`forward_dynamics_kernel`, kept for existing importers.
+_forward_kernel = forward_dynamics_kernel
 
 
 def rk4_stability_radius(lam: ArrayLike) -> np.ndarray:
