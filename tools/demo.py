@@ -1,0 +1,285 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The main job (``make demo``): the simulated arm and the online identifier, live.
+
+Starts the installed ``sim_arm`` and ``identifier`` executables (found through the ament
+index, exactly where ``ros2 run rkgnn_ros <exe>`` looks) on a private ROS domain, watches
+their topics from a small monitor node, prints progress every few seconds (generation, best
+cost, validation error, the error of the 2 s-ahead predictions against the motion that
+followed) and, at the end, stops both nodes and writes a figure: measured vs predicted
+joint trajectories, the evolution history and the prediction error over time.
+"""
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+CASES = {'1': 'torque', '2': 'pd_gains', '3': 'unknown', 'torque': 'torque',
+         'pd_gains': 'pd_gains', 'unknown': 'unknown'}
+PAPER_KP = [32.84, 42.05, 42.31]
+PAPER_KD = [42.44, 0.19, 4.86]
+
+
+def executable(name):
+    """Return the path ``ros2 run rkgnn_ros <name>`` would start."""
+    from ament_index_python.packages import get_package_prefix
+    path = os.path.join(get_package_prefix('rkgnn_ros'), 'lib', 'rkgnn_ros', name)
+    if not os.access(path, os.X_OK):
+        raise FileNotFoundError(f'{path} is not an executable: run colcon build first')
+    return path
+
+
+def config(name):
+    """Return an installed config file."""
+    from ament_index_python.packages import get_package_share_directory
+    return os.path.join(get_package_share_directory('rkgnn_ros'), 'config', name)
+
+
+class Monitor:
+    """Records joint_states, ~/prediction and ~/evolution of the running nodes."""
+
+    def __init__(self, context, horizon):
+        from rclpy.node import Node
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64MultiArray
+        from trajectory_msgs.msg import JointTrajectory
+        self.node = Node('rkgnn_demo_monitor', context=context)
+        self.lock = threading.Lock()
+        self.horizon = horizon
+        self.meas_t, self.meas_theta = [], []
+        self.pred_t0, self.pred_off, self.pred_theta = [], [], []
+        self.evolution = []
+        self.labels = None
+        self.node.create_subscription(JointState, 'joint_states', self._on_state,
+                                      qos_profile_sensor_data)
+        self.node.create_subscription(JointTrajectory, 'identifier/prediction',
+                                      self._on_prediction, 10)
+        self.node.create_subscription(Float64MultiArray, 'identifier/evolution',
+                                      self._on_evolution, 10)
+
+    @staticmethod
+    def _stamp(header):
+        return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+    def _on_state(self, msg):
+        if len(msg.position) == 0:
+            return
+        with self.lock:
+            self.meas_t.append(self._stamp(msg.header))
+            self.meas_theta.append(np.array(msg.position, dtype=float))
+
+    def _on_prediction(self, msg):
+        if len(msg.points) < 2:
+            return
+        off = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+                        for p in msg.points])
+        theta = np.array([p.positions for p in msg.points], dtype=float)
+        with self.lock:
+            self.pred_t0.append(self._stamp(msg.header))
+            self.pred_off.append(off)
+            self.pred_theta.append(theta)
+
+    def _on_evolution(self, msg):
+        if self.labels is None and msg.layout.dim:
+            self.labels = msg.layout.dim[-1].label.split(',')
+        with self.lock:
+            self.evolution.append(np.array(msg.data, dtype=float))
+
+    def snapshot(self):
+        """Return copies of everything recorded so far."""
+        with self.lock:
+            return (np.array(self.meas_t), np.array(self.meas_theta),
+                    list(self.pred_t0), list(self.pred_off), list(self.pred_theta),
+                    np.array(self.evolution), self.labels)
+
+
+def field(evolution, labels, name):
+    """Return one column of the ~/evolution records (NaN if absent)."""
+    if labels is None or name not in labels or evolution.size == 0:
+        return np.full(len(evolution), np.nan)
+    return evolution[:, labels.index(name)]
+
+
+def prediction_score(snapshot, horizon, window=None):
+    """Return (t0, errors, nrmse) of the horizon-ahead predictions (last ``window`` s)."""
+    from rkgnn_ros.evaluation import ahead_errors, range_normalised_rmse
+    meas_t, meas_theta, t0s, offs, thetas, _, _ = snapshot
+    if meas_t.size < 2:
+        return np.empty(0), np.empty((0, 0)), float('nan')
+    order = np.argsort(meas_t)
+    meas_t, meas_theta = meas_t[order], meas_theta[order]
+    t0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, horizon)
+    theta_range = np.ptp(meas_theta, axis=0)
+    recent = err if window is None or t0.size == 0 else err[t0 >= t0[-1] - window]
+    return t0, err, range_normalised_rmse(recent, theta_range)
+
+
+def write_figure(path, snapshot, horizon, case):
+    """Write measured vs predicted trajectories, evolution history and prediction error."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    meas_t, meas_theta, t0s, offs, thetas, evolution, labels = snapshot
+    if meas_t.size == 0:
+        raise RuntimeError('no joint_states were received')
+    start = meas_t.min()
+    n = meas_theta.shape[1]
+    fig, axes = plt.subplots(n + 2, 1, figsize=(11, 2.3 * (n + 2)))
+    ahead_t = [t0 + horizon for t0, off in zip(t0s, offs) if off[-1] >= horizon - 1e-9]
+    ahead_th = [th[-1] for off, th in zip(offs, thetas) if off[-1] >= horizon - 1e-9]
+    for j in range(n):
+        ax = axes[j]
+        ax.plot(meas_t - start, meas_theta[:, j], 'k', lw=1.5, label='measured')
+        if ahead_t:
+            ax.plot(np.array(ahead_t) - start, np.array(ahead_th)[:, j], 'C0.', ms=3,
+                    label=f'predicted {horizon:g} s earlier')
+        lo, hi = meas_theta[:, j].min(), meas_theta[:, j].max()
+        pad = 0.5 * (hi - lo) + 0.05
+        ax.set_ylim(lo - pad, hi + pad)  # far-off predictions leave the frame
+        ax.set_ylabel(f'θ{j + 1} [rad]')
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc='upper right', fontsize=8)
+    axes[0].set_title(f'rkgnn_ros demo ({case}): measured vs predicted joint trajectories')
+    ax = axes[n]
+    gen = field(evolution, labels, 'generation')
+    if gen.size:
+        ax.semilogy(gen, field(evolution, labels, 'best_cost'), 'C1', label='best cost J')
+        ax.semilogy(gen, field(evolution, labels, 'mean_cost'), 'C1', alpha=0.4,
+                    label='mean cost J')
+        ax.legend(fontsize=8)
+    ax.set_xlabel('generation')
+    ax.set_ylabel('J')
+    ax.grid(alpha=0.3)
+    ax = axes[n + 1]
+    t0, err, _ = prediction_score(snapshot, horizon)
+    if t0.size:
+        theta_range = np.ptp(meas_theta, axis=0)
+        rolling = [np.mean(np.sqrt(np.mean(np.square(err[(t0 > t - 10.0) & (t0 <= t)]),
+                                           axis=0)) / theta_range) for t in t0]
+        ax.plot(t0 - start, 100 * np.array(rolling), 'C0')
+    ax.set_xlabel('t [s]')
+    ax.set_ylabel(f'{horizon:g} s-ahead θ RMSE\n[% of θ range, 10 s window]')
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main(argv=None):
+    """Run the demo; return the exit code."""
+    parser = argparse.ArgumentParser(description='rkgnn_ros demo: sim_arm + identifier')
+    parser.add_argument('--duration', type=float, default=90.0, help='seconds to run')
+    parser.add_argument('--case', default='torque', choices=sorted(CASES))
+    parser.add_argument('--horizon', type=float, default=2.0)
+    parser.add_argument('--out', default=os.path.join(os.path.dirname(HERE), 'out',
+                                                      'demo.png'))
+    parser.add_argument('--domain-id', type=int, default=None)
+    parser.add_argument('--print-every', type=float, default=5.0)
+    args = parser.parse_args(argv)
+    case = CASES[args.case]
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    domain = args.domain_id if args.domain_id is not None else 20 + os.getpid() % 200
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
+    ident_args = ['-p', f'case:={case}', '-p', f'prediction.horizon:={args.horizon}']
+    if case == 'pd_gains':
+        ident_args += ['-p', f'kp:={PAPER_KP}', '-p', f'kd:={PAPER_KD}']
+    log_dir = os.path.dirname(os.path.abspath(args.out))
+    os.makedirs(log_dir, exist_ok=True)
+    procs = []
+    logs = []
+    print(f'rkgnn_ros demo: case {case}, {args.duration:.0f} s, ROS_DOMAIN_ID={domain}',
+          flush=True)
+    try:
+        for name, extra in (('sim_arm', []), ('identifier', ident_args)):
+            log = open(os.path.join(log_dir, f'demo_{name}.log'), 'w', encoding='utf-8')
+            logs.append(log)
+            cmd = [executable(name), '--ros-args', '--params-file',
+                   config(f'{name}.yaml')] + extra
+            procs.append(subprocess.Popen(cmd, env=env, stdout=log,
+                                          stderr=subprocess.STDOUT))
+            print(f'  started {name} (pid {procs[-1].pid}), log in {log.name}', flush=True)
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        monitor = Monitor(ctx, args.horizon)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(monitor.node)
+        t_start = time.monotonic()
+        next_print = t_start + args.print_every
+        while time.monotonic() - t_start < args.duration:
+            executor.spin_once(timeout_sec=0.1)
+            for name, p in zip(('sim_arm', 'identifier'), procs):
+                if p.poll() is not None:
+                    raise RuntimeError(f'{name} exited early with code {p.returncode}')
+            if time.monotonic() >= next_print:
+                next_print += args.print_every
+                snap = monitor.snapshot()
+                evo, labels = snap[5], snap[6]
+                _, _, score = prediction_score(snap, args.horizon, window=10.0)
+                if evo.size:
+                    gen = field(evo[-1:], labels, 'generation')[0]
+                    best = field(evo[-1:], labels, 'best_cost')[0]
+                    val = field(evo[-1:], labels, 'validation_nrmse')[0]
+                    status = (f'generation {gen:5.0f}  best J {best:9.4g}  '
+                              f'validation θ-NRMSE {val:7.2%}')
+                else:
+                    status = 'waiting for the first generation'
+                print(f'[{time.monotonic() - t_start:5.0f} s] {status}  '
+                      f'{args.horizon:g} s-ahead θ RMSE {score:7.2%} of range  '
+                      f'({snap[0].size} states, {len(snap[2])} predictions)', flush=True)
+        snap = monitor.snapshot()
+        _, _, score = prediction_score(snap, args.horizon, window=10.0)
+        write_figure(args.out, snap, args.horizon, case)
+        print(f'final {args.horizon:g} s-ahead θ RMSE (last 10 s): {score:.2%} of the θ range',
+              flush=True)
+        print(f'figure: {args.out}', flush=True)
+        executor.shutdown()
+        monitor.node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    finally:
+        codes = []
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        for p in procs:
+            try:
+                codes.append(p.wait(timeout=15))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                codes.append(p.wait())
+        for log in logs:
+            log.close()
+    if any(c != 0 for c in codes):
+        print(f'a node exited with a non-zero code: {codes}', flush=True)
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
