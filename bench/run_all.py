@@ -1,0 +1,56 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Run every benchmark in bench/ (``make bench``); each writes its JSON to bench/results/.
+
+Benchmarks measure speed as ratios within one run and accuracy on fixed seeds; none is a
+test. Pass names to run a subset: ``python bench/run_all.py fitness_speed``.
+"""
+
+import glob
+import os
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def main(argv=None):
+    """Run the selected benchmarks in turn; return non-zero if any failed."""
+    argv = sys.argv[1:] if argv is None else argv
+    scripts = sorted(p for p in glob.glob(os.path.join(HERE, '*.py'))
+                     if os.path.basename(p) != 'run_all.py')
+    if argv:
+        scripts = [p for p in scripts if os.path.splitext(os.path.basename(p))[0] in argv]
+    failed = []
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [os.path.dirname(HERE)] + [p for p in [os.environ.get('PYTHONPATH')] if p]))
+    for path in scripts:
+        name = os.path.basename(path)
+        print(f'== {name}', flush=True)
+        t0 = time.perf_counter()
+        code = subprocess.call([sys.executable, path], env=env)
+        print(f'== {name}: exit {code} after {time.perf_counter() - t0:.0f} s', flush=True)
+        if code != 0:
+            failed.append(name)
+    if failed:
+        print(f'failed: {failed}', flush=True)
+        return 1
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
