@@ -164,6 +164,11 @@ def tune_gains(generations, log):
     return out
 
 
+def _percent(value):
+    """Format a fraction as a percentage; a diverged rollout (inf/NaN) says so."""
+    return f'{value:.2%}' if np.isfinite(value) else 'diverged'
+
+
 def write_markdown(results, path):
     """Write the summary table."""
     lines = ['# Paper reproduction (`make paper`)', '',
@@ -181,7 +186,7 @@ def write_markdown(results, path):
         for name in ('paper_ea', 'best'):
             r = results[case][name]
             lines.append(f"| {case} | {name} | {r['genome_size']} | {r['final_cost']:.4g} | "
-                         f"{r['heldout_nrmse']:.2%} | {r['fit_nrmse']:.2%} | "
+                         f"{_percent(r['heldout_nrmse'])} | {_percent(r['fit_nrmse'])} | "
                          f"{r['evaluations']} | {r['wall_s']:.0f} |")
     pd = results.get('pd_tuning')
     if pd:
