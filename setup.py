@@ -25,6 +25,7 @@ setup(
     entry_points={
         'console_scripts': [
             'sim_arm = rkgnn_ros.sim_arm:main',
+            'identifier = rkgnn_ros.identifier:main',
         ],
     },
 )

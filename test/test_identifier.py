@@ -1,0 +1,588 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The identifier node over the real middleware: streams in, model, prediction, services.
+
+One identifier node (in-process, private Context, ``parameter_overrides``) runs for the
+whole module on a random ROS_DOMAIN_ID in 150-230, in a namespace of its own so that other
+nodes on the same domain cannot feed it. A streamer thread publishes joint_states,
+joint_commands and reference_trajectory in real time from a ``simulate(...)`` run of the
+paper's arm (case 'unknown'). Parameters are changed through the ``~/set_parameters``
+services, exactly what ``ros2 param set`` calls. Two tests start the module as a process:
+an invalid params file (refused, exit 1) and SIGINT mid-generation (exit 0, saved model).
+"""
+
+import math
+import os
+import random
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import pytest
+from rcl_interfaces.srv import GetParameters, SetParameters, SetParametersAtomically
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
+from rkgnn_ros.core.identify import RKGNNModel
+from rkgnn_ros.core.plant import PDController, PlanarArm
+from rkgnn_ros.core.simulate import simulate
+from rkgnn_ros.core.trajectories import paper_reference
+from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode, split_validation
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import SetBool, Trigger
+from trajectory_msgs.msg import JointTrajectory
+
+pytestmark = pytest.mark.ros
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DOMAIN_ID = random.randint(150, 230)
+NS = f'/idtest{os.getpid()}_{random.randint(0, 9999)}'
+JOINTS = ('j1', 'j2', 'j3')
+RATE = 100.0
+POPULATION = 16
+OVERRIDES = {
+    'case': 'unknown', 'window': 4.0, 'min_window': 1.5, 'validation_fraction': 0.25,
+    'model_publish_period': 0.3, 'prediction.rate': 5.0, 'prediction.horizon': 0.5,
+    'es.population_size': POPULATION, 'es.seed': 1, 'stale_timeout': 1.0,
+}
+
+
+def wait_for(predicate, timeout, interval=0.02):
+    """Poll ``predicate`` until it is truthy or ``timeout`` s pass; return its last value."""
+    end = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value or time.monotonic() > end:
+            return value
+        time.sleep(interval)
+
+
+class Streamer:
+    """Publish the simulated arm in real time: states, commands, a rolling reference."""
+
+    def __init__(self, node, data):
+        self.data = data
+        self.state_pub = node.create_publisher(JointState, f'{NS}/joint_states', 100)
+        self.command_pub = node.create_publisher(JointState, f'{NS}/joint_commands', 100)
+        self.reference_pub = node.create_publisher(JointTrajectory,
+                                                   f'{NS}/reference_trajectory', 10)
+        self.published = {}  # (sec, nanosec) -> (position list, velocity list)
+        self.lock = threading.Lock()
+        self.running = threading.Event()
+        self.running.set()
+        self.stopped = threading.Event()
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self):
+        d = self.data
+        n_samples = d.t.size
+        t_base = time.time()
+        k = 0
+        while not self.stopped.is_set():
+            if not self.running.is_set():
+                self.running.wait(0.1)
+                t_base = time.time() - d.t[k % n_samples]  # continue after a real gap
+                continue
+            i = k % n_samples
+            if i == 0 and k:
+                t_base += d.t[-1] + 0.5  # wrap with a gap longer than gap_threshold
+            stamp = t_base + d.t[i]
+            delay = stamp - time.time()
+            if delay > 0:
+                time.sleep(delay)
+            state = make_joint_state(stamp, JOINTS, d.theta[i], d.theta_dot[i], d.tau[i])
+            with self.lock:
+                key = (state.header.stamp.sec, state.header.stamp.nanosec)
+                self.published[key] = (list(state.position), list(state.velocity))
+                if len(self.published) > 3000:
+                    self.published.pop(next(iter(self.published)))
+            self.state_pub.publish(state)
+            self.command_pub.publish(make_joint_state(stamp, JOINTS, d.theta_d[i],
+                                                      d.theta_d_dot[i]))
+            if i % 50 == 0 and i + 200 < n_samples:  # 2 s of plan every 0.5 s
+                ahead = slice(i, i + 200, 10)
+                self.reference_pub.publish(make_joint_trajectory(
+                    stamp, JOINTS, d.t[ahead] - d.t[i], d.theta_d[ahead],
+                    d.theta_d_dot[ahead]))
+            k += 1
+
+    def stop(self):
+        self.stopped.set()
+        self.running.set()
+        self.thread.join(5.0)
+
+
+class Probe:
+    """Collect what the identifier publishes; call its services."""
+
+    def __init__(self, node, name='identifier'):
+        self.node = node
+        self.lock = threading.Lock()
+        self.evolution = []
+        self.predictions = []
+        self.diagnostics = []
+        self.name = name
+        base = f'{NS}/{name}'
+        node.create_subscription(Float64MultiArray, f'{base}/evolution',
+                                 lambda m: self._add(self.evolution, m), 100)
+        node.create_subscription(JointTrajectory, f'{base}/prediction',
+                                 lambda m: self._add(self.predictions, m), 100)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 100)
+        self.set_client = node.create_client(SetParameters, f'{base}/set_parameters')
+        self.atomic_client = node.create_client(SetParametersAtomically,
+                                                f'{base}/set_parameters_atomically')
+        self.get_client = node.create_client(GetParameters, f'{base}/get_parameters')
+        self.reset_client = node.create_client(Trigger, f'{base}/reset')
+        self.save_client = node.create_client(Trigger, f'{base}/save_model')
+        self.pause_client = node.create_client(SetBool, f'{base}/pause')
+
+    def _add(self, store, msg):
+        with self.lock:
+            store.append((time.monotonic(), msg))
+
+    def _on_diagnostics(self, msg):
+        for status in msg.status:
+            if status.hardware_id == f'{NS}/{self.name}':
+                values = {kv.key: kv.value for kv in status.values}
+                self._add(self.diagnostics, (status, values))
+
+    def since(self, store, t0):
+        with self.lock:
+            return [m for t, m in store if t >= t0]
+
+    def generations(self, t0=-math.inf):
+        return [int(m.data[0]) for m in self.since(self.evolution, t0)]
+
+    def call(self, client, request, timeout=5.0):
+        assert client.wait_for_service(timeout_sec=timeout), client.srv_name
+        future = client.call_async(request)
+        assert wait_for(future.done, timeout), f'{client.srv_name} did not answer'
+        return future.result()
+
+    def set_parameters(self, *params):
+        request = SetParameters.Request(parameters=[p.to_parameter_msg() for p in params])
+        return self.call(self.set_client, request).results
+
+    def get_parameter(self, name):
+        response = self.call(self.get_client, GetParameters.Request(names=[name]))
+        return parameter_value_to_python(response.values[0])
+
+    def diagnostic(self, predicate, timeout):
+        t0 = time.monotonic()
+
+        def found():
+            for status, values in self.since(self.diagnostics, t0):
+                if predicate(status, values):
+                    return values
+            return None
+        return wait_for(found, timeout)
+
+
+@pytest.fixture(scope='module')
+def rig():
+    old_domain = os.environ.get('ROS_DOMAIN_ID')
+    os.environ['ROS_DOMAIN_ID'] = str(DOMAIN_ID)  # also for the subprocesses
+    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 12.0,
+                    rate=RATE, joint_names=JOINTS)
+    context = Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    node = IdentifierNode(context=context, namespace=NS, parameter_overrides=[
+        Parameter(name, value=value) for name, value in OVERRIDES.items()])
+    test_node = rclpy.create_node('identifier_test', context=context, namespace=NS)
+    probe = Probe(test_node)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(test_node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    streamer = Streamer(test_node, data)
+    rig = type('Rig', (), {})()
+    rig.node, rig.test_node, rig.probe, rig.streamer = node, test_node, probe, streamer
+    rig.context, rig.executor, rig.data = context, executor, data
+    try:
+        assert wait_for(lambda: len(probe.generations()) >= 3, 60.0), 'no generation ran'
+        yield rig
+    finally:
+        streamer.stop()
+        node.stop()
+        executor.shutdown(timeout_sec=2.0)
+        spinner.join(5.0)
+        node.destroy_node()
+        test_node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        if old_domain is None:
+            os.environ.pop('ROS_DOMAIN_ID', None)
+        else:
+            os.environ['ROS_DOMAIN_ID'] = old_domain
+
+
+def _subprocess(args, **kw):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID),
+               PYTHONPATH=os.pathsep.join(filter(None, [ROOT, os.environ.get('PYTHONPATH')])))
+    return subprocess.Popen([sys.executable, '-m', 'rkgnn_ros.identifier', '--ros-args']
+                            + args, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kw)
+
+
+@pytest.mark.parametrize('line, name', [('crossover_rate: 1.5', 'es.crossover_rate'),
+                                        ('sigma: 0.0', 'es.sigma')])
+def test_out_of_range_params_file_refuses_to_start(tmp_path, line, name):
+    # runs before the module's node exists (test order), so it has the CPU to itself
+    with open(os.path.join(ROOT, 'config', 'identifier.yaml')) as f:
+        text = f.read()
+    key = line.split(':')[0]
+    lines = [f'      {line}' if row.strip().startswith(f'{key}:') else row
+             for row in text.splitlines()]
+    path = tmp_path / 'bad.yaml'
+    path.write_text('\n'.join(lines) + '\n')
+    proc = _subprocess(['--params-file', str(path)])
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 1, (out, err)
+    assert name in out + err and 'refusing to start' in out + err
+
+
+def test_evolution_layout_and_increasing_generations(rig):
+    t0 = time.monotonic()
+    assert wait_for(lambda: len(rig.probe.since(rig.probe.evolution, t0)) >= 5, 10.0)
+    messages = rig.probe.since(rig.probe.evolution, t0)
+    for msg in messages:
+        assert [d.label for d in msg.layout.dim] == [','.join(EVOLUTION_LABELS)]
+        assert msg.layout.dim[0].size == len(EVOLUTION_LABELS) == len(msg.data)
+        fields = dict(zip(EVOLUTION_LABELS, msg.data))
+        assert fields['population_size'] == POPULATION
+        assert fields['evaluations'] >= fields['generation'] * 2
+    generations = [int(m.data[0]) for m in messages]
+    assert all(b > a for a, b in zip(generations, generations[1:])), generations
+    t1 = time.monotonic()
+    time.sleep(2.0)
+    assert len(rig.probe.since(rig.probe.evolution, t1)) <= 2 * 20 + 2  # at most 20 Hz
+    values = rig.probe.diagnostic(lambda s, v: v['state'] == 'evolving', 3.0)
+    assert values and int(values['generation']) > 0 and int(values['samples_buffered']) > 0
+    assert values['joints'] == ','.join(JOINTS)  # learned from the first joint_states
+
+
+def test_prediction_starts_exactly_at_a_published_state(rig):
+    t0 = time.monotonic()
+    assert wait_for(lambda: rig.probe.since(rig.probe.predictions, t0), 10.0)
+    msg = rig.probe.since(rig.probe.predictions, t0)[0]
+    assert tuple(msg.joint_names) == JOINTS
+    key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+    with rig.streamer.lock:
+        assert key in rig.streamer.published, 'the stamp is not one of a published state'
+        position, velocity = rig.streamer.published[key]
+    first = msg.points[0]
+    assert (first.time_from_start.sec, first.time_from_start.nanosec) == (0, 0)
+    assert list(first.positions) == position and list(first.velocities) == velocity
+    assert len(msg.points) == 51  # 0.5 s at model_step 0.01, both ends
+    times = [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in msg.points]
+    np.testing.assert_allclose(np.diff(times), 0.01, atol=1e-9)
+    values = np.array([list(p.positions) + list(p.velocities) for p in msg.points])
+    assert np.isfinite(values).all()
+
+
+def test_model_reaches_a_late_subscriber_and_outputs_are_set(rig):
+    assert wait_for(lambda: rig.node.model is not None, 10.0)
+    received = []
+    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    sub = rig.test_node.create_subscription(String, f'{NS}/identifier/model',
+                                            received.append, qos)
+    try:
+        assert wait_for(lambda: received, 5.0), 'transient-local model not delivered'
+    finally:
+        rig.test_node.destroy_subscription(sub)
+    model = RKGNNModel.from_yaml(received[0].data, JOINTS)
+    assert model.case == 'unknown' and model.n_joints == 3
+    assert wait_for(lambda: rig.probe.get_parameter('identified.generation') > 0, 3.0)
+    assert len(rig.probe.get_parameter('identified.kp')) == 3  # case 3: implied gains
+    assert math.isfinite(rig.probe.get_parameter('identified.cost'))
+
+
+def test_set_parameters_changes_the_running_search_and_rejects_bad_values(rig):
+    probe = rig.probe
+    t_set = time.monotonic()
+    result, = probe.set_parameters(Parameter('es.population_size', value=12))
+    assert result.successful, result.reason
+    assert wait_for(lambda: [m for m in probe.since(probe.evolution, t_set)
+                             if m.data[-1] == 12], 10.0), 'population_size not applied'
+
+    def rejected(param, *words):
+        res, = probe.set_parameters(param)
+        assert not res.successful, param.name
+        for word in words:
+            assert word in res.reason, (word, res.reason)
+
+    rejected(Parameter('es.population_size', value=0), 'es.population_size', '>= 2')
+    rejected(Parameter('es.population_size', value=1), 'es.population_size')
+    rejected(Parameter('es.crossover_rate', value=1.5), 'es.crossover_rate', '1.0')
+    rejected(Parameter('es.sigma', value=0.0), 'es.sigma', '(0.0, 10.0]')
+    rejected(Parameter('es.sigma', value=-1.0), 'es.sigma')
+    rejected(Parameter('es.sigma', Parameter.Type.DOUBLE, math.nan), 'es.sigma')
+    rejected(Parameter('es.sigma', value=1), 'Wrong parameter type')  # an int for a double
+    rejected(Parameter('min_window', value=5.0), 'min_window', 'window')
+    rejected(Parameter('case', value='bogus'), 'case')
+    rejected(Parameter('identified.cost', value=0.0), 'identified.cost', 'output')
+    for boundary in (Parameter('es.crossover_rate', value=1.0),
+                     Parameter('es.crossover_rate', value=0.0),
+                     Parameter('es.mutation_rate', value=0.0),
+                     Parameter('validation_fraction', value=0.25)):
+        res, = probe.set_parameters(boundary)
+        assert res.successful, (boundary.name, res.reason)
+    assert probe.get_parameter('es.crossover_rate') == 0.0
+    # a cross-parameter rule, set atomically as one request
+    request = SetParametersAtomically.Request(parameters=[
+        Parameter('es.algorithm', value='paper').to_parameter_msg(),
+        Parameter('es.population_size', value=8).to_parameter_msg(),
+        Parameter('es.tournament_size', value=9).to_parameter_msg()])
+    res = probe.call(probe.atomic_client, request).result
+    assert not res.successful and 'es.tournament_size' in res.reason, res.reason
+    assert probe.get_parameter('es.algorithm') == 'cmaes'
+    assert probe.get_parameter('es.population_size') == 12
+    t_after = time.monotonic()
+    assert wait_for(lambda: len(probe.since(probe.evolution, t_after)) >= 3, 5.0)
+    assert all(m.data[-1] == 12 for m in probe.since(probe.evolution, t_after))
+
+
+def test_parameter_burst_is_applied_between_generations(rig):
+    probe = rig.probe
+    rng = random.Random(7)
+    t0 = time.monotonic()
+    size = None
+    for _ in range(20):
+        size = rng.randint(6, 20)
+        start = time.monotonic()
+        results = probe.set_parameters(
+            Parameter('es.population_size', value=size),
+            Parameter('es.sigma', value=rng.uniform(0.1, 1.0)))
+        assert time.monotonic() - start < 1.0  # answered while generations run
+        assert all(r.successful for r in results), [r.reason for r in results]
+    assert wait_for(lambda: [m for m in probe.since(probe.evolution, time.monotonic() - 0.2)
+                             if m.data[-1] == size], 5.0)
+    generations = probe.generations(t0)
+    assert all(b > a for a, b in zip(generations, generations[1:])), generations
+    res, = probe.set_parameters(Parameter('es.population_size', value=12))
+    assert res.successful
+
+
+def test_split_validation_holds_out_the_newest_fraction(rig):
+    data = rig.data
+    old, new = data.slice(0, 301), data.slice(400, 701)  # 3 s each, a gap between
+    train, validation, seconds = split_validation([old, new], 0.25)
+    assert seconds == pytest.approx(6.0)
+    assert [d.t[0] for d in train] == [old.t[0], new.t[0]]
+    assert validation[0].t[0] == pytest.approx(new.t[-1] - 1.5)
+    assert validation[-1].t[-1] == new.t[-1]
+    assert split_validation([old, new], 0.0)[1] == []
+    train, validation, _ = split_validation([old, new], 0.5)
+    assert train == [old] and validation == [new]
+
+
+def test_on_set_callback_never_raises(rig):
+    node = rig.node
+    weird = [None, [None], [object()], [Parameter('window', value='abc')],
+             [Parameter('kp', value=[math.nan])], [Parameter('joints', value=['a', 'a'])],
+             [Parameter('es.tournament_size', value=10 ** 9)], 42]
+    for params in weird:
+        result = node._on_set_parameters(params)
+        assert result.successful is False, params
+        assert result.reason
+    assert node._on_set_parameters([Parameter('use_sim_time', value=False)]).successful
+
+
+def test_malformed_messages_are_dropped_and_counted(rig):
+    pub = rig.test_node.create_publisher(JointState, f'{NS}/joint_states', 10)
+    ref = rig.test_node.create_publisher(JointTrajectory, f'{NS}/reference_trajectory', 10)
+    stamp = time.time()
+    short = make_joint_state(stamp, JOINTS, [0.1, 0.2, 0.3], [0.0] * 3, [0.0] * 3)
+    short.position = [0.1, 0.2]
+    nan = make_joint_state(stamp, JOINTS, [math.nan, 0.2, 0.3], [0.0] * 3, [0.0] * 3)
+    duplicate = make_joint_state(stamp, ('j1', 'j1', 'j3'), [0.1] * 3, [0.0] * 3)
+    backwards = make_joint_trajectory(stamp, JOINTS, [0.0, 0.1, 0.2], np.zeros((3, 3)))
+    backwards.points[2].time_from_start = backwards.points[1].time_from_start
+    for _ in range(3):  # best effort: send each a few times
+        for msg in (short, nan, duplicate):
+            pub.publish(msg)
+        ref.publish(backwards)
+        time.sleep(0.05)
+
+    def counted(status, values):
+        return all(int(values[f'drops.{reason}']) >= 1 for reason in (
+            'size_mismatch', 'non_finite', 'duplicate_name', 'non_increasing_time'))
+    values = rig.probe.diagnostic(counted, 5.0)
+    assert values, 'drops not counted in /diagnostics'
+    assert values['state'] == 'evolving'
+    t0 = time.monotonic()
+    assert wait_for(lambda: len(rig.probe.since(rig.probe.evolution, t0)) >= 2, 5.0)
+    rig.test_node.destroy_publisher(pub)
+    rig.test_node.destroy_publisher(ref)
+
+
+def test_worker_exception_is_counted_and_survived(rig):
+    evo = rig.node._evo
+    original = evo.step
+
+    def failing_step():
+        evo.step = original
+        raise FloatingPointError('injected failure')
+
+    evo.step = failing_step
+    values = rig.probe.diagnostic(lambda s, v: int(v['drops.worker_error']) >= 1, 5.0)
+    assert values, 'worker error not counted'
+    t0 = time.monotonic()
+    assert wait_for(lambda: len(rig.probe.since(rig.probe.evolution, t0)) >= 2, 8.0)
+
+
+def test_pause_stops_generations_and_resume_continues(rig):
+    probe = rig.probe
+    response = probe.call(probe.pause_client, SetBool.Request(data=True))
+    assert response.success and 'paused' in response.message
+    time.sleep(0.5)  # the generation running at the call completes
+    t0 = time.monotonic()
+    last = max(probe.generations())
+    assert probe.diagnostic(lambda s, v: v['state'] == 'paused', 3.0)
+    time.sleep(0.5)
+    assert [g for g in probe.generations(t0) if g > last] == []
+    assert probe.call(probe.pause_client, SetBool.Request(data=False)).success
+    assert wait_for(lambda: [g for g in probe.generations(t0) if g > last], 5.0)
+
+
+def test_stale_stream_pauses_the_search(rig):
+    rig.streamer.running.clear()
+    try:
+        values = rig.probe.diagnostic(lambda s, v: v['state'] == 'stale', 4.0)
+        assert values and 'joint_states' in values['detail']
+        assert values['state'] == 'stale' and values['detail']
+    finally:
+        rig.streamer.running.set()
+    assert rig.probe.diagnostic(lambda s, v: v['state'] == 'evolving', 8.0)
+
+
+def test_save_model_writes_a_loadable_file(rig, tmp_path):
+    probe = rig.probe
+    res, = probe.set_parameters(Parameter('model_file', value=''))
+    assert res.successful
+    response = probe.call(probe.save_client, Trigger.Request())
+    assert not response.success and 'model_file' in response.message
+    path = tmp_path / 'models' / 'arm.yaml'
+    res, = probe.set_parameters(Parameter('model_file', value=str(path)))
+    assert res.successful
+    response = probe.call(probe.save_client, Trigger.Request())
+    assert response.success and str(path) in response.message, response.message
+    model = RKGNNModel.load(path, JOINTS)
+    assert model.case == 'unknown'
+    rig.saved_model_path = path
+
+
+def test_model_file_is_published_at_start_and_bad_files_are_refused(rig, tmp_path):
+    good = rig.saved_model_path
+    saved = RKGNNModel.load(good, JOINTS)
+    received = []
+    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    sub = rig.test_node.create_subscription(String, f'{NS}/identifier_loaded/model',
+                                            received.append, qos)
+    overrides = [Parameter('case', value='unknown'), Parameter('prediction.rate', value=0.0)]
+    node = IdentifierNode('identifier_loaded', context=rig.context, namespace=NS,
+                          parameter_overrides=overrides + [
+                              Parameter('model_file', value=str(good))])
+    try:
+        assert node.model is not None
+        assert wait_for(lambda: received, 5.0), 'the loaded model was not published'
+        loaded = RKGNNModel.from_yaml(received[0].data, JOINTS)
+        np.testing.assert_array_equal(loaded.genome, saved.genome)
+    finally:
+        node.stop()
+        node.destroy_node()
+        rig.test_node.destroy_subscription(sub)
+    text = good.read_text()
+    corrupt = tmp_path / 'corrupt.yaml'
+    corrupt.write_text(text[:len(text) // 2] + '\n  - [unbalanced')
+    nan_genome = tmp_path / 'nan.yaml'
+    nan_genome.write_text(re.sub(r'genome:\n- [^\n]+', 'genome:\n- .nan', text, count=1))
+    wrong_case = tmp_path / 'torque.yaml'
+    wrong_case.write_text(text)
+    for path, case in ((corrupt, 'unknown'), (nan_genome, 'unknown'), (wrong_case, 'torque')):
+        node = IdentifierNode('identifier_refusing', context=rig.context, namespace=NS,
+                              parameter_overrides=[Parameter('case', value=case),
+                                                   Parameter('model_file', value=str(path))])
+        try:
+            assert node.model is None, path  # refused with a logged reason, started fresh
+        finally:
+            node.stop()
+            node.destroy_node()
+
+
+def test_reset_restarts_the_search(rig):
+    probe = rig.probe
+    before = max(probe.generations())
+    t0 = time.monotonic()
+    response = probe.call(probe.reset_client, Trigger.Request())
+    assert response.success and 'cleared' in response.message
+    assert wait_for(lambda: [g for g in probe.generations(t0) if g < before / 2], 10.0)
+    restarted = [g for g in probe.generations(t0) if g < before / 2]
+    assert restarted[0] <= 3
+
+
+def test_structural_change_restarts_with_the_new_case(rig):
+    probe = rig.probe
+    t0 = time.monotonic()
+    res, = probe.set_parameters(Parameter('case', value='torque'))
+    assert res.successful, res.reason
+    values = probe.diagnostic(lambda s, v: v['case'] == 'torque' and v['state'] == 'evolving',
+                              10.0)
+    assert values, 'no generation in case torque'
+    assert wait_for(lambda: rig.node.model is not None and rig.node.model.case == 'torque',
+                    10.0)
+    assert min(probe.generations(t0)) <= 3
+
+
+def test_sigint_mid_generation_exits_cleanly_and_saves(rig, tmp_path):
+    model_file = tmp_path / 'sigint_model.yaml'
+    params = tmp_path / 'params.yaml'
+    overrides = dict(OVERRIDES, **{'prediction.rate': 0.0, 'prediction.on_state': True})
+    params.write_text('/**:\n  ros__parameters:\n' + ''.join(
+        f'    {name}: {value!r}\n' for name, value in overrides.items())
+        + f'    model_file: {str(model_file)!r}\n')
+    name = 'identifier_sigint'
+    probe = Probe(rig.test_node, name)
+    assert rig.probe.call(rig.probe.pause_client, SetBool.Request(data=True)).success
+    proc = _subprocess(['--params-file', str(params), '-r', f'__ns:={NS}',
+                        '-r', f'__node:={name}'])
+    try:
+        assert wait_for(lambda: len(probe.generations()) >= 3, 40.0), 'no generation ran'
+        # prediction.on_state: a prediction per accepted state (at most one per model_step)
+        assert wait_for(lambda: len(probe.since(probe.predictions, 0)) >= 20, 10.0)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+        assert time.monotonic() - t0 < 5.0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in out + err, err
+    assert RKGNNModel.load(model_file, JOINTS).case == 'unknown'
