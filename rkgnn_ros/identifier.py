@@ -467,7 +467,7 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
     algorithm, settings = optimizer_settings(values)
     cls = PaperEA if algorithm == 'paper' else CMAES
     try:
-        cls._validated({**cls.DEFAULTS, **settings})
+        cls.validate_settings(**settings)
     except ValueError as exc:
         return _prefixed(str(exc), 'es.', _ES_NAMES)
     return None

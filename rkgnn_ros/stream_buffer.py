@@ -548,7 +548,10 @@ class StreamBuffer:
         None means nothing arrived since construction or the last clear (waiting).
         """
         with self._lock:
-            last = self._series[stream].last_t()
+            series = self._series.get(stream)
+            if series is None:
+                raise ValueError(f"stream must be 'state' or 'command', got {stream!r}")
+            last = series.last_t()
             if last is None:
                 return None
             return float(now) - (last + self._origin)

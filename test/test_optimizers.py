@@ -591,3 +591,13 @@ def test_x0_centres_the_initial_population():
     assert (X - x0).std() == pytest.approx(0.5, rel=0.05)
     with pytest.raises(ValueError, match='x0 contains NaN'):
         PaperEA(2, x0=[0.0, math.nan])
+
+
+def test_validate_settings_fills_defaults_and_names_the_bad_setting():
+    s = PaperEA.validate_settings(population_size=10)
+    assert s['population_size'] == 10 and s['tournament_size'] == PaperEA.DEFAULTS[
+        'tournament_size']
+    with pytest.raises(ValueError, match='crossover_rate'):
+        PaperEA.validate_settings(crossover_rate=1.5)
+    with pytest.raises(ValueError, match='unknown setting'):
+        CMAES.validate_settings(tournament=3)

@@ -490,3 +490,10 @@ def test_property_arbitrary_samples_never_raise_and_stay_finite(events, need_tau
         assert (segment.theta_d is not None) == need_desired
     assert_counts_add_up(buffer, attempts)
     assert buffer.counters['resample_failed'] == 0
+
+
+def test_staleness_of_an_unknown_stream_is_a_clear_error():
+    buf = make_buffer()
+    with pytest.raises(ValueError, match="'state' or 'command'"):
+        buf.staleness(1.0, 'reference')
+    assert buf.staleness(1.0, 'state') is None

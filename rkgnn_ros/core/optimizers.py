@@ -293,6 +293,15 @@ class Optimizer(ABC):
         best_cost = float(best_cost)
         self.best_cost = best_cost if math.isfinite(best_cost) else math.inf
 
+    @classmethod
+    def validate_settings(cls, **settings) -> dict:
+        """Return the settings with defaults filled in, validated, or raise ValueError."""
+        unknown = sorted(set(settings) - set(cls.DEFAULTS))
+        if unknown:
+            raise ValueError(f'unknown setting(s) {unknown} for {cls.__name__}; '
+                             f'known: {sorted(cls.DEFAULTS)}')
+        return cls._validated({**cls.DEFAULTS, **settings})
+
     # -- shared machinery ---------------------------------------------------------------
 
     @classmethod
