@@ -299,8 +299,9 @@ class FitnessProblem:
                               + np.linalg.norm(err[..., n:], axis=-1))
             total += np.sum(per_sample[:, 1:], axis=1)
             if net is not None:
-                for i in range(data.n_samples):
-                    worst_minor = np.minimum(worst_minor, net.min_minor(pred[:, i, :n]))
+                with np.errstate(all='ignore'):  # diverged rows are NaN: scored as inf below
+                    for i in range(data.n_samples):
+                        worst_minor = np.minimum(worst_minor, net.min_minor(pred[:, i, :n]))
         cost = total / self.n_predicted
         if net is not None:
             cost = cost + self.penalty_weight * np.maximum(0.0, -worst_minor)

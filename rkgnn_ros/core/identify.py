@@ -164,6 +164,10 @@ class RKGNNModel:
         theta_dot = np.broadcast_to(np.asarray(theta_dot, dtype=float), theta.shape)
         return np.hstack([theta, theta_dot])
 
+    def _no_input(self):
+        """A zero input u of the right size (τ in case 1, [θd, θ̇d] otherwise)."""
+        return np.zeros(self.n_joints if self.case == 'torque' else 2 * self.n_joints)
+
     def _squeeze(self, value, theta):
         return value[0] if np.ndim(theta) == 1 else value
 
@@ -189,18 +193,18 @@ class RKGNNModel:
     def velocity_terms(self, theta, theta_dot):
         """V(θ, θ̇) = B(θ)[θ̇θ̇] + C(θ)[θ̇²]."""
         x = self._states(theta, theta_dot)
-        return self._squeeze(self._net.terms(x, np.zeros(self.n_joints))['V'], theta)
+        return self._squeeze(self._net.terms(x, self._no_input())['V'], theta)
 
     def gravity_terms(self, theta):
         """G(θ)."""
         x = self._states(theta)
-        return self._squeeze(self._net.terms(x, np.zeros(self.n_joints))['G'], theta)
+        return self._squeeze(self._net.terms(x, self._no_input())['G'], theta)
 
     def friction_terms(self, theta_dot):
         """F(θ̇) (independent of θ)."""
         theta_dot = np.asarray(theta_dot, dtype=float)
         x = self._states(np.zeros_like(np.atleast_2d(theta_dot)), theta_dot)
-        return self._squeeze(self._net.terms(x, np.zeros(self.n_joints))['F'], theta_dot)
+        return self._squeeze(self._net.terms(x, self._no_input())['F'], theta_dot)
 
     def controller_torque(self, theta, theta_dot, theta_d, theta_d_dot):
         """τ of the identified (case 3) or known (case 2) controller."""
@@ -420,6 +424,12 @@ def save_text_atomic(path, text) -> None:
     fd, tmp = tempfile.mkstemp(prefix='.' + os.path.basename(path) + '.', suffix='.tmp',
                                dir=folder)
     try:
+        # mkstemp creates 0600; give the file the mode a plain open() would (or the old one's)
+        try:
+            mode = os.stat(path).st_mode & 0o777
+        except OSError:
+            mode = 0o666 & ~_umask()
+        os.fchmod(fd, mode)
         with os.fdopen(fd, 'w', encoding='utf-8') as f:
             f.write(text)
             f.flush()
@@ -439,6 +449,18 @@ def save_text_atomic(path, text) -> None:
             os.close(dir_fd)
     except OSError:  # pragma: no cover - some filesystems refuse fsync on folders
         pass
+
+
+def _umask() -> int:
+    """Return the process umask without changing it (os.umask would race other threads)."""
+    try:
+        with open('/proc/self/status', encoding='ascii') as f:
+            for line in f:
+                if line.startswith('Umask:'):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    return 0o022
 
 
 def _plain(value):

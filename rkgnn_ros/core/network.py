@@ -98,6 +98,12 @@ class Scales:
     @classmethod
     def from_datasets(cls, datasets, case, kp=None, kd=None) -> 'Scales':
         """Measure the scales on a list of :class:`~rkgnn_ros.core.data.Dataset`."""
+        if case == 'torque' and any(d.tau is None for d in datasets):
+            raise ValueError("case 'torque' needs measured torque (Dataset.tau)")
+        if case in ('pd_gains', 'unknown') and any(
+                d.theta_d is None or d.theta_d_dot is None for d in datasets):
+            raise ValueError(f'case {case!r} needs the desired trajectory '
+                             '(Dataset.theta_d, theta_d_dot)')
         theta = np.vstack([d.theta for d in datasets])
         theta_dot = np.vstack([d.theta_dot for d in datasets])
         acc = np.vstack([np.gradient(d.theta_dot, d.dt, axis=0) for d in datasets])

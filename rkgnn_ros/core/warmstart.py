@@ -242,7 +242,7 @@ def _fix_gauge(spec, scales, g, datasets):
     theta = np.vstack([d.theta for d in datasets])
     step = max(1, theta.shape[0] // 200)
     net = BatchedNetwork(spec, spec.decode(g[None], scales), scales)
-    diag = np.array([np.diagonal(net.mass_matrix(th[None]))[0] for th in theta[::step]])
+    diag = np.array([np.diagonal(net.mass_matrix(th[None])[0]) for th in theta[::step]])
     level = float(np.mean(diag / scales.inertia))
     if not np.isfinite(level) or level == 0.0:
         return g
