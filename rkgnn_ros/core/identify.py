@@ -165,7 +165,7 @@ class RKGNNModel:
         return np.hstack([theta, theta_dot])
 
     def _no_input(self):
-        """A zero input u of the right size (τ in case 1, [θd, θ̇d] otherwise)."""
+        """Return a zero input u of the right size (τ in case 1, [θd, θ̇d] otherwise)."""
         return np.zeros(self.n_joints if self.case == 'torque' else 2 * self.n_joints)
 
     def _squeeze(self, value, theta):
