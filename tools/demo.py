@@ -25,10 +25,7 @@ joint trajectories, the evolution history and the prediction error over time.
 
 import argparse
 import os
-import signal
-import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
@@ -36,105 +33,8 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-CASES = {'1': 'torque', '2': 'pd_gains', '3': 'unknown', 'torque': 'torque',
-         'pd_gains': 'pd_gains', 'unknown': 'unknown'}
-PAPER_KP = [32.84, 42.05, 42.31]
-PAPER_KD = [42.44, 0.19, 4.86]
-
-
-def executable(name):
-    """Return the path ``ros2 run rkgnn_ros <name>`` would start."""
-    from ament_index_python.packages import get_package_prefix
-    path = os.path.join(get_package_prefix('rkgnn_ros'), 'lib', 'rkgnn_ros', name)
-    if not os.access(path, os.X_OK):
-        raise FileNotFoundError(f'{path} is not an executable: run colcon build first')
-    return path
-
-
-def config(name):
-    """Return an installed config file."""
-    from ament_index_python.packages import get_package_share_directory
-    return os.path.join(get_package_share_directory('rkgnn_ros'), 'config', name)
-
-
-class Monitor:
-    """Records joint_states, ~/prediction and ~/evolution of the running nodes."""
-
-    def __init__(self, context, horizon):
-        from rclpy.node import Node
-        from rclpy.qos import qos_profile_sensor_data
-        from sensor_msgs.msg import JointState
-        from std_msgs.msg import Float64MultiArray
-        from trajectory_msgs.msg import JointTrajectory
-        self.node = Node('rkgnn_demo_monitor', context=context)
-        self.lock = threading.Lock()
-        self.horizon = horizon
-        self.meas_t, self.meas_theta = [], []
-        self.pred_t0, self.pred_off, self.pred_theta = [], [], []
-        self.evolution = []
-        self.labels = None
-        self.node.create_subscription(JointState, 'joint_states', self._on_state,
-                                      qos_profile_sensor_data)
-        self.node.create_subscription(JointTrajectory, 'identifier/prediction',
-                                      self._on_prediction, 10)
-        self.node.create_subscription(Float64MultiArray, 'identifier/evolution',
-                                      self._on_evolution, 10)
-
-    @staticmethod
-    def _stamp(header):
-        return header.stamp.sec + 1e-9 * header.stamp.nanosec
-
-    def _on_state(self, msg):
-        if len(msg.position) == 0:
-            return
-        with self.lock:
-            self.meas_t.append(self._stamp(msg.header))
-            self.meas_theta.append(np.array(msg.position, dtype=float))
-
-    def _on_prediction(self, msg):
-        if len(msg.points) < 2:
-            return
-        off = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
-                        for p in msg.points])
-        theta = np.array([p.positions for p in msg.points], dtype=float)
-        with self.lock:
-            self.pred_t0.append(self._stamp(msg.header))
-            self.pred_off.append(off)
-            self.pred_theta.append(theta)
-
-    def _on_evolution(self, msg):
-        if self.labels is None and msg.layout.dim:
-            self.labels = msg.layout.dim[-1].label.split(',')
-        with self.lock:
-            self.evolution.append(np.array(msg.data, dtype=float))
-
-    def snapshot(self):
-        """Return copies of everything recorded so far."""
-        with self.lock:
-            return (np.array(self.meas_t), np.array(self.meas_theta),
-                    list(self.pred_t0), list(self.pred_off), list(self.pred_theta),
-                    np.array(self.evolution), self.labels)
-
-
-def field(evolution, labels, name):
-    """Return one column of the ~/evolution records (NaN if absent)."""
-    if labels is None or name not in labels or evolution.size == 0:
-        return np.full(len(evolution), np.nan)
-    return evolution[:, labels.index(name)]
-
-
-def prediction_score(snapshot, horizon, window=None):
-    """Return (t0, errors, nrmse) of the horizon-ahead predictions (last ``window`` s)."""
-    from rkgnn_ros.evaluation import ahead_errors, range_normalised_rmse
-    meas_t, meas_theta, t0s, offs, thetas, _, _ = snapshot
-    if meas_t.size < 2:
-        return np.empty(0), np.empty((0, 0)), float('nan')
-    order = np.argsort(meas_t)
-    meas_t, meas_theta = meas_t[order], meas_theta[order]
-    t0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, horizon)
-    theta_range = np.ptp(meas_theta, axis=0)
-    recent = err if window is None or t0.size == 0 else err[t0 >= t0[-1] - window]
-    return t0, err, range_normalised_rmse(recent, theta_range)
+from rkgnn_ros.monitor import (CASES, field, identifier_arguments, Monitor,  # noqa: E402
+                               NodeProcesses, prediction_score)
 
 
 def write_figure(path, snapshot, horizon, case):
@@ -206,25 +106,13 @@ def main(argv=None):
     from rclpy.executors import SingleThreadedExecutor
 
     domain = args.domain_id if args.domain_id is not None else 20 + os.getpid() % 200
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
-    ident_args = ['-p', f'case:={case}', '-p', f'prediction.horizon:={args.horizon}']
-    if case == 'pd_gains':
-        ident_args += ['-p', f'kp:={PAPER_KP}', '-p', f'kd:={PAPER_KD}']
     log_dir = os.path.dirname(os.path.abspath(args.out))
-    os.makedirs(log_dir, exist_ok=True)
-    procs = []
-    logs = []
-    print(f'rkgnn_ros demo: case {case}, {args.duration:.0f} s, ROS_DOMAIN_ID={domain}',
-          flush=True)
+    print(f'rkgnn_ros demo: case {case}, {args.duration:.0f} s, ROS_DOMAIN_ID={domain}, '
+          f'node logs in {log_dir}/demo_*.log', flush=True)
+    nodes = NodeProcesses([('sim_arm', []),
+                           ('identifier', identifier_arguments(case, args.horizon))],
+                          domain, log_dir, prefix='demo_')
     try:
-        for name, extra in (('sim_arm', []), ('identifier', ident_args)):
-            log = open(os.path.join(log_dir, f'demo_{name}.log'), 'w', encoding='utf-8')
-            logs.append(log)
-            cmd = [executable(name), '--ros-args', '--params-file',
-                   config(f'{name}.yaml')] + extra
-            procs.append(subprocess.Popen(cmd, env=env, stdout=log,
-                                          stderr=subprocess.STDOUT))
-            print(f'  started {name} (pid {procs[-1].pid}), log in {log.name}', flush=True)
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=domain)
         monitor = Monitor(ctx, args.horizon)
@@ -234,9 +122,7 @@ def main(argv=None):
         next_print = t_start + args.print_every
         while time.monotonic() - t_start < args.duration:
             executor.spin_once(timeout_sec=0.1)
-            for name, p in zip(('sim_arm', 'identifier'), procs):
-                if p.poll() is not None:
-                    raise RuntimeError(f'{name} exited early with code {p.returncode}')
+            nodes.check()
             if time.monotonic() >= next_print:
                 next_print += args.print_every
                 snap = monitor.snapshot()
@@ -263,18 +149,7 @@ def main(argv=None):
         monitor.node.destroy_node()
         rclpy.try_shutdown(context=ctx)
     finally:
-        codes = []
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs:
-            try:
-                codes.append(p.wait(timeout=15))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                codes.append(p.wait())
-        for log in logs:
-            log.close()
+        codes = nodes.stop()
     if any(c != 0 for c in codes):
         print(f'a node exited with a non-zero code: {codes}', flush=True)
         return 1
