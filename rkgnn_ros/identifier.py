@@ -1413,6 +1413,12 @@ def main(args=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # SIGINT landing inside rclpy's message conversion surfaces as a pybind11
+        # RuntimeError ("Unable to convert call argument"); once the context is shut down
+        # that is the requested shutdown, not a failure.
+        if rclpy.ok():
+            raise
     except (ConfigurationError, ParameterException) as exc:
         rclpy.logging.get_logger('identifier').fatal(f'refusing to start: {exc}')
         code = 1

@@ -860,6 +860,12 @@ def main(args=None) -> int:
         exit_code = 1                       # logged by the node
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # SIGINT landing inside rclpy's message conversion surfaces as a pybind11
+        # RuntimeError ("Unable to convert call argument"); once the context is shut down
+        # that is the requested shutdown, not a failure.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

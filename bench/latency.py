@@ -1,0 +1,161 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Responsiveness while evolving: joint_states at 1 kHz, and state-to-prediction latency.
+
+Starts the installed ``identifier`` (case 1, ``prediction.on_state``: a prediction of the
+full 2 s horizon on every accepted state, at most one per model step) on a private ROS
+domain, publishes ``joint_states`` and ``joint_commands`` at 1 kHz from a simulation of
+the paper's arm, and measures, while the search evolves in the node's worker thread:
+
+- the drops the node counts (its ``/diagnostics`` ``drops.*`` entries) while ingesting 1 kHz;
+- the latency from publishing a state to receiving the prediction that starts from it
+  (includes both DDS hops on loopback, so it bounds the node's own reaction time).
+
+Writes ``bench/results/latency.json`` (``drops_1khz``, ``latency_p99_ms`` and more).
+"""
+
+import argparse
+import datetime
+import json
+import os
+import sys
+import threading
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from rkgnn_ros.monitor import NodeProcesses  # noqa: E402
+
+
+def main(argv=None):
+    """Run the measurement; return the exit code."""
+    parser = argparse.ArgumentParser(description='1 kHz ingestion and prediction latency')
+    parser.add_argument('--duration', type=float, default=40.0)
+    parser.add_argument('--rate', type=float, default=1000.0)
+    parser.add_argument('--out', default=os.path.join(HERE, 'results', 'latency.json'))
+    args = parser.parse_args(argv)
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+    from trajectory_msgs.msg import JointTrajectory
+    from rkgnn_ros.core.plant import PDController, PlanarArm
+    from rkgnn_ros.core.simulate import simulate
+    from rkgnn_ros.core.trajectories import paper_reference
+
+    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3),
+                    args.duration + 1.0, rate=args.rate)
+    names = ['joint1', 'joint2', 'joint3']
+    domain = 20 + os.getpid() % 200
+    log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
+    nodes = NodeProcesses([('identifier', ['-p', 'case:=torque', '-p', 'min_window:=3.0',
+                                           '-p', 'prediction.on_state:=true',
+                                           '-p', 'prediction.rate:=0.0'])],
+                          domain, log_dir, prefix='latency_')
+    sent = {}          # stamp (ns) -> perf_counter at publish
+    latencies = []     # seconds
+    diagnostics = {}
+    generations = []
+    lock = threading.Lock()
+    try:
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        node = rclpy.create_node('latency_bench', context=ctx)
+        pub_state = node.create_publisher(JointState, 'joint_states', 100)
+        pub_cmd = node.create_publisher(JointState, 'joint_commands', 100)
+
+        def on_prediction(msg):
+            now = time.perf_counter()
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            with lock:
+                t_sent = sent.get(stamp)
+            if t_sent is not None:
+                latencies.append(now - t_sent)
+
+        def on_diagnostics(msg):
+            for status in msg.status:
+                if 'identifier' in status.name:
+                    diagnostics.update({kv.key: kv.value for kv in status.values})
+                    if 'generation' in diagnostics:
+                        generations.append(float(diagnostics['generation']))
+
+        node.create_subscription(JointTrajectory, 'identifier/prediction', on_prediction, 100)
+        node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        spinner = threading.Thread(target=executor.spin, daemon=True)
+        spinner.start()
+        time.sleep(2.0)  # discovery
+        period = 1.0 / args.rate
+        t_base = node.get_clock().now().nanoseconds
+        t0 = time.perf_counter()
+        published = 0
+        for k in range(data.n_samples):
+            target = t0 + k * period
+            while time.perf_counter() < target:
+                pass
+            stamp = t_base + int(round(k * period * 1e9))
+            state = JointState(name=names, position=data.theta[k].tolist(),
+                               velocity=data.theta_dot[k].tolist(), effort=data.tau[k].tolist())
+            cmd = JointState(name=names, position=data.theta_d[k].tolist(),
+                             velocity=data.theta_d_dot[k].tolist())
+            state.header.stamp.sec, state.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+            cmd.header.stamp = state.header.stamp
+            with lock:
+                sent[stamp] = time.perf_counter()
+            pub_cmd.publish(cmd)
+            pub_state.publish(state)
+            published += 1
+            if k % 1000 == 0:
+                nodes.check()
+        wall = time.perf_counter() - t0
+        time.sleep(2.5)  # the last diagnostics and predictions
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        spinner.join(timeout=5)
+    finally:
+        codes = nodes.stop()
+    drops = {k[len('drops.'):]: int(float(v)) for k, v in diagnostics.items()
+             if k.startswith('drops.')}
+    lat_ms = 1e3 * np.asarray(latencies)
+    result = {
+        'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
+        'rate_hz': args.rate, 'published_states': published,
+        'achieved_rate_hz': published / wall,
+        'drops_1khz': int(sum(drops.values())), 'drops_by_reason': drops,
+        'predictions_received': int(lat_ms.size),
+        'latency_p50_ms': float(np.percentile(lat_ms, 50)) if lat_ms.size else None,
+        'latency_p99_ms': float(np.percentile(lat_ms, 99)) if lat_ms.size else None,
+        'latency_max_ms': float(lat_ms.max()) if lat_ms.size else None,
+        'generations_during_run': (max(generations) - min(generations)) if generations else 0,
+        'identifier_exit_code': codes[0],
+        'note': 'latency = publish of a state -> receipt of the prediction starting from it '
+                '(both DDS hops included); predictions cover 2 s at the 10 ms model step',
+    }
+    print(json.dumps(result, indent=2), flush=True)
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    with open(args.out, 'w', encoding='utf-8') as f:
+        json.dump(result, f, indent=2)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,113 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Online accuracy: the 2 s-ahead prediction error of the running identifier, per case.
+
+For each case, starts the installed ``sim_arm`` and ``identifier`` (default settings, the
+paper's arm at 100 Hz) on a private ROS domain for ``--duration`` seconds, records
+``joint_states`` and ``identifier/prediction`` and scores every prediction's θ 2 s ahead
+against the motion that followed. The curve is that RMSE over 5 s bins of prediction start
+time, divided by the θ range; ``prediction_nrmse_60s`` is the bin ending at 60 s.
+Writes ``bench/results/online.json``.
+"""
+
+import argparse
+import datetime
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from rkgnn_ros.evaluation import ahead_errors  # noqa: E402
+from rkgnn_ros.monitor import identifier_arguments, Monitor, NodeProcesses  # noqa: E402
+
+
+def run_case(case, duration, horizon, domain, log_dir):
+    """Run the pair for one case; return (curve [(t_end, nrmse)], nrmse_60s, details)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    nodes = NodeProcesses([('sim_arm', []), ('identifier', identifier_arguments(case, horizon))],
+                          domain, log_dir, prefix=f'online_case{case}_')
+    try:
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        monitor = Monitor(ctx, horizon)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(monitor.node)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < duration:
+            executor.spin_once(timeout_sec=0.1)
+            nodes.check()
+        snap = monitor.snapshot()
+        executor.shutdown()
+        monitor.node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    finally:
+        codes = nodes.stop()
+    meas_t, meas_theta, t0s, offs, thetas, evolution, labels = snap
+    order = np.argsort(meas_t)
+    meas_t, meas_theta = meas_t[order], meas_theta[order]
+    start = meas_t[0]
+    pt0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, horizon)
+    theta_range = np.ptp(meas_theta, axis=0)
+    curve = []
+    for end in np.arange(5.0, duration + 1e-9, 5.0):
+        sel = (pt0 - start > end - 5.0) & (pt0 - start <= end)
+        if np.any(sel):
+            rmse = np.sqrt(np.mean(np.square(err[sel]), axis=0))
+            curve.append([float(end), float(np.mean(rmse / theta_range))])
+    at60 = next((v for t, v in curve if abs(t - 60.0) < 1e-9), None)
+    details = {'states': int(meas_t.size), 'predictions': len(t0s), 'scored': int(pt0.size),
+               'generations': int(evolution[-1][0]) if len(evolution) else 0,
+               'exit_codes': codes}
+    return curve, at60, details
+
+
+def main(argv=None):
+    """Run the cases; return the exit code."""
+    parser = argparse.ArgumentParser(description='online 2 s-ahead accuracy per case')
+    parser.add_argument('--cases', default='1,2,3')
+    parser.add_argument('--duration', type=float, default=65.0)
+    parser.add_argument('--horizon', type=float, default=2.0)
+    parser.add_argument('--out', default=os.path.join(HERE, 'results', 'online.json'))
+    args = parser.parse_args(argv)
+    log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
+    results = {'meta': {'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
+                        'duration_s': args.duration, 'horizon_s': args.horizon,
+                        'metric': '2 s-ahead θ RMSE over predictions started in the 5 s '
+                                  'bin ending at t, divided by the θ range, mean over joints'}}
+    for i, case in enumerate(c.strip() for c in args.cases.split(',')):
+        domain = 20 + (os.getpid() + 37 * i) % 200
+        print(f'== case {case}: {args.duration:.0f} s on ROS_DOMAIN_ID={domain}', flush=True)
+        curve, at60, details = run_case(case, args.duration, args.horizon, domain, log_dir)
+        for t, v in curve:
+            print(f'  t = {t:4.0f} s  2 s-ahead θ RMSE {v:8.2%} of range', flush=True)
+        results[case] = {'prediction_nrmse_60s': at60, 'curve': curve, **details}
+        print(f'  case {case}: at 60 s {at60 if at60 is None else f"{at60:.2%}"}  {details}',
+              flush=True)
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    with open(args.out, 'w', encoding='utf-8') as f:
+        json.dump(results, f, indent=2)
+    print(f'wrote {args.out}', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
