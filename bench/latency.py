@@ -109,6 +109,9 @@ def main(argv=None):
         published = 0
         for k in range(data.n_samples):
             target = t0 + k * period
+            wait = target - time.perf_counter()
+            if wait > 3e-4:
+                time.sleep(wait - 2e-4)  # sleep, not spin: the node needs the CPU
             while time.perf_counter() < target:
                 pass
             stamp = t_base + int(round(k * period * 1e9))
@@ -120,8 +123,8 @@ def main(argv=None):
             cmd.header.stamp = state.header.stamp
             with lock:
                 sent[stamp] = time.perf_counter()
+            pub_state.publish(state)  # the state first: it tells the node the joint names
             pub_cmd.publish(cmd)
-            pub_state.publish(state)
             published += 1
             if k % 1000 == 0:
                 nodes.check()
