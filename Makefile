@@ -4,6 +4,7 @@
 #   make paper   reproduce the paper's three cases (figures + table in bench/results)
 #   make bench   benchmarks (bench/results)
 SHELL := /bin/bash
+.SHELLFLAGS := -o pipefail -c
 PYTHON ?= python3
 VENV := .venv
 VPY := $(VENV)/bin/python
@@ -20,7 +21,9 @@ setup: $(STAMP) build
 $(STAMP): requirements.txt
 	@test -x $(VPY) || $(PYTHON) -m venv $(VENV)
 	@touch $(VENV)/COLCON_IGNORE
-	$(VPY) -m pip install -q --disable-pip-version-check -r requirements.txt
+	@echo 'installing the pinned requirements into $(VENV) (first run: about a minute)'
+	$(VPY) -m pip install -q --disable-pip-version-check -r requirements.txt 2>&1 | \
+		{ grep -v '^WARNING: Location' || true; }
 	@rm -f $(VENV)/.requirements-* && touch $@
 
 build: $(STAMP)
