@@ -663,25 +663,37 @@ def nrmse(predicted, measured) -> float:
 def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = None, kp=None,
              kd=None, seed=0, shootings=(20, 0), lm_fraction=0.7, lm_nfev=30,
              polish_sigma=0.05, callback: Optional[Callable[[dict], None]] = None,
+             theta_units=8, equation_nfev=500, equation_fraction=0.3,
              **evolution_kw) -> FitResult:
     """
     Identify with our best pipeline inside a wall-time budget.
 
-    1. Levenberg-Marquardt on the rollout residuals, over a continuation of multiple-shooting
-       windows (``shootings``), for at most ``lm_fraction`` of the budget
+    1. Equation error: the genome fitted to the inverse dynamics M θ̈ + V + G + F = τ at
+       every sample (no rollout: fast, and it places gravity and inertia, which short
+       shooting windows leave weakly constrained), for at most ``equation_nfev`` residual
+       evaluations and ``equation_fraction`` of the budget
+       (:func:`rkgnn_ros.core.refine.refine_equation_error`; skipped if ``equation_nfev``
+       is 0);
+    2. Levenberg-Marquardt on the rollout residuals, over a continuation of multiple-shooting
+       windows (``shootings``), until ``lm_fraction`` of the budget
        (:func:`rkgnn_ros.core.refine.refine_lm`);
-    2. CMA-ES around that genome on the paper's cost J of the full rollout for the rest of
+    3. CMA-ES around that genome on the paper's cost J of the full rollout for the rest of
        the budget (it tolerates the diverged candidates that stop a gradient method).
 
-    The structure defaults to :meth:`NetworkSpec.recommended`. History entries carry a
-    ``phase`` ('lm' or 'cmaes').
+    The structure defaults to :meth:`NetworkSpec.recommended` with ``theta_units`` RBF units
+    over θ (the equation-error stage places more units than a search from scratch can).
+    History entries carry a ``phase`` ('equation', 'lm' or 'cmaes').
     """
-    from .refine import refine_lm
+    from dataclasses import replace
+    from .refine import refine_equation_error, refine_lm
     if isinstance(datasets, Dataset):
         datasets = [datasets]
     case = normalize_case(case)
     n = datasets[0].n_joints
-    spec = spec if spec is not None else NetworkSpec.recommended(n, case)
+    if spec is None:
+        spec = NetworkSpec.recommended(n, case)
+        if theta_units is not None:
+            spec = replace(spec, theta_units=int(theta_units))
     t0 = time.perf_counter()
     evo = Evolution(spec, datasets, 'cmaes', {'sigma': polish_sigma}, seed, kp, kd,
                     **evolution_kw)
@@ -700,6 +712,14 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
             callback(entry)
 
     start = evo.optimizer.best_x if evo.optimizer.best_x is not None else spec.initial_genome()
+    if equation_nfev:
+        eq_genome, eq_cost = refine_equation_error(
+            spec, datasets, evo.scales, start, kp, kd, max_nfev=int(equation_nfev),
+            deadline=t0 + equation_fraction * time_budget)
+        # keep the equation-error genome only if its full rollout does not diverge
+        if np.isfinite(evo.problem.cost(eq_genome[None])[0]):
+            start = eq_genome
+        on_stage({'phase': 'equation', 'cost': eq_cost, 'evaluations': 0})
     genome, lm_hist = refine_lm(problem_for, start, shootings, lm_nfev,
                                 deadline=t0 + lm_fraction * time_budget, callback=on_stage)
     lm_evals = lm_hist[-1]['evaluations'] if lm_hist else 0
@@ -715,7 +735,8 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
             callback(stats)
         if evo.optimizer.best_cost < best_cost:
             best_g, best_cost = evo.optimizer.best_x.copy(), float(evo.optimizer.best_cost)
-    info = {'cost': best_cost, 'pipeline': 'lm+cmaes'}
+    info = {'cost': best_cost, 'pipeline': 'equation+lm+cmaes' if equation_nfev
+            else 'lm+cmaes'}
     model = RKGNNModel(spec, evo.scales, best_g, datasets[0].joint_names, kp, kd,
                        dt=evo.problem.dt, substeps=evo.substeps,
                        torque_interpolation=evo.torque_interpolation, info=info)

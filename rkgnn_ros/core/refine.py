@@ -27,19 +27,66 @@ state every ``shooting`` samples; nearly linear residuals) and continues on long
 residual, so a trust-region step into divergence is rejected.
 """
 
+from contextlib import contextmanager
+import ctypes
 import time
 from typing import List, Optional, Sequence
 
+from numba import njit, prange
 import numpy as np
 from scipy.optimize import least_squares
 
 from .fitness import FitnessProblem
+from .kernels import _christoffel, _mass, _theta_outputs
 
 DIVERGED_RESIDUAL = 10.0
 
 
 class _Deadline(Exception):
     pass
+
+
+def _openblas_controls():
+    """(get, set) thread-count functions of every OpenBLAS loaded in this process (Linux)."""
+    try:
+        with open('/proc/self/maps') as maps:
+            paths = {line.split()[-1] for line in maps if 'openblas' in line.lower()}
+    except OSError:  # pragma: no cover - not Linux
+        return []
+    controls = []
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:  # pragma: no cover
+            continue
+        for prefix in ('scipy_', ''):
+            for suffix in ('64_', ''):
+                get = getattr(lib, f'{prefix}openblas_get_num_threads{suffix}', None)
+                put = getattr(lib, f'{prefix}openblas_set_num_threads{suffix}', None)
+                if get is not None and put is not None:
+                    controls.append((get, put))
+    return controls
+
+
+@contextmanager
+def blas_threads(count=1):
+    """
+    Limit OpenBLAS (numpy's and scipy's) to ``count`` threads inside the block.
+
+    The least-squares steps factorise small dense Jacobians between parallel kernel calls;
+    multithreaded OpenBLAS on such matrices, on a machine that is busy anyway, spins and
+    can be slower than one thread by orders of magnitude (seen: 1.6 s instead of 20 ms per
+    SVD of a 1500 × 85 matrix on 2 loaded cores).
+    """
+    controls = _openblas_controls()
+    before = [get() for get, _ in controls]
+    for _, put in controls:
+        put(int(count))
+    try:
+        yield
+    finally:
+        for (_, put), value in zip(controls, before):
+            put(int(value))
 
 
 def residual_weights(problem: FitnessProblem) -> np.ndarray:
@@ -113,7 +160,8 @@ def refine_lm(problem_for, genome, shootings: Sequence[int] = (20, 0), max_nfev=
             return ((r[1:] - r[0]) / step[:, None]).T
 
         try:
-            least_squares(fun, g, jac=jac, method='trf', x_scale='jac', max_nfev=max_nfev)
+            with blas_threads(1):
+                least_squares(fun, g, jac=jac, method='trf', x_scale='jac', max_nfev=max_nfev)
         except _Deadline:
             pass
         g = best['g']
@@ -125,3 +173,230 @@ def refine_lm(problem_for, genome, shootings: Sequence[int] = (20, 0), max_nfev=
         if deadline is not None and time.perf_counter() > deadline:
             break
     return g, history
+
+
+def _equation_data(spec, datasets, kp, kd, window, max_samples):
+    """States, θ̈ (Savitzky-Golay), inputs and target torques of the equation error."""
+    from .warmstart import estimate_acceleration
+    x = np.vstack([d.state for d in datasets])
+    acc = np.vstack([estimate_acceleration(d.theta_dot, d.dt, window) for d in datasets])
+    n = spec.n_joints
+    if spec.case == 'torque':
+        u = np.zeros((x.shape[0], n))
+        tau = np.vstack([d.tau for d in datasets])
+    else:
+        u = np.hstack([np.vstack([d.theta_d for d in datasets]),
+                       np.vstack([d.theta_d_dot for d in datasets])])
+        if spec.case == 'pd_gains':
+            err, derr = u[:, :n] - x[:, :n], u[:, n:] - x[:, n:]
+            tau = err * np.asarray(kp, dtype=float) + derr * np.asarray(kd, dtype=float)
+        else:
+            tau = None  # the torque network's output
+    step = max(1, -(-x.shape[0] // int(max_samples)))
+    sel = slice(None, None, step)
+    return x[sel], acc[sel], u[sel], None if tau is None else tau[sel]
+
+
+@njit(cache=True, nogil=True, parallel=True, error_model='numpy')
+def _inertial_terms(x, acc, chol, christ, eps, centres, inv_w2, weights, bias, out_mv,
+                    out_diag):
+    """M θ̈ + V + G per (genome, sample) into ``out_mv`` (P, S, n); diag M into ``out_diag``."""
+    pop, samples, n = out_mv.shape
+    n_out = weights.shape[1]
+    n_units = centres.shape[1]
+    n_in = n * (n + 1) // 2
+    n_pairs = n * (n - 1) // 2
+    for p in prange(pop):
+        phi = np.empty(n_units)
+        out = np.empty(n_out)
+        mat = np.empty((n, n))
+        lmat = np.empty((n, n))
+        dout = np.empty((n, n_in))
+        dl = np.empty((n, n))
+        dmat = np.empty((n, n, n))
+        vvec = np.empty(n)
+        for s in range(samples):
+            xs = x[s]
+            _theta_outputs(xs, centres[p], inv_w2[p], weights[p], bias[p], phi, out)
+            _mass(out, n, chol, eps, mat, lmat)
+            if christ:
+                _christoffel(xs, n, chol, centres[p], inv_w2[p], weights[p], phi, out, lmat,
+                             dout, dl, dmat, vvec)
+                g0 = n_in
+            else:
+                for i in range(n):
+                    v = 0.0
+                    q = 0
+                    for j in range(n):
+                        for k in range(j + 1, n):
+                            v += out[n_in + i * n_pairs + q] * xs[n + j] * xs[n + k]
+                            q += 1
+                    for j in range(n):
+                        v += out[n_in + n * n_pairs + i * n + j] * xs[n + j] * xs[n + j]
+                    vvec[i] = v
+                g0 = n_in + n * n_pairs + n * n
+            for i in range(n):
+                acc_i = vvec[i] + out[g0 + i]
+                for j in range(n):
+                    acc_i += mat[i, j] * acc[s, j]
+                out_mv[p, s, i] = acc_i
+                out_diag[p, s, i] = mat[i, i]
+
+
+def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=None,
+                       gauge_weight=1.0, compiled=True):
+    """
+    Inverse-dynamics residuals of a population, one row per genome.
+
+    Parameters
+    ----------
+    spec : NetworkSpec
+        Network structure.
+    scales : Scales
+        Decoding scales.
+    genomes : ndarray, shape (P, N)
+        Normalised genomes.
+    x : ndarray, shape (S, 2n)
+        Measured states [θ, θ̇].
+    acc : ndarray, shape (S, n)
+        θ̈ at the same samples.
+    u : ndarray, shape (S, 2n)
+        [θd, θ̇d] (shape (S, n) and ignored in case 'torque').
+    tau : ndarray, shape (S, n), optional
+        Applied torque (cases 'torque' and 'pd_gains'); the torque network's output if None.
+    kp, kd : array_like, optional
+        Known gains (case 'pd_gains').
+    gauge_weight : float
+        Case 'unknown': weight of the extra residual mean(diag M / inertia scale) - 1.
+    compiled : bool
+        M θ̈ + V + G by the compiled kernel (parallel over genomes), else by the batched
+        numpy network (the reference).
+
+    Returns
+    -------
+    ndarray, shape (P, S * n [+ 1])
+        (M θ̈ + V + G + F - τ) / (torque scale · sqrt(S)), so the squared sum is the mean
+        over samples; the gauge residual is appended in case 'unknown'.
+
+    """
+    from .network import BatchedNetwork
+    genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
+    pop, samples = genomes.shape[0], x.shape[0]
+    n = spec.n_joints
+    params = spec.decode(genomes, scales)
+    xt = np.tile(x, (pop, 1))
+    ut = np.tile(u, (pop, 1))
+
+    def network():
+        # one network row per (genome, sample): it evaluates one state per row
+        tiled = {k: np.repeat(v, samples, axis=0) for k, v in params.items()}
+        return BatchedNetwork(spec, tiled, scales, kp, kd)
+
+    with np.errstate(all='ignore'):
+        if compiled:
+            c = np.ascontiguousarray
+            mv = np.empty((pop, samples, n))
+            diag = np.empty((pop, samples, n))
+            _inertial_terms(c(x), c(acc), spec.inertia == 'cholesky',
+                            spec.velocity == 'christoffel', c(spec.inertia_epsilon(scales)),
+                            c(params['centres']), c(params['inv_width2']),
+                            c(params['weights']), c(params['bias']), mv, diag)
+            fric = (params['viscous'][:, None] * x[None, :, n:] + params['coulomb'][:, None]
+                    * np.tanh(x[None, :, n:] / spec.coulomb_velocity))
+            lhs = (mv + fric).reshape(pop * samples, n)
+            diag = diag.reshape(pop * samples, n)
+            target = network().torque(xt, ut) if tau is None else np.tile(tau, (pop, 1))
+        else:
+            t = network().terms(xt, ut)
+            lhs = (np.einsum('pij,pj->pi', t['M'], np.tile(acc, (pop, 1))) + t['V'] + t['G']
+                   + t['F'])
+            target = t['tau'] if tau is None else np.tile(tau, (pop, 1))
+            diag = np.diagonal(t['M'], axis1=1, axis2=2)
+        r = ((lhs - target) / scales.torque).reshape(pop, samples * n) / np.sqrt(samples)
+        if spec.case == 'unknown':
+            level = np.mean((diag / scales.inertia).reshape(pop, -1), axis=1)
+            r = np.hstack([r, gauge_weight * (level - 1.0)[:, None]])
+    return np.nan_to_num(r, nan=DIVERGED_RESIDUAL, posinf=DIVERGED_RESIDUAL,
+                         neginf=-DIVERGED_RESIDUAL)
+
+
+def refine_equation_error(spec, datasets, scales, genome, kp=None, kd=None, max_nfev=200,
+                          window=7, max_samples=600, deadline: Optional[float] = None,
+                          ftol=1e-10, ridge=0.0):
+    """
+    Fit a genome to the inverse dynamics: M θ̈ + V + G + F = τ at every sample.
+
+    The equation error needs no rollout, so a residual costs one network evaluation over
+    the samples and a forward-difference Jacobian one evaluation of N + 1 genomes at once:
+    a fast first stage that places M, G and friction where the data put them before the
+    output-error stages (:func:`refine_lm`), which no short shooting window constrains
+    well (gravity against the slow modes). θ̈ comes from a Savitzky-Golay derivative of θ̇.
+    τ is the measured torque (case 1), the known PD law (case 2) or the torque network
+    (case 3; one more residual then fixes the gauge: mean diag(M) over the data equals the
+    inertia scale).
+
+    Parameters
+    ----------
+    spec : NetworkSpec
+        Network structure.
+    datasets : list of Dataset
+        Training segments.
+    scales : Scales
+        Decoding scales.
+    genome : ndarray, shape (N,)
+        Start genome.
+    kp, kd : array_like, optional
+        Known gains (case 'pd_gains').
+    max_nfev : int
+        Residual evaluations (scipy's ``max_nfev``).
+    window : int
+        Savitzky-Golay window for θ̈ (samples).
+    max_samples : int
+        The data are thinned to at most this many samples.
+    deadline : float, optional
+        ``time.perf_counter()`` value at which to stop (the best genome so far is kept).
+    ftol : float
+        Relative cost decrease that ends the fit.
+    ridge : float
+        Weight of the extra residuals sqrt(ridge) · (genome - start genome): keeps elements
+        the data do not determine near the start (smoother, better off the training path).
+
+    Returns
+    -------
+    genome : ndarray, shape (N,)
+    cost : float
+        Sum of squared residuals (mean squared torque error in units of its RMS).
+
+    """
+    x, acc, u, tau = _equation_data(spec, list(datasets), kp, kd, window, max_samples)
+
+    start = np.array(genome, dtype=float)
+    root = np.sqrt(float(ridge))
+
+    def residuals(pop):
+        if deadline is not None and time.perf_counter() > deadline:
+            raise _Deadline()
+        r = equation_residuals(spec, scales, pop, x, acc, u, tau, kp, kd)
+        return np.hstack([r, root * (pop - start)]) if ridge > 0 else r
+
+    best = {'g': start.copy(), 'cost': np.inf}
+
+    def fun(g):
+        r = residuals(g[None])[0]
+        cost = float(np.sum(np.square(r)))
+        if cost < best['cost']:
+            best['cost'], best['g'] = cost, g.copy()
+        return r
+
+    def jac(g):
+        step = 1e-6 * np.maximum(1.0, np.abs(g))
+        r = residuals(np.vstack([g[None], g[None] + np.diag(step)]))
+        return ((r[1:] - r[0]) / step[:, None]).T
+
+    try:
+        with blas_threads(1):
+            least_squares(fun, best['g'], jac=jac, method='trf', x_scale='jac',
+                          max_nfev=max_nfev, ftol=ftol, xtol=1e-10, gtol=1e-10)
+    except _Deadline:
+        pass
+    return best['g'], best['cost']
