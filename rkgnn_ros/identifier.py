@@ -146,6 +146,10 @@ MIN_SEGMENT_SAMPLES = 10    # shorter segments (training or validation) are left
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # ~/evolution at most 20 Hz
 IDLE_WAIT_S = 0.05
+# Equation-error warm start of a new search (see _warm_start).
+WARM_START_S = 5.0
+WARM_START_NFEV = 300
+WARM_START_SIGMA = 0.05     # search spread around the warm start (genome units)
 # The worker yields the CPU to the executor (see _yield_to_callbacks).
 WORKER_NICE = 10
 GIL_SWITCH_INTERVAL_S = 0.0005
@@ -1277,6 +1281,8 @@ class IdentifierNode(Node):
         self._evo = Evolution(spec, train, optimizer=algorithm, settings=settings,
                               seed=cfg['es.seed'], kp=kp, kd=kd,
                               substeps=cfg['substeps'] or None, scales=scales, x0=x0)
+        if x0 is None:
+            origin = self._warm_start(train, kp, kd, origin)
         self._start_model = None
         self._evo_version = cfg.structural_version
         self._algorithm = algorithm
@@ -1288,6 +1294,30 @@ class IdentifierNode(Node):
             f'{spec.genome_size} genome elements, {algorithm} with population '
             f'{self._evo.optimizer.population_size}, {self._evo.substeps} substeps, '
             f'{seconds:.1f} s of data')
+
+    def _warm_start(self, train, kp, kd, origin: str) -> str:
+        """
+        Place the start genome by the equation-error fit (the offline pipeline's first stage).
+
+        Fitting M θ̈ + V + G + F = τ on the buffered samples needs no rollout: within
+        WARM_START_S it puts gravity, inertia and friction where the data put them, which a
+        search from the default genome takes many generations to find. Kept only when its
+        rollout on the training data does not diverge; the optimizer restarts around it.
+        """
+        from .core.refine import refine_equation_error
+        evo = self._evo
+        t0 = time.perf_counter()
+        self._set_status('evolving', 'warm start: equation-error fit')
+        genome, _ = refine_equation_error(
+            evo.spec, train, evo.scales, evo.optimizer.best_x, kp, kd,
+            max_nfev=WARM_START_NFEV, deadline=t0 + WARM_START_S)
+        cost = float(evo.problem.cost(genome[None])[0])
+        if not math.isfinite(cost):
+            return origin
+        evo.optimizer.seed_best(genome, cost)
+        sigma = max(WARM_START_SIGMA, evo.optimizer.settings.get('sigma_min', 0.0))
+        evo.optimizer.restart(genome, sigma)
+        return f'the equation-error fit ({time.perf_counter() - t0:.1f} s, J {cost:.4g})'
 
     def _apply_es_settings(self, cfg: _Config) -> None:
         """Hand changed ES settings to the optimizer (between two generations)."""

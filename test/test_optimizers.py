@@ -601,3 +601,16 @@ def test_validate_settings_fills_defaults_and_names_the_bad_setting():
         PaperEA.validate_settings(crossover_rate=1.5)
     with pytest.raises(ValueError, match='unknown setting'):
         CMAES.validate_settings(tournament=3)
+
+
+@pytest.mark.parametrize('name', ['paper', 'cmaes'])
+def test_seed_best_records_a_better_outside_solution_only(name):
+    opt = make_optimizer(name, 4, rng=np.random.default_rng(0))
+    x = opt.ask()
+    opt.tell(x, np.arange(x.shape[0], dtype=float) + 1.0)
+    assert opt.best_cost == 1.0
+    opt.seed_best(np.full(4, 7.0), 0.5)
+    assert opt.best_cost == 0.5 and np.all(opt.best_x == 7.0)
+    opt.seed_best(np.zeros(4), 0.9)      # worse: ignored
+    opt.seed_best(np.zeros(4), np.inf)   # diverged: ignored
+    assert opt.best_cost == 0.5 and np.all(opt.best_x == 7.0)

@@ -284,6 +284,19 @@ class Optimizer(ABC):
         """Change the population size from the next sampled generation on."""
         self.update_settings(population_size=population_size)
 
+    def seed_best(self, x, cost) -> None:
+        """
+        Record ``x`` as the best so far with ``cost``, e.g. a warm start scored outside.
+
+        A non-finite cost is ignored; a finite one replaces ``best_x``/``best_cost`` only if
+        it is lower (elitism holds). Call :meth:`restart` as well to search around ``x``.
+        """
+        x = _as_genome(x, self.dim, 'x')
+        cost = float(cost)
+        if math.isfinite(cost) and cost < self.best_cost:
+            self.best_x = x.copy()
+            self.best_cost = cost
+
     def rescore(self, best_cost) -> None:
         """
         Replace the stored ``best_cost``, e.g. by the cost of ``best_x`` on new data.
