@@ -106,8 +106,9 @@ def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(runnin
             for p in procs:
                 assert p.poll() is None, (tmp_path / 'identifier.log').read_text()[-3000:]
         assert len(predictions) >= 3, 'no ~/prediction within 90 s'
-        # keep listening so the states a prediction starts from have surely arrived
-        end = time.monotonic() + 1.0
+        # keep listening: the states a prediction starts from have surely arrived, and the
+        # motion 2 s after the first predictions has been measured
+        end = time.monotonic() + 2.2
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.05)
         for msg in predictions:
@@ -122,6 +123,19 @@ def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(runnin
                        + 1e-9 * msg.points[-1].time_from_start.nanosec)
             assert horizon == pytest.approx(2.0, abs=0.011)
             assert np.all(np.isfinite([v for p in msg.points for v in p.positions]))
+        # the error of each prediction against what the arm then actually did
+        from rkgnn_ros.evaluation import ahead_errors
+        stamps = sorted(states)
+        meas_t = 1e-9 * np.array(stamps, dtype=float)
+        meas_theta = np.array([states[k][0] for k in stamps])
+        t0, err = ahead_errors(
+            [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in predictions],
+            [[p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in m.points]
+             for m in predictions],
+            [[list(p.positions) for p in m.points] for m in predictions],
+            meas_t, meas_theta, 2.0)
+        assert t0.size >= 1, 'no prediction could be scored against the motion that followed'
+        assert err.shape == (t0.size, 3) and np.all(np.isfinite(err))
     finally:
         executor.shutdown()
         node.destroy_node()
