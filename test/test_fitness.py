@@ -276,9 +276,9 @@ def test_cost_numpy_raises_no_floating_point_warnings():
     """
     Check diverged individuals are scored silently, as the rollout itself is (errstate).
 
-    Fails at the time of writing: in penalty mode ``cost_numpy`` takes the leading minors
-    of M at the NaN states of diverged rollouts outside ``np.errstate``, so every such
-    individual emits "RuntimeWarning: invalid value encountered in det".
+    Regression test (fixed in 3a690c8): in penalty mode ``cost_numpy`` took the leading
+    minors of M at the NaN states of diverged rollouts outside ``np.errstate``, so every such
+    individual emitted "RuntimeWarning: invalid value encountered in det".
     """
     spec = NetworkSpec.paper(N, 'pd_gains')
     g = true_genome(spec)
@@ -420,9 +420,9 @@ def test_missing_inputs_are_reported_clearly(case):
     """
     Check data without the case's inputs give a ValueError naming them.
 
-    Fails at the time of writing: when the scales are measured on the data
+    Regression test (fixed in 3a690c8): when the scales were measured on the data
     (``Scales.from_datasets``, also called by Evolution and fit), ``None`` torques or desired
-    trajectories reach numpy arithmetic first and raise an obscure TypeError
+    trajectories reached numpy arithmetic first and raised an obscure TypeError
     ("unsupported operand type(s) for -: 'NoneType' and 'float'").
     """
     t = np.arange(11) * 0.01
@@ -572,9 +572,9 @@ def test_least_squares_gauge_in_case_3():
     """
     Check case 3 gives the true solution up to scale, the scale fixed by mean M_ii / ms_i = 1.
 
-    The gauge part fails at the time of writing: ``warmstart._fix_gauge`` takes
+    Regression test for the gauge (fixed in 3a690c8): ``warmstart._fix_gauge`` took
     ``np.diagonal(net.mass_matrix(th[None]))[0]``, the diagonal of the (1, n) leading
-    axes, i.e. ``[M_00]`` only, so the level is mean(M_00) × mean(1 / ms_i) instead of
+    axes, i.e. ``[M_00]`` only, so the level was mean(M_00) × mean(1 / ms_i) instead of
     mean(M_ii / ms_i).
     """
     spec = NetworkSpec(N, 'unknown', torque_units=0, torque_linear=True)

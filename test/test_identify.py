@@ -126,9 +126,10 @@ def test_saved_model_file_has_the_usual_permissions(tmp_path):
     """
     Check an atomic save leaves the file readable like any other file written there.
 
-    Fails at the time of writing: ``save_text_atomic`` writes through ``tempfile.mkstemp``,
-    which creates the file with mode 0600, and ``os.replace`` keeps that mode, so a model
-    saved by the identifier is unreadable for other users (0644 with the usual umask 022).
+    Regression test (fixed in 3a690c8): ``save_text_atomic`` wrote through
+    ``tempfile.mkstemp``, which creates the file with mode 0600, and ``os.replace`` kept that
+    mode, so a model saved by the identifier was unreadable for other users (0644 with the
+    usual umask 022).
     """
     plain = tmp_path / 'plain.yaml'
     plain.write_text('a: 1\n', encoding='utf-8')
@@ -388,9 +389,9 @@ def test_term_accessors_in_every_case(case):
     """
     Check velocity_terms, gravity_terms and friction_terms agree with terms() in all cases.
 
-    Fails at the time of writing for cases 2 and 3: the three accessors pass a zero input
-    of n values (``np.zeros(self.n_joints)``) to ``BatchedNetwork.terms``, whose torque
-    network then needs [θd, θ̇d] (2n values), so they raise "operands could not be
+    Regression test (fixed in 3a690c8) for cases 2 and 3: the three accessors passed a zero
+    input of n values (``np.zeros(self.n_joints)``) to ``BatchedNetwork.terms``, whose torque
+    network then needs [θd, θ̇d] (2n values), so they raised "operands could not be
     broadcast together with shapes (0,) (1,3)".
     """
     model = make_model(case)
