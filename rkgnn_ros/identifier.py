@@ -122,7 +122,7 @@ from rkgnn_ros.conversions import (joint_state_to_arrays, joint_trajectory_to_ar
                                    make_float64_multiarray, make_joint_trajectory,
                                    REJECTION_REASONS)
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.identify import Evolution, normalize_case, nrmse, RKGNNModel
+from rkgnn_ros.core.identify import Evolution, normalize_case, nrmse, precompile, RKGNNModel
 from rkgnn_ros.core.network import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.core.optimizers import CMAES, make_optimizer, OPTIMIZERS, PaperEA
 from rkgnn_ros.stream_buffer import DROP_REASONS, StreamBuffer
@@ -568,6 +568,10 @@ class IdentifierNode(Node):
 
     def __init__(self, node_name: str = 'identifier', **kwargs):
         super().__init__(node_name, **kwargs)
+        # compile every kernel now (numba holds the GIL while compiling): never in the worker
+        seconds = precompile()
+        self.get_logger().info(f'compiled kernels ready in {seconds:.1f} s'
+                               + (' (first run: compiled and cached)' if seconds > 5 else ''))
         self._lock = threading.RLock()
         self._tls = threading.local()
         self._values = self._declare_parameters()

@@ -749,3 +749,38 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     return FitResult(model=model, history=history, evaluations=evaluations,
                      generations=evo.optimizer.generation,
                      wall_s=time.perf_counter() - t0, final_cost=best_cost)
+
+
+def precompile(n_joints=3) -> float:
+    """
+    Compile (or load from numba's disk cache) every kernel the online identifier runs.
+
+    numba compiles a kernel at its first call and holds the GIL while it does, for seconds.
+    A node calls this before it starts spinning, so no compilation ever happens in its
+    worker thread while callbacks and services wait. Tiny problems of every case and both
+    inertia and velocity modes exercise the same type signatures as real data. Returns the
+    seconds it took (about a second once the cache is warm).
+    """
+    from .refine import refine_equation_error
+    t0 = time.perf_counter()
+    n = int(n_joints)
+    t = np.arange(12) * 0.01
+    theta = 0.1 * np.sin(t[:, None] + np.arange(n))
+    theta_dot = 0.1 * np.cos(t[:, None] + np.arange(n))
+    data = Dataset(t, theta, theta_dot, tau=np.zeros((t.size, n)), theta_d=theta,
+                   theta_d_dot=theta_dot)
+    gains = np.ones(n)
+    for case in ('torque', 'pd_gains', 'unknown'):
+        for spec in (NetworkSpec.recommended(n, case), NetworkSpec.paper(n, case)):
+            scales = Scales.from_datasets([data], case, gains, gains)
+            problem = FitnessProblem(spec, data, scales=scales, substeps=2, kp=gains,
+                                     kd=gains)
+            genomes = np.repeat(spec.initial_genome()[None], 2, axis=0)
+            problem.cost(genomes)
+            problem.rollouts(genomes)
+            model = RKGNNModel(spec, scales, genomes[0], kp=gains, kd=gains, substeps=2)
+            model.predict(data)
+            if spec.inertia == 'cholesky':
+                refine_equation_error(spec, [data], scales, genomes[0], gains, gains,
+                                      max_nfev=1)
+    return time.perf_counter() - t0
