@@ -80,7 +80,7 @@ def running_pair(tmp_path):
 def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(running_pair):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import qos_profile_sensor_data
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
     from trajectory_msgs.msg import JointTrajectory
 
@@ -95,7 +95,10 @@ def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(runnin
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         states[stamp] = (np.array(msg.position), np.array(msg.velocity))
 
-    node.create_subscription(JointState, 'joint_states', on_state, qos_profile_sensor_data)
+    # reliable and deep (sim_arm publishes reliably): every state must reach the listener,
+    # even while a fresh clone compiles its kernels and the machine is busy
+    node.create_subscription(JointState, 'joint_states', on_state,
+                             QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
     node.create_subscription(JointTrajectory, 'identifier/prediction', predictions.append, 10)
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
