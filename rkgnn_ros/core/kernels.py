@@ -201,6 +201,24 @@ def _christoffel(xs, n, chol, centres, inv_w2, weights, phi, out, lmat, dout, dl
         vvec[a] = v
 
 
+@njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def _learned_velocity(xs, n, out, vvec):
+    """Fill vvec with the paper's V = B(θ)[θ̇θ̇] + C(θ)[θ̇²] from the learned RBF outputs."""
+    n_pairs = n * (n - 1) // 2
+    off_b = n * (n + 1) // 2
+    off_c = off_b + n * n_pairs
+    for a in range(n):
+        v = 0.0
+        p = 0
+        for j in range(n):
+            for jj in range(j + 1, n):
+                v += out[off_b + a * n_pairs + p] * xs[n + j] * xs[n + jj]
+                p += 1
+        for j in range(n):
+            v += out[off_c + a * n + j] * xs[n + j] * xs[n + j]
+        vvec[a] = v
+
+
 @njit(cache=True, nogil=True, error_model='numpy')
 def _advance(x, u_flat, row, h, substeps, case_id, chol, christ, kp_known, kd_known, eps,
              vc, centres, inv_w2, weights, bias, viscous, coulomb, pc, piw, pw, dc, diw, dw,
@@ -218,12 +236,8 @@ def _advance(x, u_flat, row, h, substeps, case_id, chol, christ, kp_known, kd_kn
     n = n2 // 2
     n_out = weights.shape[0]
     n_units = centres.shape[0]
-    n_pairs = n * (n - 1) // 2
-    off_b = n * (n + 1) // 2
-    off_c = off_b + n * n_pairs
-    off_g = off_c + n * n
-    if christ:
-        off_g = off_b
+    # G follows the inertia outputs, and the learned B and C outputs when present
+    off_g = n * (n + 1) // 2 if christ else n * (n + 1) // 2 + n * n * (n - 1) // 2 + n * n
     n_pu = pc.shape[1]
     n_du = dc.shape[1]
     for s in range(substeps):
@@ -247,6 +261,8 @@ def _advance(x, u_flat, row, h, substeps, case_id, chol, christ, kp_known, kd_kn
             if christ:
                 _christoffel(xs, n, chol, centres, inv_w2, weights, phi, out, lmat, dout, dl,
                              dmat, vvec)
+            else:
+                _learned_velocity(xs, n, out, vvec)
             for a in range(n):
                 qd = xs[n + a]
                 if case_id == 0:
@@ -264,17 +280,7 @@ def _advance(x, u_flat, row, h, substeps, case_id, chol, christ, kp_known, kd_kn
                         for kk in range(n_du):
                             diff = derr - dc[a, kk]
                             tau += dw[a, kk] * math.exp(-diff * diff * diw[a, kk])
-                if christ:
-                    v = vvec[a]
-                else:
-                    v = 0.0
-                    p = 0
-                    for j in range(n):
-                        for jj in range(j + 1, n):
-                            v += out[off_b + a * n_pairs + p] * xs[n + j] * xs[n + jj]
-                            p += 1
-                    for j in range(n):
-                        v += out[off_c + a * n + j] * xs[n + j] * xs[n + j]
+                v = vvec[a]
                 f = viscous[a] * qd + coulomb[a] * math.tanh(qd / vc)
                 rhs[a] = tau - v - out[off_g + a] - f
                 k[a] = qd

@@ -37,7 +37,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .fitness import FitnessProblem
-from .kernels import _christoffel, _mass, _theta_outputs
+from .kernels import _christoffel, _learned_velocity, _mass, _theta_outputs
 
 DIVERGED_RESIDUAL = 10.0
 
@@ -224,16 +224,7 @@ def _inertial_terms(x, acc, chol, christ, eps, centres, inv_w2, weights, bias, o
                              dout, dl, dmat, vvec)
                 g0 = n_in
             else:
-                for i in range(n):
-                    v = 0.0
-                    q = 0
-                    for j in range(n):
-                        for k in range(j + 1, n):
-                            v += out[n_in + i * n_pairs + q] * xs[n + j] * xs[n + k]
-                            q += 1
-                    for j in range(n):
-                        v += out[n_in + n * n_pairs + i * n + j] * xs[n + j] * xs[n + j]
-                    vvec[i] = v
+                _learned_velocity(xs, n, out, vvec)
                 g0 = n_in + n * n_pairs + n * n
             for i in range(n):
                 acc_i = vvec[i] + out[g0 + i]
