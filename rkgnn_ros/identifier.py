@@ -1450,7 +1450,13 @@ def _yield_to_callbacks() -> None:
     state-to-prediction latency of 137 ms at 1 kHz). On Linux nice is per thread and the
     numba pool, created from this thread by its first parallel call, inherits it. The GIL
     switch interval is shortened too, so a callback waits less for the worker's Python code.
+    The worker's numba kernels use one core fewer than the machine has (numba's thread
+    count is per calling thread): the nice value does not reach a pool created earlier by
+    another thread, and a 2-core machine must keep a core for the callbacks.
     """
+    import numba
+    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS,
+                                     (os.cpu_count() or 1) - 1)))
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)
     except (AttributeError, OSError):  # not Linux, or not permitted: run at equal priority
