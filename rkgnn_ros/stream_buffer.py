@@ -657,6 +657,36 @@ class StreamBuffer:
                 self._drops['state']['resample_failed'] += failures
         return Snapshot(segments, 0.0 if origin is None else origin, epoch)
 
+    def controller_samples(self) -> Optional[Dict[str, np.ndarray]]:
+        """
+        Return the buffered states of the window paired with commands, for a controller fit.
+
+        Only with ``need_tau`` (case 'torque', where the applied torque is measured): the
+        state samples of the newest ``window`` seconds that the command stream covers (see
+        pairing), with θd, θ̇d interpolated at their stamps, whether or not ``need_desired``.
+        Keys ``theta``, ``theta_dot``, ``tau``, ``theta_d``, ``theta_d_dot``, each (K, n);
+        None when τ is not stored or no state is covered.
+        """
+        if not self.need_tau:
+            return None
+        with self._lock:
+            states, commands = self._series['state'], self._series['command']
+            if not len(states) or not len(commands):
+                return None
+            ts = states.t.copy()
+            vs = states.values.copy()
+            tc = commands.t.copy()
+            vc = commands.values.copy()
+        keep = (ts >= ts[-1] - self.window) & _covered(ts, tc, self.gap_threshold,
+                                                       self.pair_tolerance)
+        if not keep.any():
+            return None
+        n = self._n
+        ts, vs = ts[keep], vs[keep]
+        desired = _interp_rows(ts, tc, vc, self.gap_threshold)
+        return {'theta': vs[:, :n], 'theta_dot': vs[:, n:2 * n], 'tau': vs[:, 2 * n:],
+                'theta_d': desired[:, :n], 'theta_d_dot': desired[:, n:]}
+
     def _resample(self, ts, vs, tc, vc, min_samples):
         n, h = self._n, self.model_step
         if ts.size < 2:

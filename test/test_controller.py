@@ -1,0 +1,162 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Tests for the controller-law fit used to predict case 1 in closed loop."""
+
+import numpy as np
+import pytest
+from rkgnn_ros.core.controller import closed_loop_model, fit_pd_law, PDLaw
+from rkgnn_ros.core.identify import RKGNNModel
+from rkgnn_ros.core.network import NetworkSpec, Scales
+from rkgnn_ros.core.plant import PDController, PlanarArm
+from rkgnn_ros.core.simulate import NoiseModel, simulate
+from rkgnn_ros.core.trajectories import paper_reference, SumOfSines
+from rkgnn_ros.stream_buffer import StreamBuffer
+
+N = 3
+SCALES = Scales(theta_center=[-1.5, 0.0, 0.0], theta_spread=[0.3, 0.3, 0.3],
+                velocity=[1.0, 1.0, 1.0], acceleration=[5.0, 5.0, 5.0], torque=[3.0, 2.0, 1.0],
+                error=[0.1, 0.1, 0.1], error_rate=[0.5, 0.5, 0.5])
+
+
+@pytest.fixture(scope='module')
+def pd_run():
+    """10 s at 100 Hz of the paper's arm under the paper's PD."""
+    return simulate(PlanarArm.paper(), PDController.paper(), paper_reference(N), 10.0,
+                    rate=100.0)
+
+
+def _fit(data, tau=None):
+    return fit_pd_law(data.theta, data.theta_dot, data.tau if tau is None else tau,
+                      data.theta_d, data.theta_d_dot)
+
+
+def test_fit_recovers_the_paper_gains_exactly(pd_run):
+    law = _fit(pd_run)
+    pd = PDController.paper()
+    np.testing.assert_allclose(law.kp, np.diag(pd.kp), rtol=1e-9)
+    np.testing.assert_allclose(law.kd, np.diag(pd.kd), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(law.bias, 0.0, atol=1e-9)
+    assert np.all(law.fit_ratio < 1e-9)
+    assert law.samples == pd_run.n_samples
+    assert law.usable()
+    np.testing.assert_allclose(
+        law.torque(pd_run.theta, pd_run.theta_dot, pd_run.theta_d, pd_run.theta_d_dot),
+        pd_run.tau, atol=1e-9)
+
+
+def test_constant_torque_is_fitted_and_folded_into_the_desired_position(pd_run):
+    bias = np.array([2.0, -1.0, 0.5])
+    law = _fit(pd_run, tau=pd_run.tau + bias)
+    np.testing.assert_allclose(law.bias, bias, atol=1e-9)
+    e = pd_run.theta_d - pd_run.theta
+    # Kp (θd + c/Kp − θ) + Kd ė = Kp e + Kd ė + c
+    shifted = law.kp * (e + law.shift()) + law.kd * (pd_run.theta_d_dot - pd_run.theta_dot)
+    np.testing.assert_allclose(shifted, pd_run.tau + bias, atol=1e-9)
+
+
+def test_gains_survive_encoder_noise():
+    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(N), 10.0,
+                    rate=100.0, noise=NoiseModel.realistic(), rng=3)
+    law = _fit(data)
+    pd = PDController.paper()
+    np.testing.assert_allclose(law.kp, np.diag(pd.kp), rtol=0.05)
+    assert np.all(np.abs(law.kd - np.diag(pd.kd)) < 0.05 * np.diag(pd.kd) + 0.5)
+    assert law.usable()
+
+
+def test_a_torque_that_is_not_a_pd_law_is_not_usable(pd_run):
+    t = pd_run.t[:, None]
+    tau = 5.0 * np.sin(2 * np.pi * np.array([0.37, 0.91, 1.3]) * t)
+    law = _fit(pd_run, tau=tau)
+    assert law is not None and not law.usable()
+    assert np.all(law.fit_ratio > 0.5)
+
+
+def test_too_few_or_degenerate_samples_give_none(pd_run):
+    d = pd_run
+    assert fit_pd_law(d.theta[:10], d.theta_dot[:10], d.tau[:10], d.theta_d[:10],
+                      d.theta_d_dot[:10]) is None
+    # the error never varies: gains are not identifiable
+    same = np.ones((100, N))
+    assert fit_pd_law(same, same, same, same, same) is None
+    # non-finite rows are left out, not propagated
+    theta = d.theta.copy()
+    theta[::7] = np.nan
+    law = fit_pd_law(theta, d.theta_dot, d.tau, d.theta_d, d.theta_d_dot)
+    assert law.samples == d.n_samples - len(range(0, d.n_samples, 7))
+    np.testing.assert_allclose(law.kp, np.diag(PDController.paper().kp), rtol=1e-9)
+    with pytest.raises(ValueError, match='same shape'):
+        fit_pd_law(d.theta, d.theta_dot[:5], d.tau, d.theta_d, d.theta_d_dot)
+
+
+def _torque_model(seed=0):
+    spec = NetworkSpec(N, 'torque', inertia='cholesky', velocity='christoffel', bias=True,
+                       inertia_floor=0.05)
+    genome = spec.initial_genome() + 0.05 * np.random.default_rng(seed).standard_normal(
+        spec.genome_size)
+    return RKGNNModel(spec, SCALES, genome, dt=0.001, substeps=1)
+
+
+def test_closed_loop_model_is_the_torque_model_driven_by_the_law():
+    model = _torque_model()
+    law = PDLaw(kp=np.array([30.0, 20.0, 10.0]), kd=np.array([3.0, 2.0, 1.0]),
+                bias=np.array([1.0, -0.5, 0.2]), fit_ratio=np.zeros(N), samples=100)
+    closed = closed_loop_model(model, law)
+    assert closed.case == 'pd_gains' and closed.joint_names == model.joint_names
+    np.testing.assert_array_equal(closed.genome, model.genome)
+    t = np.arange(1001) * 0.001
+    reference = SumOfSines.random(N, np.random.default_rng(2), amplitude=0.3,
+                                  offsets=np.array([-1.5, 0.0, 0.0]))
+    qd, qd_dot = reference.evaluate(t)
+    x0 = np.concatenate([qd[0], qd_dot[0]])
+    states = closed.simulate(x0, t, theta_d=qd + law.shift(), theta_d_dot=qd_dot)
+    assert np.isfinite(states).all()
+    tau = law.torque(states[:, :N], states[:, N:], qd, qd_dot)
+    replay = model.simulate(x0, t, tau=tau)
+    scale = np.ptp(states[:, :N], axis=0)
+    assert np.max(np.abs(replay[:, :N] - states[:, :N]) / scale) < 1e-3
+
+
+def test_closed_loop_model_refuses_other_cases_and_sizes():
+    model = _torque_model()
+    law = PDLaw(np.ones(2), np.ones(2), np.zeros(2), np.zeros(2), 10)
+    with pytest.raises(ValueError, match='joints'):
+        closed_loop_model(model, law)
+    law3 = PDLaw(np.ones(N), np.ones(N), np.zeros(N), np.zeros(N), 10)
+    pd_model = closed_loop_model(model, law3)
+    with pytest.raises(ValueError, match="case 'torque'"):
+        closed_loop_model(pd_model, law3)
+
+
+def test_buffer_pairs_states_with_commands_for_the_fit(pd_run):
+    d = pd_run
+    buffer = StreamBuffer(('a', 'b', 'c'), 0.01, 20.0, 0.1, need_tau=True,
+                          need_desired=False)
+    assert buffer.controller_samples() is None
+    t0 = 1000.0
+    for k in range(d.n_samples):
+        buffer.add_state(t0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
+    assert buffer.controller_samples() is None  # no command yet
+    for k in range(200, d.n_samples):  # commands only from 2 s on
+        buffer.add_command(t0 + d.t[k], d.theta_d[k], d.theta_d_dot[k])
+    pairs = buffer.controller_samples()
+    assert pairs['theta'].shape == (d.n_samples - 200 + 1, N)  # one step of tolerance
+    np.testing.assert_allclose(pairs['theta_d'][1:], d.theta_d[200:], atol=1e-12)
+    np.testing.assert_allclose(pairs['tau'][1:], d.tau[200:], atol=1e-12)
+    law = fit_pd_law(**pairs)  # the first state is paired with the nearest command held
+    np.testing.assert_allclose(law.kp, np.diag(PDController.paper().kp), rtol=1e-3)
+    no_tau = StreamBuffer(('a', 'b', 'c'), 0.01, 20.0, 0.1, need_tau=False,
+                          need_desired=True)
+    assert no_tau.controller_samples() is None
