@@ -86,6 +86,8 @@ def main(argv=None):
     parser.add_argument('--cases', default='1,2,3')
     parser.add_argument('--duration', type=float, default=65.0)
     parser.add_argument('--horizon', type=float, default=2.0)
+    parser.add_argument('--domain', type=int, default=None,
+                        help='ROS_DOMAIN_ID of the first case (next cases: +1, ...)')
     parser.add_argument('--out', default=os.path.join(HERE, 'results', 'online.json'))
     args = parser.parse_args(argv)
     log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
@@ -94,7 +96,8 @@ def main(argv=None):
                         'metric': '2 s-ahead θ RMSE over predictions started in the 5 s '
                                   'bin ending at t, divided by the θ range, mean over joints'}}
     for i, case in enumerate(c.strip() for c in args.cases.split(',')):
-        domain = 20 + (os.getpid() + 37 * i) % 200
+        domain = (20 + (os.getpid() + 37 * i) % 200 if args.domain is None
+                  else args.domain + i)
         print(f'== case {case}: {args.duration:.0f} s on ROS_DOMAIN_ID={domain}', flush=True)
         curve, at60, details = run_case(case, args.duration, args.horizon, domain, log_dir)
         for t, v in curve:

@@ -87,13 +87,26 @@ Prediction
 ----------
 From the newest accepted joint_states sample (header stamp copied, ``points[0]`` that
 state exactly), the published model is rolled out over ``prediction.horizon`` s at
-``model_step``. Inputs over the horizon: case 'torque' holds the latest measured torque;
-cases 'pd_gains' and 'unknown' follow the newest ``reference_trajectory`` if it has not
-ended at the start stamp (``StreamBuffer.reference_at``: linear inside, first/last position
-with zero velocity outside), else hold the latest joint_commands position with zero
-velocity. Published at ``prediction.rate`` Hz, and with ``prediction.on_state`` also on
+``model_step``. Inputs over the horizon: cases 'pd_gains' and 'unknown' follow the newest
+``reference_trajectory`` if it has not ended at the start stamp
+(``StreamBuffer.reference_at``: linear inside, first/last position with zero velocity
+outside), else hold the latest joint_commands position with zero velocity; case 'torque'
+see below. Published at ``prediction.rate`` Hz, and with ``prediction.on_state`` also on
 each accepted joint_states sample (at most once per ``model_step``). A prediction with a
 non-finite value is not published (counted as ``prediction_non_finite``).
+
+Case 'torque' (measured effort): the future torque is the arm controller's answer to the
+future state, so the node fits the controller's law τ = Kp (θd − θ) + Kd (θ̇d − θ̇) + c per
+joint by least squares on the buffered effort paired with joint_commands
+(:mod:`rkgnn_ros.core.controller`), at every data refresh. While that law explains the
+torque (RMS residual below 10 % of the RMS torque, Kp > 0, Kd >= 0), the search runs in
+closed loop (exactly a case-2 search with the fitted gains: the same genome, the rollout
+driven by the commands) and predictions follow the reference in closed loop, like case 2;
+``identified.kp`` / ``identified.kd`` are the fitted gains and the published model (still
+case 'torque', the arm alone) records the law in its ``info``. The search restarts when
+the law appears, stops explaining the torque, or its gains move by more than 10 %. Without
+joint_commands, or with a controller that is not a PD law, the search fits the open-loop
+rollout driven by the measured torque and predictions hold the latest measured torque.
 """
 
 from collections import deque
@@ -121,6 +134,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rkgnn_ros.conversions import (joint_state_to_arrays, joint_trajectory_to_arrays,
                                    make_float64_multiarray, make_joint_trajectory,
                                    REJECTION_REASONS)
+from rkgnn_ros.core.controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.identify import Evolution, normalize_case, nrmse, precompile, RKGNNModel
 from rkgnn_ros.core.network import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
@@ -143,6 +157,9 @@ NODE_REASONS = ('no_joints', 'internal_error', 'prediction_non_finite', 'worker_
 
 DATA_REFRESH_S = 1.0        # at most one set_data per second
 MIN_SEGMENT_SAMPLES = 10    # shorter segments (training or validation) are left out
+MIN_LAW_SAMPLES = 50        # case 'torque': paired samples before a controller law is fitted
+MAX_LAW_FIT_RATIO = 0.1     # ... and its RMS residual must stay below this share of RMS τ
+LAW_GAIN_RTOL = 0.1         # a refit moving the gains more than this restarts the search
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # ~/evolution at most 20 Hz
 IDLE_WAIT_S = 0.05
@@ -150,6 +167,7 @@ IDLE_WAIT_S = 0.05
 WARM_START_S = 5.0
 WARM_START_NFEV = 300
 WARM_START_SIGMA = 0.05     # search spread around the warm start (genome units)
+REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
 # The worker yields the CPU to the executor (see _yield_to_callbacks).
 WORKER_NICE = 10
 GIL_SWITCH_INTERVAL_S = 0.0005
@@ -306,9 +324,11 @@ OUTPUTS = (
     _Param('identified.validation_nrmse', math.nan, _T.DOUBLE,
            'Output: validation theta-NRMSE of the published model.'),
     _Param('identified.kp', (), _T.DOUBLE_ARRAY,
-           "Output: the model's PD gains linearised at zero error (cases 2-3)."),
+           "Output: the model's PD gains linearised at zero error (cases 2-3); case 1: the "
+           'gains of the controller law fitted from effort and joint_commands.'),
     _Param('identified.kd', (), _T.DOUBLE_ARRAY,
-           "Output: the model's derivative gains linearised at zero error (cases 2-3)."),
+           "Output: the model's derivative gains linearised at zero error (cases 2-3); "
+           'case 1: the fitted law.'),
 )
 _BY_NAME = {p.name: p for p in PARAMETERS}
 _OUTPUT_NAMES = frozenset(p.name for p in OUTPUTS)
@@ -594,6 +614,10 @@ class IdentifierNode(Node):
         self._paused = False
         self._reset_request = False
         self._model: Optional[RKGNNModel] = None
+        # case 'torque': the arm's controller law fitted from torque + commands, and the
+        # published model closed with it (prediction along the reference)
+        self._law: Optional[PDLaw] = None
+        self._closed = None  # (model, closed-loop model, θd shift (n,))
         self._start_model: Optional[RKGNNModel] = None
         self._outputs: Optional[dict] = None
         self._status = {'state': 'waiting for data', 'detail': 'no joint_states yet',
@@ -605,6 +629,8 @@ class IdentifierNode(Node):
         # worker-owned search state
         self._evo: Optional[Evolution] = None
         self._evo_version = -1
+        self._evo_law: Optional[PDLaw] = None  # case 'torque': the law a closed-loop search uses
+        self._warm_seconds = math.inf  # seconds of data at the last equation-error fit
         self._algorithm = ''
         self._generation = 0
         self._evaluations = 0
@@ -945,6 +971,11 @@ class IdentifierNode(Node):
         m = times.size
         if case == 'torque':
             return None if tau is None else {'tau': np.tile(tau, (m, 1))}
+        return self._desired_inputs(times)
+
+    def _desired_inputs(self, times: np.ndarray) -> Optional[dict]:
+        """Return θd, θ̇d over ``times``: the reference, else the latest command held."""
+        m = times.size
         buffer = self._buffer
         end = self._reference_end
         if buffer is not None and end is not None and times[0] <= end:
@@ -968,7 +999,15 @@ class IdentifierNode(Node):
         k = max(1, int(round(cfg['prediction.horizon'] / step)))
         t = np.arange(k + 1) * step
         stamp, t0, theta, theta_dot, tau = latest
-        inputs = self._prediction_inputs(model.case, t0 + t, tau)
+        inputs = None
+        closed = self._closed
+        if model.case == 'torque' and closed is not None and closed[0] is model:
+            inputs = self._desired_inputs(t0 + t)
+            if inputs is not None:  # closed loop with the fitted law, along the reference
+                model = closed[1]
+                inputs['theta_d'] = inputs['theta_d'] + closed[2]
+        if inputs is None:
+            inputs = self._prediction_inputs(model.case, t0 + t, tau)
         if inputs is None:
             return
         states = model.simulate(np.concatenate([theta, theta_dot]), t, **inputs)  # (k+1, 2n)
@@ -1075,10 +1114,19 @@ class IdentifierNode(Node):
     # ------------------------------------------------------------------ publishing
 
     def _publish_model(self, model: RKGNNModel, warm_up: bool = True) -> None:
+        law = self._law
+        closed = None
+        if model.case == 'pd_gains' and self._cfg.case == 'torque' and law is not None:
+            # a closed-loop search (case 'torque' with the fitted law): publish the arm model
+            closed = model
+            model = open_loop_model(closed, info=dict(closed.info, controller_law=law.to_dict()))
         if warm_up:
             self._warm_up(model)
         self._model_pub.publish(String(data=model.to_yaml()))
         gains = model.implied_gains()
+        if model.case == 'torque' and law is not None:
+            gains = (law.kp, law.kd)
+            self._close_loop(model, law, closed)
         info = model.info
         with self._lock:
             self._model = model
@@ -1247,17 +1295,26 @@ class IdentifierNode(Node):
     def _refresh_data(self, cfg: _Config, buffer: StreamBuffer, joints) -> bool:
         """Take a snapshot of the buffer; build the search or hand it the new data."""
         self._last_refresh = time.monotonic()
-        snapshot = buffer.snapshot(min_samples=MIN_SEGMENT_SAMPLES)
+        law = self._update_law(buffer) if cfg.case == 'torque' else None
+        snapshot = buffer.snapshot(min_samples=MIN_SEGMENT_SAMPLES,
+                                   pair_commands=law is not None)
+        segments = list(snapshot)
+        if law is not None:  # fold the law's constant torque into θd (see core.controller)
+            segments = [replace(seg, theta_d=seg.theta_d + law.shift()) for seg in segments]
         train, validation, seconds = split_validation(
-            list(snapshot), cfg['validation_fraction'], MIN_SEGMENT_SAMPLES)
+            segments, cfg['validation_fraction'], MIN_SEGMENT_SAMPLES)
         if seconds < cfg['min_window'] or not train:
             self._set_status('waiting for data', f"{seconds:.1f} s of {cfg['min_window']} s "
                                                  'buffered')
             return False
         if self._evo is None:
             self._build_search(cfg, train, joints, seconds)
+            self._warm_seconds = seconds
         else:
             self._evo.set_data(train)
+            if seconds >= REWARM_GROWTH * self._warm_seconds:
+                self._warm_seconds = seconds
+                self._rewarm(train, seconds)
             if self._had_finite and not math.isfinite(self._evo.optimizer.best_cost):
                 self.get_logger().warning(
                     'the best model diverges on the new data window: the last good model '
@@ -1267,11 +1324,65 @@ class IdentifierNode(Node):
         self._data_version += 1
         return True
 
+    def _update_law(self, buffer: StreamBuffer) -> Optional[PDLaw]:
+        """
+        Case 'torque': refit the controller law; return the law the search runs with.
+
+        While a fitted PD law explains the measured torque, the search runs in closed loop
+        (a case-2 search with the fitted gains, on the commands) and predictions follow the
+        reference. When a fresh fit becomes usable, stops being usable, or moves its gains
+        by more than LAW_GAIN_RTOL, the search restarts in the new mode. Too few paired
+        samples (no commands, or just after a reset) change nothing.
+        """
+        pairs = buffer.controller_samples()
+        fresh = None if pairs is None else fit_pd_law(**pairs, min_samples=MIN_LAW_SAMPLES)
+        searching = self._evo is not None
+        running = self._evo_law if searching else None
+        if fresh is None:
+            return running
+        new = fresh if fresh.usable(MAX_LAW_FIT_RATIO) else None
+        if searching:
+            if running is not None and new is not None and running.close_to(new,
+                                                                            LAW_GAIN_RTOL):
+                return running
+            if running is None and new is None:
+                return None
+            self._drop_search('the controller law changed')
+        old = self._law
+        if new is not None and not new.close_to(old, LAW_GAIN_RTOL):
+            self.get_logger().info(
+                'controller law fitted from effort and joint_commands: the search and the '
+                'predictions run in closed loop along the reference with Kp '
+                f'{np.round(new.kp, 3).tolist()}, Kd {np.round(new.kd, 3).tolist()} '
+                f'(residual {np.round(100 * new.fit_ratio, 2).tolist()} % of the torque)')
+        elif new is None and old is not None:
+            self.get_logger().warning(
+                'joint_commands no longer explain the measured torque as a PD law '
+                f'(residual {np.round(100 * fresh.fit_ratio, 1).tolist()} %): the search runs '
+                'on the measured torque and predictions hold the latest torque')
+        self._law = new
+        self._closed = None
+        model = self._model
+        if new is not None and model is not None and model.case == 'torque':
+            self._close_loop(model, new)
+        return new
+
+    def _close_loop(self, model: RKGNNModel, law: PDLaw, closed=None) -> None:
+        if law.kp.size != model.n_joints:
+            self._closed = None
+            return
+        closed = closed_loop_model(model, law) if closed is None else closed
+        self._closed = (model, closed, law.shift())
+
     def _build_search(self, cfg: _Config, train, joints, seconds: float) -> None:
         n = len(joints)
         spec = network_spec(cfg.values, n)
         kp = kd = None
-        if spec.case == 'pd_gains':
+        law = self._law
+        if spec.case == 'torque' and law is not None:  # closed loop with the fitted law
+            spec = replace(spec, case='pd_gains')
+            kp, kd = law.kp, law.kd
+        elif spec.case == 'pd_gains':
             kp, kd = np.array(cfg['kp']), np.array(cfg['kd'])
             if kp.size != n or kd.size != n:
                 raise ValueError(f"case 'pd_gains': kp has {kp.size} and kd {kd.size} "
@@ -1280,8 +1391,11 @@ class IdentifierNode(Node):
         x0 = scales = None
         origin = 'the default genome'
         start = self._start_model
-        if start is not None and start.spec == spec and start.joint_names == tuple(joints):
+        if (start is not None and start.joint_names == tuple(joints)
+                and replace(start.spec, case=spec.case) == spec
+                and (start.case == spec.case or start.case == cfg.case)):
             x0, scales, origin = start.genome, start.scales, 'the loaded model'
+        self._evo_law = law if spec.case != cfg.case else None
         self._evo = Evolution(spec, train, optimizer=algorithm, settings=settings,
                               seed=cfg['es.seed'], kp=kp, kd=kd,
                               substeps=cfg['substeps'] or None, scales=scales, x0=x0)
@@ -1322,6 +1436,32 @@ class IdentifierNode(Node):
         sigma = max(WARM_START_SIGMA, evo.optimizer.settings.get('sigma_min', 0.0))
         evo.optimizer.restart(genome, sigma)
         return f'the equation-error fit ({time.perf_counter() - t0:.1f} s, J {cost:.4g})'
+
+    def _rewarm(self, train, seconds: float) -> None:
+        """
+        Run the equation-error fit again from the best genome, on the grown window.
+
+        A search starts from the first ``min_window`` seconds; the fit on a window that has
+        grown by REWARM_GROWTH sees more of the motion. Its genome replaces the best (and
+        the optimizer restarts around it) only if its rollout cost on the new data is lower.
+        """
+        from .core.refine import refine_equation_error
+        evo = self._evo
+        t0 = time.perf_counter()
+        before = float(evo.optimizer.best_cost)
+        genome, _ = refine_equation_error(
+            evo.spec, train, evo.scales, evo.optimizer.best_x, evo.kp, evo.kd,
+            max_nfev=WARM_START_NFEV, deadline=t0 + WARM_START_S)
+        cost = float(evo.problem.cost(genome[None])[0])
+        kept = math.isfinite(cost) and not cost >= before
+        if kept:
+            evo.optimizer.seed_best(genome, cost)
+            evo.optimizer.restart(genome, max(WARM_START_SIGMA,
+                                              evo.optimizer.settings.get('sigma_min', 0.0)))
+        self.get_logger().info(
+            f'equation-error fit again on {seconds:.1f} s of data '
+            f'({time.perf_counter() - t0:.1f} s): J {cost:.4g} vs the best {before:.4g}, '
+            + ('restarting around it' if kept else 'kept the best'))
 
     def _apply_es_settings(self, cfg: _Config) -> None:
         """Hand changed ES settings to the optimizer (between two generations)."""

@@ -630,28 +630,31 @@ class StreamBuffer:
             self._drops['state']['no_command'] += int((~covered).sum())
             self._settled = float(stamps[b - 1])
 
-    def snapshot(self, min_samples: int = 2) -> Snapshot:
+    def snapshot(self, min_samples: int = 2, pair_commands: bool = False) -> Snapshot:
         """
         Return the newest ``window`` seconds as uniformly resampled segments.
 
         A consistent copy taken under the lock and resampled outside it: callbacks keep
         adding meanwhile, and changing the returned arrays never touches the buffer.
-        Segments have at least ``max(2, min_samples)`` points at ``model_step``.
+        Segments have at least ``max(2, min_samples)`` points at ``model_step``. With
+        ``pair_commands`` the segments carry θd, θ̇d (paired as with ``need_desired``, so
+        only covered grid times make up segments) even when ``need_desired`` is False.
         """
+        pair = self.need_desired or bool(pair_commands)
         with self._lock:
             self._settle_locked()
             states = self._series['state']
             t_states = states.t.copy()
             v_states = states.values.copy()
             commands = self._series['command']
-            if self.need_desired:
+            if pair:
                 t_commands = commands.t.copy()
                 v_commands = commands.values.copy()
             else:
                 t_commands = v_commands = None
             origin, epoch = self._origin, self._epoch
         segments, failures = self._resample(
-            t_states, v_states, t_commands, v_commands, max(2, int(min_samples)))
+            t_states, v_states, t_commands, v_commands, max(2, int(min_samples)), pair)
         if failures:
             with self._lock:
                 self._drops['state']['resample_failed'] += failures
@@ -687,7 +690,7 @@ class StreamBuffer:
         return {'theta': vs[:, :n], 'theta_dot': vs[:, n:2 * n], 'tau': vs[:, 2 * n:],
                 'theta_d': desired[:, :n], 'theta_d_dot': desired[:, n:]}
 
-    def _resample(self, ts, vs, tc, vc, min_samples):
+    def _resample(self, ts, vs, tc, vc, min_samples, pair):
         n, h = self._n, self.model_step
         if ts.size < 2:
             return [], 0
@@ -705,7 +708,7 @@ class StreamBuffer:
             if k1 - k0 + 1 < min_samples:
                 continue
             grid = np.arange(k0, k1 + 1) * h
-            if self.need_desired:
+            if pair:
                 runs = _runs(_covered(grid, tc, self.gap_threshold, self.pair_tolerance))
             else:
                 runs = [(0, grid.size)]
@@ -717,7 +720,7 @@ class StreamBuffer:
                 fields = {'theta': state[:, :n], 'theta_dot': state[:, n:2 * n]}
                 if self.need_tau:
                     fields['tau'] = state[:, 2 * n:]
-                if self.need_desired:
+                if pair:
                     desired = _interp_rows(t, tc, vc, self.gap_threshold)
                     fields['theta_d'] = desired[:, :n]
                     fields['theta_d_dot'] = desired[:, n:]

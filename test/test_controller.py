@@ -160,3 +160,22 @@ def test_buffer_pairs_states_with_commands_for_the_fit(pd_run):
     no_tau = StreamBuffer(('a', 'b', 'c'), 0.01, 20.0, 0.1, need_tau=False,
                           need_desired=True)
     assert no_tau.controller_samples() is None
+
+
+def test_snapshot_pairs_commands_on_request_only(pd_run):
+    d = pd_run
+    buffer = StreamBuffer(('a', 'b', 'c'), 0.01, 20.0, 0.1, need_tau=True,
+                          need_desired=False)
+    t0 = 1000.0
+    for k in range(d.n_samples):
+        buffer.add_state(t0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
+        if k >= 300:
+            buffer.add_command(t0 + d.t[k], d.theta_d[k], d.theta_d_dot[k])
+    plain = list(buffer.snapshot())
+    assert len(plain) == 1 and plain[0].theta_d is None and plain[0].n_samples == d.n_samples
+    paired = list(buffer.snapshot(pair_commands=True))
+    assert len(paired) == 1
+    seg = paired[0]
+    assert seg.n_samples == d.n_samples - 300 + 1  # from one step before the first command
+    np.testing.assert_allclose(seg.theta_d[1:], d.theta_d[300:], atol=1e-9)
+    np.testing.assert_allclose(seg.tau[1:], d.tau[300:], atol=1e-9)

@@ -557,6 +557,19 @@ def test_structural_change_restarts_with_the_new_case(rig):
     assert wait_for(lambda: rig.node.model is not None and rig.node.model.case == 'torque',
                     10.0)
     assert min(probe.generations(t0)) <= 3
+    # effort and joint_commands are both streamed: the PD law is fitted, the search and the
+    # predictions run in closed loop, and identified.kp / kd are the fitted gains
+    law = wait_for(lambda: rig.node.model.info.get('controller_law'), 10.0)
+    assert law, 'no controller law in the published case-1 model'
+    pd = PDController.paper()
+    np.testing.assert_allclose(law['kp'], np.diag(pd.kp), rtol=1e-3)
+    np.testing.assert_allclose(law['kd'], np.diag(pd.kd), rtol=1e-3, atol=1e-3)
+    assert wait_for(lambda: np.allclose(probe.get_parameter('identified.kp'), np.diag(pd.kp),
+                                        rtol=1e-3), 5.0)
+    assert wait_for(lambda: rig.node._closed is not None and rig.node._closed[0] is
+                    rig.node.model, 5.0)
+    t1 = time.monotonic()
+    assert wait_for(lambda: probe.since(probe.predictions, t1), 5.0), 'no closed-loop prediction'
 
 
 def test_sigint_mid_generation_exits_cleanly_and_saves(rig, tmp_path):

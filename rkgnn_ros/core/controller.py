@@ -35,7 +35,7 @@ import numpy as np
 
 from rkgnn_ros.core.identify import RKGNNModel
 
-__all__ = ['PDLaw', 'fit_pd_law', 'closed_loop_model']
+__all__ = ['PDLaw', 'fit_pd_law', 'closed_loop_model', 'open_loop_model']
 
 
 @dataclass(frozen=True)
@@ -74,6 +74,24 @@ class PDLaw:
     def shift(self) -> np.ndarray:
         """Return c / Kp, the offset that folds the constant into θd (shape (n,))."""
         return self.bias / self.kp
+
+    def close_to(self, other: Optional['PDLaw'], rtol: float = 0.1) -> bool:
+        """
+        Return whether ``other`` has the same gains within ``rtol``.
+
+        Kd is compared with ``rtol * (|Kd| + 0.1 s * |Kp|)``: a small derivative gain (the
+        paper's 0.19) is noisy relative to itself but matters little against Kp.
+        """
+        if other is None or other.kp.shape != self.kp.shape:
+            return False
+        kp_ok = np.abs(other.kp - self.kp) <= rtol * np.abs(self.kp)
+        kd_ok = np.abs(other.kd - self.kd) <= rtol * (np.abs(self.kd) + 0.1 * np.abs(self.kp))
+        return bool(np.all(kp_ok) and np.all(kd_ok))
+
+    def to_dict(self) -> dict:
+        """Return plain lists (for a model's ``info``)."""
+        return {'kp': self.kp.tolist(), 'kd': self.kd.tolist(), 'bias': self.bias.tolist(),
+                'fit_ratio': self.fit_ratio.tolist(), 'samples': self.samples}
 
 
 def fit_pd_law(theta, theta_dot, tau, theta_d, theta_d_dot,
@@ -141,3 +159,18 @@ def closed_loop_model(model: RKGNNModel, law: PDLaw) -> RKGNNModel:
     return RKGNNModel(spec, model.scales, model.genome, joint_names=model.joint_names,
                       kp=law.kp, kd=law.kd, dt=model.dt, substeps=model.substeps,
                       info=dict(model.info, closed_loop='fitted PD law'))
+
+
+def open_loop_model(model: RKGNNModel, info=None) -> RKGNNModel:
+    """
+    Return the arm model of a closed-loop (case-2) ``model`` as a case-1 model.
+
+    The inverse of :func:`closed_loop_model`: same genome, torque as the input. ``info``
+    replaces the model's info when given.
+    """
+    if model.case != 'pd_gains':
+        raise ValueError(f"open_loop_model needs a case 'pd_gains' model, got {model.case!r}")
+    spec = replace(model.spec, case='torque')
+    return RKGNNModel(spec, model.scales, model.genome, joint_names=model.joint_names,
+                      dt=model.dt, substeps=model.substeps,
+                      info=dict(model.info if info is None else info))
