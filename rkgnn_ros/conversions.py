@@ -49,6 +49,7 @@ Any other failure (an object that is not a JointState at all) is ``'malformed'``
 
 from functools import lru_cache
 import math
+import struct
 from typing import NamedTuple, Optional, Sequence, Tuple, Union
 
 from builtin_interfaces.msg import Duration, Time
@@ -79,6 +80,7 @@ REJECTION_REASONS = (
     'malformed',         # not the expected message at all
 )
 
+_CDR_LE = b'\x00\x01\x00\x00'  # CDR encapsulation: plain CDR, little endian
 _NANO = 1_000_000_000
 
 
@@ -461,6 +463,85 @@ def make_joint_trajectory(stamp, names: Sequence[str], times, positions,
         points.append(point)
     msg.points = points
     return msg
+
+
+def serialize_joint_trajectory(stamp, names: Sequence[str], times, positions,
+                               velocities=None) -> bytes:
+    """
+    Return the JointTrajectory of :func:`make_joint_trajectory` already serialized (CDR).
+
+    The same message, written straight into its little-endian CDR wire form (what
+    ``rclpy.serialization.serialize_message`` produces, without its trailing zero padding)
+    for ``Publisher.publish(bytes)``: building 201 ``JointTrajectoryPoint`` objects costs
+    about 2 ms of Python per prediction, this about 0.2 ms. Same arguments and errors as
+    :func:`make_joint_trajectory`; tests hold the two equal.
+    """
+    names = [str(name) for name in names]
+    times = np.asarray(times, dtype=float).reshape(-1)
+    positions = np.asarray(positions, dtype=float)
+    k, n = times.size, len(names)
+    if positions.shape != (k, n):
+        raise ValueError(f'positions have shape {positions.shape}, expected {(k, n)}')
+    if velocities is not None:
+        velocities = np.asarray(velocities, dtype=float)
+        if velocities.shape != positions.shape:
+            raise ValueError(
+                f'velocities have shape {velocities.shape}, expected {positions.shape}')
+    if k and not (times[0] >= 0.0 and np.all(np.diff(times) > 0.0)):
+        raise ValueError('times must be >= 0 and strictly increasing')
+    header = _stamp(stamp)
+    out = bytearray(_CDR_LE)
+
+    def align(size):
+        out.extend(bytes(-(len(out) - len(_CDR_LE)) % size))
+
+    def string(text):
+        data = text.encode('utf-8')
+        align(4)
+        out.extend(struct.pack('<I', len(data) + 1) + data + b'\x00')
+
+    align(4)
+    out.extend(struct.pack('<iI', header.sec, header.nanosec))
+    string('')  # frame_id
+    align(4)
+    out.extend(struct.pack('<I', n))
+    for name in names:
+        string(name)
+    align(4)
+    out.extend(struct.pack('<I', k))
+    pos = positions.tolist()
+    vel = velocities.tolist() if velocities is not None else None
+    layouts = {}  # offset mod 8 at the point's start -> (Struct, offset mod 8 at its end)
+    r = (len(out) - len(_CDR_LE)) % 8
+    for i, t in enumerate(times.tolist()):
+        if r not in layouts:
+            layouts[r] = _point_layout(r, n, vel is not None)
+        layout, r_next = layouts[r]
+        sec, nanosec = _split_seconds(t, 'duration')
+        fields = [n, *pos[i]] + ([n, *vel[i]] if vel is not None else [0])
+        out.extend(layout.pack(*fields, 0, 0, sec, nanosec))
+        r = r_next
+    return bytes(out)
+
+
+def _point_layout(r: int, n: int, with_velocities: bool) -> Tuple[struct.Struct, int]:
+    """
+    Return the CDR layout of one JointTrajectoryPoint starting at offset ``r`` (mod 8).
+
+    positions, velocities, accelerations, effort (uint32 count, doubles 8-aligned), then
+    time_from_start (int32, uint32). Returns the Struct and the end offset mod 8.
+    """
+    fmt, offset = '<', r
+    for filled in (True, with_velocities, False, False):
+        fmt += 'I'
+        offset += 4
+        if filled and n:
+            if offset % 8:
+                fmt += '4x'
+                offset += 4
+            fmt += f'{n}d'
+            offset += 8 * n
+    return struct.Struct(fmt + 'iI'), (offset + 8) % 8
 
 
 def make_float64_multiarray(values, labels: Sequence[str]) -> Float64MultiArray:

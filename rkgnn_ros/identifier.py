@@ -132,8 +132,8 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.conversions import (joint_state_to_arrays, joint_trajectory_to_arrays,
-                                   make_float64_multiarray, make_joint_trajectory,
-                                   REJECTION_REASONS)
+                                   make_float64_multiarray, REJECTION_REASONS,
+                                   serialize_joint_trajectory)
 from rkgnn_ros.core.controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.identify import Evolution, normalize_case, nrmse, precompile, RKGNNModel
@@ -167,9 +167,10 @@ IDLE_WAIT_S = 0.05
 WARM_START_S = 5.0
 WARM_START_NFEV = 300
 WARM_START_SIGMA = 0.05     # search spread around the warm start (genome units)
+LATENCY_WINDOW = 1000       # predictions whose latency the diagnostics summarise
 REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
 # The worker yields the CPU to the executor (see _yield_to_callbacks).
-WORKER_NICE = 10
+WORKER_NICE = 19
 GIL_SWITCH_INTERVAL_S = 0.0005
 BACKOFF_MIN_S = 0.5
 BACKOFF_MAX_S = 10.0
@@ -625,6 +626,8 @@ class IdentifierNode(Node):
                         'generations_per_s': 0.0, 'population_size': 0}
         self._stop = threading.Event()
         self._kernels_ready = threading.Event()
+        self._prediction_wanted = threading.Event()
+        self._latencies: deque = deque(maxlen=LATENCY_WINDOW)  # ms, newest predictions
 
         # worker-owned search state
         self._evo: Optional[Evolution] = None
@@ -678,6 +681,9 @@ class IdentifierNode(Node):
         self._worker = threading.Thread(target=self._run, name='rkgnn_identifier',
                                         daemon=True)
         self._worker.start()
+        self._predictor = threading.Thread(target=self._run_predictions,
+                                           name='rkgnn_prediction', daemon=True)
+        self._predictor.start()
 
     # ------------------------------------------------------------------ parameters
 
@@ -862,13 +868,15 @@ class IdentifierNode(Node):
 
     # ------------------------------------------------------------------ subscriptions
 
-    def _on_state(self, msg: JointState) -> None:
+    def _on_state(self, msg: JointState, info) -> None:
+        # two parameters: rclpy passes the message info (its receive time, for the latency)
         try:
-            self._handle_state(msg)
+            received = info.get('received_timestamp') if isinstance(info, dict) else None
+            self._handle_state(msg, received if received else time.time_ns())
         except Exception:  # noqa: B902 - a callback must never raise
             self._internal_error('joint_states')
 
-    def _handle_state(self, msg: JointState) -> None:
+    def _handle_state(self, msg: JointState, received_ns: int) -> None:
         cfg = self._cfg
         need_tau = cfg.case == 'torque'
         joints = self._joints
@@ -898,13 +906,13 @@ class IdentifierNode(Node):
                            f'stamp {sample.stamp:.6f} s rejected by the buffer')
             return
         self._latest_state = (msg.header.stamp, sample.stamp, sample.position,
-                              sample.velocity, sample.effort)
+                              sample.velocity, sample.effort, received_ns)
         self._last_rx['state'] = time.monotonic()
         if cfg['prediction.on_state']:
             now = time.monotonic()
             if now - self._last_state_prediction >= cfg['model_step']:
                 self._last_state_prediction = now
-                self._predict()
+                self._prediction_wanted.set()
 
     def _on_command(self, msg: JointState) -> None:
         try:
@@ -961,10 +969,29 @@ class IdentifierNode(Node):
             self._prediction_timer = self.create_timer(1.0 / rate, self._on_prediction_timer)
 
     def _on_prediction_timer(self) -> None:
-        try:
-            self._predict()
-        except Exception:  # noqa: B902 - a callback must never raise
-            self._internal_error('prediction')
+        self._prediction_wanted.set()
+
+    def _run_predictions(self) -> None:
+        """
+        Prediction thread: one prediction from the newest state per request.
+
+        The rollout (compiled, releases the GIL) runs here, not in the executor, so 1 kHz
+        callbacks are never queued behind it; requests that arrive while a prediction runs
+        collapse into one, which starts from the newest state.
+        """
+        wanted = self._prediction_wanted
+        while not self._stop.is_set():
+            if not wanted.wait(0.1):
+                continue
+            wanted.clear()
+            if self._stop.is_set():
+                break
+            try:
+                self._predict()
+            except Exception:  # noqa: B902 - the thread must survive
+                if self._stop.is_set() or not self.context.ok():
+                    break
+                self._internal_error('prediction')
 
     def _prediction_inputs(self, case: str, times: np.ndarray, tau) -> Optional[dict]:
         """Return the model inputs over absolute ``times`` (see the module docstring)."""
@@ -973,19 +1000,22 @@ class IdentifierNode(Node):
             return None if tau is None else {'tau': np.tile(tau, (m, 1))}
         return self._desired_inputs(times)
 
-    def _desired_inputs(self, times: np.ndarray) -> Optional[dict]:
-        """Return θd, θ̇d over ``times``: the reference, else the latest command held."""
-        m = times.size
+    def _desired_inputs(self, times: np.ndarray, shift=None) -> Optional[dict]:
+        """
+        Return θd, θ̇d over absolute ``times``: the reference, else the latest command held.
+
+        The reference is handed over as an object evaluated exactly at the RKG stage times
+        (no resampling); ``shift`` (n,) is added to θd (the fitted law's constant).
+        """
         buffer = self._buffer
         end = self._reference_end
         if buffer is not None and end is not None and times[0] <= end:
-            reference = buffer.reference_at(times)
-            if reference is not None:
-                return {'theta_d': reference[0], 'theta_d_dot': reference[1]}
+            if buffer.reference_at(times[:1]) is not None:
+                return {'reference': _BufferReference(buffer, float(times[0]), shift)}
         command = self._latest_command
         if command is None:
             return None
-        return {'theta_d': np.tile(command, (m, 1)), 'theta_d_dot': np.zeros((m, command.size))}
+        return {'reference': _HeldCommand(command if shift is None else command + shift)}
 
     def _predict(self) -> None:
         """Publish the model's prediction from the newest state (executor thread)."""
@@ -998,19 +1028,21 @@ class IdentifierNode(Node):
         step = cfg['model_step']
         k = max(1, int(round(cfg['prediction.horizon'] / step)))
         t = np.arange(k + 1) * step
-        stamp, t0, theta, theta_dot, tau = latest
+        stamp, t0, theta, theta_dot, tau, received_ns = latest
         inputs = None
         closed = self._closed
         if model.case == 'torque' and closed is not None and closed[0] is model:
-            inputs = self._desired_inputs(t0 + t)
+            inputs = self._desired_inputs(t0 + t, closed[2])
             if inputs is not None:  # closed loop with the fitted law, along the reference
                 model = closed[1]
-                inputs['theta_d'] = inputs['theta_d'] + closed[2]
         if inputs is None:
             inputs = self._prediction_inputs(model.case, t0 + t, tau)
         if inputs is None:
             return
-        states = model.simulate(np.concatenate([theta, theta_dot]), t, **inputs)  # (k+1, 2n)
+        try:
+            states = model.simulate(np.concatenate([theta, theta_dot]), t, **inputs)  # (k+1, 2n)
+        except _NoReference:
+            return
         n = len(joints)
         positions = np.array(states[:, :n])
         velocities = np.array(states[:, n:2 * n])
@@ -1020,8 +1052,12 @@ class IdentifierNode(Node):
             self._reject('~/prediction', 'prediction', 'prediction_non_finite',
                          'the model diverged over the horizon; prediction not published')
             return
-        self._prediction_pub.publish(make_joint_trajectory(stamp, joints, t, positions,
-                                                           velocities))
+        # serialized directly (a third of the Python time of building the message objects)
+        self._prediction_pub.publish(serialize_joint_trajectory(stamp, joints, t, positions,
+                                                                velocities))
+        latency = 1e-6 * (time.time_ns() - received_ns)  # ms, receipt of the state -> publish
+        with self._lock:
+            self._latencies.append(latency)
 
     # ------------------------------------------------------------------ services
 
@@ -1159,6 +1195,7 @@ class IdentifierNode(Node):
             with self._lock:
                 status = dict(self._status)
                 joints = self._joints
+                latencies = np.array(self._latencies)
             buffer = self._buffer
             samples = buffer.stats()['state_samples'] if buffer is not None else 0
             state = status['state']
@@ -1172,6 +1209,8 @@ class IdentifierNode(Node):
                 ('samples_buffered', samples),
                 ('population_size', status['population_size']),
                 ('case', self._cfg.case), ('joints', ','.join(joints or ())),
+                ('prediction_latency_p50_ms', _percentile_text(latencies, 50)),
+                ('prediction_latency_p99_ms', _percentile_text(latencies, 99)),
             ]
             pairs += [(f'drops.{reason}', count) for reason, count in self.drop_counts().items()]
             diag = DiagnosticStatus(level=level, name=self.get_name(),
@@ -1561,11 +1600,13 @@ class IdentifierNode(Node):
         # through a logger that rosout does not know (console only)
         logger = self.get_logger() if self.context.ok() else rclpy.logging.get_logger(
             f'{self.get_name()}.shutdown')
-        if self._worker.is_alive():
-            self._worker.join(JOIN_TIMEOUT_S)
-            if self._worker.is_alive():
-                logger.warning(f'the identification worker did not stop within '
-                               f'{JOIN_TIMEOUT_S} s')
+        self._prediction_wanted.set()
+        for thread, what in ((self._worker, 'identification worker'),
+                             (self._predictor, 'prediction thread')):
+            if thread.is_alive():
+                thread.join(JOIN_TIMEOUT_S)
+                if thread.is_alive():
+                    logger.warning(f'the {what} did not stop within {JOIN_TIMEOUT_S} s')
         if self._values['model_file'] and self._model is not None:
             ok, message = self.save_model()
             (logger.info if ok else logger.error)(f'at shutdown: {message}')
@@ -1579,6 +1620,41 @@ class IdentifierNode(Node):
     def generation(self) -> int:
         """Return the generation count of the running search."""
         return self._generation
+
+
+class _BufferReference:
+    """The buffer's newest reference from absolute time ``t0`` on (``evaluate`` API)."""
+
+    def __init__(self, buffer: StreamBuffer, t0: float, shift=None):
+        self._buffer, self._t0, self._shift = buffer, t0, shift
+
+    def evaluate(self, times):
+        """Return (θd, θ̇d), each (M, n), at ``times`` (M,) relative to ``t0``."""
+        reference = self._buffer.reference_at(self._t0 + np.asarray(times, dtype=float))
+        if reference is None:  # cleared meanwhile (reset, clock jump): nothing to follow
+            raise _NoReference()
+        theta_d, theta_d_dot = reference
+        return (theta_d if self._shift is None else theta_d + self._shift), theta_d_dot
+
+
+class _HeldCommand:
+    """The latest commanded position held, at zero velocity (``evaluate`` API)."""
+
+    def __init__(self, theta_d: np.ndarray):
+        self._theta_d = np.asarray(theta_d, dtype=float)
+
+    def evaluate(self, times):
+        """Return (θd, θ̇d), each (M, n), at ``times`` (M,)."""
+        m = np.asarray(times).size
+        return np.tile(self._theta_d, (m, 1)), np.zeros((m, self._theta_d.size))
+
+
+class _NoReference(Exception):
+    pass
+
+
+def _percentile_text(values: np.ndarray, q: float) -> str:
+    return f'{np.percentile(values, q):.2f}' if values.size else 'nan'
 
 
 def _yield_to_callbacks() -> None:
