@@ -75,6 +75,7 @@ def main(argv=None):
                           domain, log_dir, prefix='latency_')
     sent = {}          # stamp (ns) -> perf_counter at publish
     latencies = []     # seconds
+    latency_at = []    # perf_counter of the state's publish, per latency
     diagnostics = {}
     generations = []
     lock = threading.Lock()
@@ -95,6 +96,7 @@ def main(argv=None):
                 t_sent = sent.get(stamp)
             if t_sent is not None:
                 latencies.append(now - t_sent)
+                latency_at.append(t_sent)
 
         def on_diagnostics(msg):
             for status in msg.status:
@@ -145,6 +147,10 @@ def main(argv=None):
     drops = {k[len('drops.'):]: int(float(v)) for k, v in diagnostics.items()
              if k.startswith('drops.')}
     lat_ms = 1e3 * np.asarray(latencies)
+    at = np.asarray(latency_at) - (latency_at[0] if latency_at else 0.0)
+    by_5s = [[float(b + 5.0), float(np.percentile(lat_ms[(at >= b) & (at < b + 5.0)], 99))]
+             for b in np.arange(0.0, at.max() if at.size else 0.0, 5.0)
+             if np.any((at >= b) & (at < b + 5.0))]
     result = {
         'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
         'rate_hz': args.rate, 'published_states': published,
@@ -154,6 +160,7 @@ def main(argv=None):
         'latency_p50_ms': float(np.percentile(lat_ms, 50)) if lat_ms.size else None,
         'latency_p99_ms': float(np.percentile(lat_ms, 99)) if lat_ms.size else None,
         'latency_max_ms': float(lat_ms.max()) if lat_ms.size else None,
+        'latency_p99_ms_per_5s': by_5s,
         # the node's own figure: rmw receipt of the state -> publish of its prediction
         # (the newest 1000 predictions, from its /diagnostics)
         'node_latency_p50_ms': _float_or_none(diagnostics.get('prediction_latency_p50_ms')),

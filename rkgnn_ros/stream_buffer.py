@@ -182,6 +182,14 @@ class _Series:
 
     def drop_before(self, t_min: float):
         """Evict samples older than ``t_min`` (relative time)."""
+        # a stream in order evicts one or two samples per insert: step over them in Python
+        # (np.searchsorted on the whole window releases and re-takes the GIL, which costs
+        # the executor thread up to a GIL switch interval per message at 1 kHz)
+        t = self._t
+        for _ in range(8):
+            if self._lo == self._hi or not t[self._lo] < t_min:
+                return
+            self._lo += 1
         self._lo += int(np.searchsorted(self.t, t_min, side='left'))
 
     def drop_oldest(self):
