@@ -209,6 +209,7 @@ class _Param:
     lo_open: bool = False
     choices: Tuple[str, ...] = ()
     constraints: str = ''
+    read_only: bool = False
 
     def bound_text(self) -> str:
         """Return the bound as text, e.g. ``in (0.0, 10.0]``."""
@@ -226,7 +227,8 @@ class _Param:
         if self.choices:
             extra.insert(0, 'one of ' + ', '.join(self.choices))
         desc = ParameterDescriptor(description=self.description,
-                                   additional_constraints='; '.join(extra))
+                                   additional_constraints='; '.join(extra),
+                                   read_only=self.read_only)
         if self.ptype == _T.DOUBLE and self.lo is not None and self.hi is not None:
             desc.floating_point_range = [FloatingPointRange(
                 from_value=float(self.lo), to_value=float(self.hi), step=0.0)]
@@ -263,6 +265,11 @@ PARAMETERS = (
     _Param('gap_threshold', 0.1, _T.DOUBLE,
            'Longer intervals (s) between samples split the data into segments.',
            0.001, 10.0),
+    _Param('max_rate_hz', 2000.0, _T.DOUBLE,
+           'Highest sample rate (Hz) kept per stream: samples closer than 1/max_rate_hz are '
+           'decimated (counted as rate_limited), which bounds the buffer memory whatever '
+           'the input rate. Read-only: set it at start (params file or --ros-args -p).',
+           1.0, 100000.0, read_only=True),
     _Param('validation_fraction', 0.2, _T.DOUBLE,
            'Newest fraction of the window held out for the validation NRMSE (0: none).',
            0.0, 0.5),
@@ -832,7 +839,8 @@ class IdentifierNode(Node):
         if joints is not None:
             buffer = StreamBuffer(joints, cfg['model_step'], cfg['window'],
                                   cfg['gap_threshold'], need_tau=cfg.case == 'torque',
-                                  need_desired=cfg.case != 'torque')
+                                  need_desired=cfg.case != 'torque',
+                                  max_rate_hz=cfg['max_rate_hz'])
         with self._lock:
             old = self._buffer
             if old is not None:
