@@ -3,6 +3,7 @@
 #   make demo    set up (if needed), run sim_arm + identifier, write a figure
 #   make paper   reproduce the paper's three cases (figures + table in bench/results)
 #   make bench   benchmarks (bench/results)
+#   make soak    30-minute soak run; make killtest: SIGKILL during saves, 50 times
 SHELL := /bin/bash
 .SHELLFLAGS := -o pipefail -c
 PYTHON ?= python3
@@ -14,7 +15,7 @@ export ROS_DOMAIN_ID ?= $(shell echo $$(( ($$$$ % 200) + 20 )))
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup build test demo paper bench lint clean
+.PHONY: setup build test demo paper bench soak killtest lint clean
 
 setup: $(STAMP) build
 
@@ -45,6 +46,12 @@ paper: setup
 
 bench: setup
 	@source install/setup.bash && $(VPY) bench/run_all.py $(BENCH_ARGS)
+
+soak: setup
+	@source install/setup.bash && $(VPY) bench/soak.py $(SOAK_ARGS)
+
+killtest: setup
+	@source install/setup.bash && $(VPY) bench/killtest.py $(KILLTEST_ARGS)
 
 clean:
 	rm -rf build install log

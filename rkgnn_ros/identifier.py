@@ -146,7 +146,8 @@ from rkgnn_ros.conversions import (joint_state_to_arrays, joint_trajectory_to_ar
                                    serialize_joint_trajectory)
 from rkgnn_ros.core.controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.identify import Evolution, normalize_case, nrmse, precompile, RKGNNModel
+from rkgnn_ros.core.identify import (Evolution, normalize_case, nrmse, precompile,
+                                     remove_stale_temp_files, RKGNNModel)
 from rkgnn_ros.core.network import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.core.optimizers import CMAES, make_optimizer, OPTIMIZERS, PaperEA
 from rkgnn_ros.stream_buffer import DROP_REASONS, StreamBuffer
@@ -1158,6 +1159,10 @@ class IdentifierNode(Node):
         if not path:
             return
         path = os.path.abspath(os.path.expanduser(path))
+        stale = remove_stale_temp_files(path)
+        if stale:
+            self.get_logger().warning(f'removed {stale} temp file(s) of {path} left by a save '
+                                      'that was killed (the model file itself is intact)')
         if not os.path.exists(path):
             self.get_logger().info(f'model_file {path} does not exist yet: starting fresh '
                                    '(it is written on ~/save_model and at shutdown)')

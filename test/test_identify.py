@@ -581,3 +581,17 @@ def test_fit_rejects_a_spec_of_another_case():
     data = Dataset(t, np.zeros((11, 2)), np.zeros((11, 2)), tau=np.ones((11, 2)))
     with pytest.raises(ValueError, match="spec.case 'pd_gains' differs from case 'torque'"):
         fit(data, 1, spec=NetworkSpec.paper(2, 'pd_gains'))
+
+
+def test_stale_temp_files_of_a_killed_save_are_removed(tmp_path):
+    path = tmp_path / 'model.yaml'
+    make_model('torque').save(path)
+    for name in ('.model.yaml.abc123.tmp', '.model.yaml.x.tmp'):
+        (tmp_path / name).write_text('half a model')
+    keep = [tmp_path / '.other.yaml.abc.tmp', tmp_path / 'model.yaml.tmp']
+    for other in keep:
+        other.write_text('not ours')
+    assert identify.remove_stale_temp_files(path) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ['model.yaml'] + [p.name for p in keep])
+    assert RKGNNModel.load(path).case == 'torque'

@@ -416,6 +416,31 @@ class RKGNNModel:
         return cls.from_yaml(text, joint_names)
 
 
+def remove_stale_temp_files(path) -> int:
+    """
+    Remove the temp files a killed :func:`save_text_atomic` of ``path`` left behind.
+
+    Only files named like its own temp files (``.<name>.*.tmp`` beside ``path``); call it
+    when no save of ``path`` can be running (at start). Returns how many were removed.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    prefix = '.' + os.path.basename(path) + '.'
+    removed = 0
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return 0
+    for name in names:
+        if name.startswith(prefix) and name.endswith('.tmp'):
+            try:
+                os.remove(os.path.join(folder, name))
+                removed += 1
+            except OSError:
+                pass
+    return removed
+
+
 def save_text_atomic(path, text) -> None:
     """Write ``text`` to ``path`` so that a crash leaves either the old or the new file."""
     path = os.fspath(path)
