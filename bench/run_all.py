@@ -33,7 +33,7 @@ def main(argv=None):
     """Run the selected benchmarks in turn; return non-zero if any failed."""
     argv = sys.argv[1:] if argv is None else argv
     scripts = sorted(p for p in glob.glob(os.path.join(HERE, '*.py'))
-                     if os.path.basename(p) != 'run_all.py')
+                     if os.path.basename(p) not in ('run_all.py', 'summary.py'))
     name = lambda p: os.path.splitext(os.path.basename(p))[0]  # noqa: E731
     if argv:
         scripts = [p for p in scripts if name(p) in argv]
@@ -50,6 +50,8 @@ def main(argv=None):
         print(f'== {name}: exit {code} after {time.perf_counter() - t0:.0f} s', flush=True)
         if code != 0:
             failed.append(name)
+    subprocess.call([sys.executable, os.path.join(HERE, 'summary.py')], env=env,
+                    stdout=subprocess.DEVNULL)  # bench/results/README.md from the JSON
     if failed:
         print(f'failed: {failed}', flush=True)
         return 1

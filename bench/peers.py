@@ -1,0 +1,462 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Accuracy against what users would pick instead, on the same data (``make bench``).
+
+Data: the paper's 3-link arm under its PD. Every method fits the same 10 s run on
+``paper_reference`` (100 Hz) and is evaluated on three held-out references that no method
+saw: ``heldout_reference`` (other sines), faster smaller sines, and a 0.05-1 Hz chirp.
+Twice: without noise, and with encoder noise (θ 1e-4 rad, θ̇ 1e-3 rad/s) on the fitting
+and the held-out data.
+
+Metrics: ``heldout_nrmse_10s``, the θ-NRMSE (RMSE / std of the measured θ, mean over
+joints) of a 10 s open-loop rollout from each held-out run's first measured state, averaged
+over the held-out runs; ``ahead_nrmse_2s``, the same for the 2 s-ahead prediction from
+start points every second. Inputs over a rollout: case 1 the measured torque (linear
+between samples); cases 2-3 the reference.
+
+Methods (``null`` where a method cannot do a case):
+- ``true_model``: the simulator itself (the floor);
+- ``rkgnn_paper_ea``: the paper's structure and EA, 200 generations x 100 (noiseless only);
+- ``rkgnn_best``: our structure, equation-error start and CMA-ES, within the same 20 000
+  evaluations (an equation-error residual evaluation counted as one);
+- ``rkgnn_best_2min``: ``identify.fit_best`` with 120 s of wall time (noiseless only);
+- ``pysindy``: SINDy with control (u = τ in case 1, u = [θd, θ̇d] in cases 2-3) on x = [θ, θ̇],
+  polynomial (degree 2) + Fourier library, STLSQ threshold chosen on the newest 20 % of
+  the fitting run, rollout with its ``simulate``;
+- ``least_squares`` (case 1): the arm's base inertial parameters from its rigid-body
+  regressor, τ = Y_b(θ, θ̇, θ̈) p, θ̈ by Savitzky-Golay, rolled out by RK4;
+- ``unstructured_rbf``: θ̈ = W φ(z) + A z + b with Gaussian units over z = [θ, θ̇, u], fitted
+  by least squares on θ̈ (the equation-error stage of our pipeline), rolled out by RK4;
+- ``hold_last``: θ stays where it is; ``follow_reference``: θ(t) = θd(t).
+
+A rollout that diverges scores ``null`` with ``"diverged"`` listed. Writes
+``bench/results/peers.json``. ``--quick`` shortens every budget (a check, not a result).
+"""
+
+import argparse
+import datetime
+import json
+import math
+import os
+import sys
+import time
+import warnings
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from rkgnn_ros.core.identify import Evolution, fit_best, nrmse  # noqa: E402
+from rkgnn_ros.core.network import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.plant import PDController, PlanarArm  # noqa: E402
+from rkgnn_ros.core.refine import refine_equation_error  # noqa: E402
+from rkgnn_ros.core.simulate import NoiseModel, simulate, simulate_open_loop  # noqa: E402
+from rkgnn_ros.core.trajectories import (Chirp, hanging_pose, heldout_reference,  # noqa: E402
+                                         paper_reference, SumOfSines)
+from scipy.signal import savgol_filter  # noqa: E402
+
+CASES = {'1': 'torque', '2': 'pd_gains', '3': 'unknown'}
+METHODS = ('true_model', 'rkgnn_paper_ea', 'rkgnn_best', 'rkgnn_best_2min', 'pysindy',
+           'least_squares', 'unstructured_rbf', 'hold_last', 'follow_reference')
+N = 3
+RATE = 100.0
+EVAL_BUDGET = 20_000
+
+
+# ----------------------------------------------------------------------------- data
+
+def make_runs(noisy, seed=0):
+    """Return (fit run, {name: held-out run}, {name: reference})."""
+    arm, pd = PlanarArm.paper(), PDController.paper()
+    noise = NoiseModel.realistic() if noisy else None
+    pose = hanging_pose(N)
+    refs = {
+        'sines_heldout': heldout_reference(N, seed=1),
+        'sines_fast': SumOfSines.random(N, np.random.default_rng(7), n_terms=3,
+                                        amplitude=0.3, min_frequency_hz=0.4,
+                                        max_frequency_hz=1.2, offsets=pose),
+        'chirp': Chirp(pose, [0.4, 0.35, 0.3], 0.05, 1.0, 10.0),
+    }
+    fit = simulate(arm, pd, paper_reference(N), 10.0, rate=RATE, noise=noise, rng=seed)
+    held = {name: simulate(arm, pd, ref, 10.0, rate=RATE, noise=noise, rng=seed + 1 + i)
+            for i, (name, ref) in enumerate(refs.items())}
+    return fit, held, refs
+
+
+def theta_ddot(data, noisy):
+    """θ̈ by a Savitzky-Golay derivative of θ̇ (wider when the data is noisy)."""
+    window = 21 if noisy else 7
+    return savgol_filter(data.theta_dot, window, 2, deriv=1, delta=data.dt, axis=0)
+
+
+# ----------------------------------------------------------------------------- scoring
+
+def score(predict, held):
+    """Return (10 s θ-NRMSE, 2 s-ahead θ-NRMSE), each the mean over the held-out runs."""
+    tens, aheads = [], []
+    for name, data in held.items():
+        theta = predict(name, data, 0, data.n_samples - 1)
+        if theta is None or not np.isfinite(theta).all():
+            return None, None
+        tens.append(nrmse(theta, data.theta))
+        steps = int(round(2.0 / data.dt))
+        errors = []
+        for k0 in range(0, data.n_samples - steps, int(round(1.0 / data.dt))):
+            theta = predict(name, data, k0, steps)
+            if theta is None or not np.isfinite(theta).all():
+                return None, None
+            errors.append(theta[-1] - data.theta[k0 + steps])
+        rmse = np.sqrt(np.mean(np.square(errors), axis=0))
+        aheads.append(float(np.mean(rmse / np.std(data.theta, axis=0))))
+    return float(np.mean(tens)), float(np.mean(aheads))
+
+
+def rk4(f, x0, t, u_at, substeps=4):
+    """Integrate x' = f(x, u(t)) over the uniform times ``t``; rows after overflow NaN."""
+    out = np.full((t.size, x0.size), np.nan)
+    out[0] = x = np.asarray(x0, dtype=float)
+    h = (t[1] - t[0]) / substeps
+    with np.errstate(all='ignore'):
+        for k in range(t.size - 1):
+            for s in range(substeps):
+                tk = t[k] + s * h
+                k1 = f(x, u_at(tk))
+                k2 = f(x + 0.5 * h * k1, u_at(tk + 0.5 * h))
+                k3 = f(x + 0.5 * h * k2, u_at(tk + 0.5 * h))
+                k4 = f(x + h * k3, u_at(tk + h))
+                x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            if not np.isfinite(x).all() or np.abs(x).max() > 1e6:
+                return out
+            out[k + 1] = x
+    return out
+
+
+def linear_inputs(t, values):
+    """Return u(t), linear between the samples ``values`` (N, m) at ``t`` (N,)."""
+    def u_at(tq):
+        return np.array([np.interp(tq, t, values[:, j]) for j in range(values.shape[1])])
+    return u_at
+
+
+def inputs(case, data, refs, name):
+    """Return the input samples (N, m) a data-driven model is driven by."""
+    if case == '1':
+        return data.tau
+    return np.hstack([data.theta_d, data.theta_d_dot])
+
+
+# ----------------------------------------------------------------------------- methods
+
+def true_model(case, fit, refs):
+    arm, pd = PlanarArm.paper(), PDController.paper()
+
+    def predict(name, data, k0, steps):
+        t = data.t[k0:k0 + steps + 1]
+        x0 = data.state[k0]
+        if case == '1':
+            states = simulate_open_loop(arm, data.tau[k0:k0 + steps + 1], t, x0, hold=False)
+            states = states.state if hasattr(states, 'state') else states
+        else:
+            states = simulate(arm, pd, refs[name], t[-1] - t[0], rate=RATE, x0=x0,
+                              t0=t[0]).state
+        return states[:steps + 1, :N]
+    return predict
+
+
+def rkgnn_predictor(model, case, refs):
+    def predict(name, data, k0, steps):
+        t = data.t[k0:k0 + steps + 1]
+        if case == '1':
+            states = model.simulate(data.state[k0], t, tau=data.tau[k0:k0 + steps + 1])
+        else:
+            states = model.simulate(data.state[k0], t, reference=refs[name])
+        return states[:, :N]
+    return predict
+
+
+def rkgnn_paper_ea(case, fit, kp, kd, generations, seed):
+    spec = NetworkSpec.paper(N, CASES[case])
+    evo = Evolution(spec, fit, 'paper', {'population_size': 100}, seed, kp, kd,
+                    torque_interpolation='hold')
+    for _ in range(generations):
+        evo.step()
+    return evo.best_model(fit.joint_names), evo.optimizer.evaluations
+
+
+def rkgnn_best(case, fit, kp, kd, budget, seed):
+    """Equation-error start + CMA-ES around it, within ``budget`` evaluations."""
+    units = {'1': 5, '2': 5, '3': 8}[case]
+    spec = NetworkSpec.recommended(N, CASES[case])
+    from dataclasses import replace
+    spec = replace(spec, theta_units=units)
+    evo = Evolution(spec, fit, 'cmaes', {'sigma': 0.05}, seed, kp, kd)
+    nfev = min(500, budget // 4)
+    genome, _ = refine_equation_error(evo.spec, [fit], evo.scales, evo.optimizer.best_x, kp,
+                                      kd, max_nfev=nfev)
+    cost = float(evo.problem.cost(genome[None])[0])
+    evo.optimizer.seed_best(genome, cost)
+    evo.optimizer.restart(genome, 0.05)
+    used = nfev  # counted at its maximum
+    while used < budget:
+        stats = evo.step()
+        used += int(stats['population'])
+    return evo.best_model(fit.joint_names), used
+
+
+def pysindy_predictor(case, fit, noisy, log):
+    """
+    SINDy with control, rolled out by a fixed-step RK4 on its own ``predict``.
+
+    PySINDy's ``simulate`` hands the model to an adaptive ``solve_ivp``; on this stiff closed
+    loop a nearly unstable candidate drove it to tiny steps for tens of minutes. The same
+    model is integrated here with RK4 at 2 steps per sample, all 2 s-ahead start points of
+    a run in one batch (the same vector field, evaluated by ``SINDy.predict``).
+    """
+    import pysindy as ps
+    u = inputs(case, fit, None, None)
+    x = fit.state
+    x_dot = np.hstack([fit.theta_dot, theta_ddot(fit, noisy)])
+    n_val = fit.n_samples // 5
+
+    def build(threshold, rows):
+        library = ps.PolynomialLibrary(degree=2) + ps.FourierLibrary(n_frequencies=1)
+        model = ps.SINDy(feature_library=library, optimizer=ps.STLSQ(threshold=threshold))
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            model.fit(x[rows], t=fit.dt, x_dot=x_dot[rows], u=u[rows])
+        return model
+
+    def rollout(model, x0, u_samples, dt, substeps=2):
+        """x0 (B, 2n), u_samples (B, K, m): states (B, K, 2n), NaN after a blow-up."""
+        b, k_total = u_samples.shape[:2]
+        out = np.full((b, k_total, x0.shape[1]), np.nan)
+        out[:, 0] = xk = np.array(x0, dtype=float)
+        h = dt / substeps
+        alive = np.ones(b, dtype=bool)
+        with np.errstate(all='ignore'), warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            for k in range(k_total - 1):
+                for s_ in range(substeps):
+                    w0 = s_ / substeps
+                    ua = u_samples[:, k] * (1 - w0) + u_samples[:, k + 1] * w0
+                    wm = (s_ + 0.5) / substeps
+                    um = u_samples[:, k] * (1 - wm) + u_samples[:, k + 1] * wm
+                    w1 = (s_ + 1) / substeps
+                    ub = u_samples[:, k] * (1 - w1) + u_samples[:, k + 1] * w1
+                    f = model.predict
+                    k1 = f(xk, u=ua)
+                    k2 = f(xk + 0.5 * h * k1, u=um)
+                    k3 = f(xk + 0.5 * h * k2, u=um)
+                    k4 = f(xk + h * k3, u=ub)
+                    xk = xk + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+                    xk[~np.isfinite(xk).all(axis=1) | (np.abs(xk).max(axis=1) > 1e6)] = 0.0
+                bad = ~np.isfinite(xk).all(axis=1) | (np.abs(xk).max(axis=1) > 1e5)
+                alive &= ~bad
+                if not alive.any():
+                    break
+                out[alive, k + 1] = xk[alive]
+        return out
+
+    best = None
+    train = slice(0, fit.n_samples - n_val)
+    val = slice(fit.n_samples - n_val, fit.n_samples)
+    for threshold in (0.01, 0.1, 0.5, 2.0):
+        model = build(threshold, train)
+        states = rollout(model, x[val][:1], u[val][None], fit.dt)[0]
+        err = nrmse(states[:, :N], fit.theta[val]) if np.isfinite(states).all() else math.inf
+        log(f'    pysindy threshold {threshold}: validation θ-NRMSE {err:.3g}')
+        if best is None or err < best[0]:
+            best = (err, threshold)
+    model = build(best[1], slice(None))
+    cache = {}
+
+    def predict(name, data, k0, steps):
+        key = (name, steps)
+        if key not in cache:
+            uu = inputs(case, data, None, None)
+            starts = ([0] if steps == data.n_samples - 1
+                      else list(range(0, data.n_samples - steps, int(round(1.0 / data.dt)))))
+            batch_u = np.stack([uu[s:s + steps + 1] for s in starts])
+            states = rollout(model, data.state[starts], batch_u, data.dt)
+            cache[key] = {s: states[i, :, :N] for i, s in enumerate(starts)}
+        return cache[key][k0]
+    return predict
+
+
+def least_squares_predictor(fit, noisy):
+    arm = PlanarArm.paper()  # only its rigid-body regressor (the structure, not the values)
+    acc = theta_ddot(fit, noisy)
+    y = arm.base_regressor(fit.theta, fit.theta_dot, acc).reshape(-1, 4 * N)
+    p, *_ = np.linalg.lstsq(y, fit.tau.reshape(-1), rcond=None)
+    eye = np.eye(N)
+
+    def forward(x, tau):
+        theta, theta_dot = x[:N], x[N:]
+        zeros = np.zeros(N)
+        h = arm.base_regressor(theta, theta_dot, zeros) @ p
+        g = arm.base_regressor(theta, zeros, zeros) @ p
+        mass = (arm.base_regressor(theta, zeros, eye) @ p - g).T  # column i: M e_i
+        return np.concatenate([theta_dot, np.linalg.solve(mass, tau - h)])
+
+    def predict(name, data, k0, steps):
+        rows = slice(k0, k0 + steps + 1)
+        t = data.t[rows]
+        # the arm alone (no PD stiffness) is not stiff: one RK4 step per sample
+        return rk4(forward, data.state[k0], t, linear_inputs(t, data.tau[rows]),
+                   substeps=1)[:, :N]
+    return predict
+
+
+def rbf_predictor(case, fit, noisy, units=60, seed=0):
+    u = inputs(case, fit, None, None)
+    z = np.hstack([fit.state, u])
+    center, spread = z.mean(axis=0), z.std(axis=0) + 1e-9
+    zn = (z - center) / spread
+    rng = np.random.default_rng(seed)
+    centres = zn[rng.choice(zn.shape[0], units, replace=False)]
+    d = np.sqrt(((centres[:, None] - centres[None]) ** 2).sum(-1))
+    width2 = np.median(d[d > 0]) ** 2
+
+    def features(zq):
+        zq = (zq - center) / spread
+        phi = np.exp(-((zq[..., None, :] - centres) ** 2).sum(-1) / width2)
+        return np.concatenate([phi, zq, np.ones(zq.shape[:-1] + (1,))], axis=-1)
+
+    feats = features(z)
+    acc = theta_ddot(fit, noisy)
+    ridge = 1e-6 * np.eye(feats.shape[1])
+    w = np.linalg.solve(feats.T @ feats + ridge, feats.T @ acc)
+
+    def forward(x, uq):
+        return np.concatenate([x[N:], features(np.concatenate([x, uq])) @ w])
+
+    def predict(name, data, k0, steps):
+        rows = slice(k0, k0 + steps + 1)
+        t = data.t[rows]
+        return rk4(forward, data.state[k0], t,
+                   linear_inputs(t, inputs(case, data, None, None)[rows]),
+                   substeps=2)[:, :N]
+    return predict
+
+
+def hold_last(name, data, k0, steps):
+    return np.repeat(data.theta[k0:k0 + 1], steps + 1, axis=0)
+
+
+def follow_reference(name, data, k0, steps):
+    return data.theta_d[k0:k0 + steps + 1]
+
+
+# ----------------------------------------------------------------------------- main
+
+def run(noisy, args, log):
+    fit, held, refs = make_runs(noisy, args.seed)
+    kp, kd = np.diag(PDController.paper().kp), np.diag(PDController.paper().kd)
+    table = {}
+    for case in args.cases:
+        row = {}
+        gains = (kp, kd) if case == '2' else (None, None)
+
+        def record(method, predictor, fitted_s=0.0, **extra):
+            t0 = time.perf_counter()
+            ten, ahead = score(predictor, held) if predictor is not None else (None, None)
+            row[method] = {'heldout_nrmse_10s': ten, 'ahead_nrmse_2s': ahead,
+                           'fit_s': round(fitted_s, 1),
+                           'eval_s': round(time.perf_counter() - t0, 1),
+                           'diverged': predictor is not None and ten is None, **extra}
+            shown = 'n/a' if predictor is None else (
+                'diverged' if ten is None else f'{ten:.2%} (2 s ahead {ahead:.2%})')
+            log(f"  case {case} {'noisy' if noisy else 'clean'} {method:18s} {shown}")
+
+        record('true_model', true_model(case, fit, refs))
+        if noisy:
+            record('rkgnn_paper_ea', None, skipped='noiseless only (time)')
+        else:
+            t0 = time.perf_counter()
+            model, evals = rkgnn_paper_ea(case, fit, *gains, args.generations, args.seed)
+            record('rkgnn_paper_ea', rkgnn_predictor(model, case, refs),
+                   time.perf_counter() - t0, evaluations=evals)
+        t0 = time.perf_counter()
+        model, evals = rkgnn_best(case, fit, *gains, args.budget, args.seed)
+        record('rkgnn_best', rkgnn_predictor(model, case, refs), time.perf_counter() - t0,
+               evaluations=evals)
+        if noisy:
+            record('rkgnn_best_2min', None, skipped='noiseless only (time)')
+        else:
+            t0 = time.perf_counter()
+            res = fit_best(fit, CASES[case], args.wall, kp=gains[0], kd=gains[1],
+                           seed=args.seed)
+            record('rkgnn_best_2min', rkgnn_predictor(res.model, case, refs),
+                   time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        record('pysindy', pysindy_predictor(case, fit, noisy, log), time.perf_counter() - t0)
+        if case == '1':
+            t0 = time.perf_counter()
+            record('least_squares', least_squares_predictor(fit, noisy),
+                   time.perf_counter() - t0)
+        else:
+            record('least_squares', None, cannot='needs the measured torque (case 1)')
+        t0 = time.perf_counter()
+        record('unstructured_rbf', rbf_predictor(case, fit, noisy), time.perf_counter() - t0)
+        record('hold_last', hold_last)
+        record('follow_reference', follow_reference)
+        table[case] = row
+    return table
+
+
+def main(argv=None):
+    """Run every method on every case, clean and noisy; write peers.json."""
+    parser = argparse.ArgumentParser(description='accuracy against peer methods')
+    parser.add_argument('--cases', default='1,2,3')
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--quick', action='store_true', help='tiny budgets: a check only')
+    parser.add_argument('--out', default=os.path.join(HERE, 'results', 'peers.json'))
+    args = parser.parse_args(argv)
+    args.cases = [c.strip() for c in args.cases.split(',')]
+    args.generations = 5 if args.quick else 200
+    args.budget = 500 if args.quick else EVAL_BUDGET
+    args.wall = 10.0 if args.quick else 120.0
+    start = time.perf_counter()
+
+    def log(text):
+        print(f'[{time.perf_counter() - start:6.0f} s] {text}', flush=True)
+
+    load_start = os.getloadavg()
+    clean = run(False, args, log)
+    noisy = run(True, args, log)
+    result = {case: {m: clean[case][m] for m in METHODS} for case in clean}
+    result['noisy'] = {case: {m: noisy[case][m] for m in METHODS} for case in noisy}
+    result['meta'] = {
+        'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
+        'quick': args.quick, 'seed': args.seed, 'evaluation_budget': args.budget,
+        'paper_ea_generations': args.generations, 'wall_budget_s': args.wall,
+        'load_start': load_start, 'load_end': os.getloadavg(),
+        'wall_s': round(time.perf_counter() - start, 1),
+        'heldout': ['sines_heldout', 'sines_fast', 'chirp'],
+        'metric': 'θ-NRMSE = RMSE / std of measured θ, mean over joints, mean over the '
+                  'held-out runs; 10 s open loop from the first state, and 2 s ahead from '
+                  'a start every second',
+    }
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    with open(args.out, 'w', encoding='utf-8') as f:
+        json.dump(result, f, indent=2)
+    log(f'wrote {args.out}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
