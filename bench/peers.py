@@ -219,7 +219,7 @@ def rkgnn_best(case, fit, kp, kd, budget, seed):
 
 def pysindy_predictor(case, fit, noisy, log):
     """
-    SINDy with control, rolled out by a fixed-step RK4 on its own ``predict``.
+    Fit SINDy with control, rolled out by a fixed-step RK4 on its own ``predict``.
 
     PySINDy's ``simulate`` hands the model to an adaptive ``solve_ivp``; on this stiff closed
     loop a nearly unstable candidate drove it to tiny steps for tens of minutes. The same
