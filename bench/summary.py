@@ -77,6 +77,12 @@ def peers_section(d):
     return lines
 
 
+def _mean_rate(soak):
+    rates = [float(s['generations_per_s']) for s in soak['samples']
+             if s.get('generations_per_s') not in (None, '')]
+    return sum(rates) / len(rates) if rates else float('nan')
+
+
 def main():
     """Write bench/results/README.md."""
     out = ['# Benchmark results', '',
@@ -103,15 +109,46 @@ def main():
     if latency:
         out += ['## Responsiveness (`bench/latency.py`)', '',
                 f"joint_states at {latency['rate_hz']:.0f} Hz while evolving: "
-                f"{latency['drops_1khz']} drops; state-to-prediction latency p50 "
+                f"{latency['drops_1khz']} drops, "
+                f"{latency['generations_during_run']:.0f} generations in the run; "
+                f'state-to-prediction latency p50 '
                 f"{latency['latency_p50_ms']:.1f} ms, p99 {latency['latency_p99_ms']:.1f} ms "
                 f"(node's own: p50 {latency.get('node_latency_p50_ms')} ms, p99 "
                 f"{latency.get('node_latency_p99_ms')} ms).", '']
+    scaling = _load('scaling')
+    if scaling:
+        out += ['## Scale (`bench/scaling.py`)', '',
+                'Seconds per generation (one population fitness), one factor varied at a '
+                'time around 3 joints, 1000 samples, population 100:', '']
+        for name in ('joints', 'window_samples', 'population'):
+            entry = scaling[name]
+            sizes = ', '.join(f'{v}: {s:.3f} s' for v, s in
+                              zip(entry['values'], entry['seconds_per_generation']))
+            out.append(f'- {name}: {sizes}; growth exponent '
+                       f"{entry['growth_exponent']:.2f}")
+        out.append('')
+    evals = _load('evals_to_paper_cost')
+    if evals:
+        out += ["## Evaluations to reach the paper EA's final cost "
+                '(`bench/evals_to_paper_cost.py`)', '',
+                '| case | paper EA final J | paper EA evaluations | CMA-ES | '
+                'equation error + CMA-ES |', '|---|---|---|---|---|']
+        for case in ('1', '2', '3'):
+            e = evals.get(case)
+            if e:
+                def _n(v):
+                    return f'not within {e["cap"]}' if v is None else str(v)
+                cost = e['paper_ea_final_cost']
+                out.append(f"| {case} | {'diverged' if cost is None else f'{cost:.4g}'} | "
+                           f"{e['paper_ea_evaluations']} | {_n(e.get('cmaes'))} | "
+                           f"{_n(e.get('equation_error_then_cmaes'))} |")
+        out.append('')
     soak = _load('soak')
     if soak:
         out += ['## Soak (`bench/soak.py`)', '',
                 f"{soak['minutes']:.0f} min at 100 Hz with {soak['parameter_changes']} parameter "
-                f"changes and {len(soak['resets'])} resets: RSS growth minute 5 to end "
+                f"changes and {len(soak['resets'])} resets, "
+                f'{_mean_rate(soak):.2f} generations/s: RSS growth minute 5 to end '
                 f"{_pct(soak['rss_growth_fraction'])}, threads {soak['thread_count_start']} -> "
                 f"{soak['thread_count_end']}, drops {soak['drops']}.", '']
     kill = _load('killtest')
