@@ -1734,11 +1734,11 @@ def main(args=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RuntimeError:
+    except RuntimeError as exc:
         # SIGINT landing inside rclpy's message conversion surfaces as a pybind11
-        # RuntimeError ("Unable to convert call argument"); once the context is shut down
-        # that is the requested shutdown, not a failure.
-        if rclpy.ok():
+        # RuntimeError ("Unable to convert call argument"), sometimes before rclpy has shut
+        # the context down: that is the requested shutdown, not a failure.
+        if rclpy.ok() and 'Unable to convert call argument' not in str(exc):
             raise
     except (ConfigurationError, ParameterException) as exc:
         rclpy.logging.get_logger('identifier').fatal(f'refusing to start: {exc}')
