@@ -49,6 +49,7 @@ from rkgnn_ros.core.plant import PDController, PlanarArm
 from rkgnn_ros.core.simulate import simulate
 from rkgnn_ros.core.trajectories import paper_reference
 from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode, split_validation
+from ros_helpers import run_in_executor
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
@@ -313,7 +314,7 @@ def test_model_reaches_a_late_subscriber_and_outputs_are_set(rig):
     try:
         assert wait_for(lambda: received, 5.0), 'transient-local model not delivered'
     finally:
-        rig.test_node.destroy_subscription(sub)
+        run_in_executor(rig.executor, lambda: rig.test_node.destroy_subscription(sub))
     model = RKGNNModel.from_yaml(received[0].data, JOINTS)
     assert model.case == 'unknown' and model.n_joints == 3
     assert wait_for(lambda: rig.probe.get_parameter('identified.generation') > 0, 3.0)
@@ -436,8 +437,8 @@ def test_malformed_messages_are_dropped_and_counted(rig):
     assert values['state'] == 'evolving'
     t0 = time.monotonic()
     assert wait_for(lambda: len(rig.probe.since(rig.probe.evolution, t0)) >= 2, 5.0)
-    rig.test_node.destroy_publisher(pub)
-    rig.test_node.destroy_publisher(ref)
+    run_in_executor(rig.executor, lambda: (rig.test_node.destroy_publisher(pub),
+                                           rig.test_node.destroy_publisher(ref)))
 
 
 def test_worker_exception_is_counted_and_survived(rig):
@@ -516,7 +517,7 @@ def test_model_file_is_published_at_start_and_bad_files_are_refused(rig, tmp_pat
     finally:
         node.stop()
         node.destroy_node()
-        rig.test_node.destroy_subscription(sub)
+        run_in_executor(rig.executor, lambda: rig.test_node.destroy_subscription(sub))
     text = good.read_text()
     corrupt = tmp_path / 'corrupt.yaml'
     corrupt.write_text(text[:len(text) // 2] + '\n  - [unbalanced')

@@ -51,6 +51,7 @@ from rkgnn_ros.core.plant import PDController, PlanarArm
 from rkgnn_ros.core.simulate import simulate
 from rkgnn_ros.core.trajectories import paper_reference
 from rkgnn_ros.identifier import IdentifierNode
+from ros_helpers import retire_node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
@@ -446,8 +447,7 @@ def test_item_15_a_10khz_burst_stays_bounded_and_services_answer(data):
         assert h.buffered() + drops['rate_limited'] + drops['overflow'] <= sent[0]
         assert max(answered) < 1.0
     finally:
-        h.executor.remove_node(client_node)
-        client_node.destroy_node()
+        retire_node(h.executor, client_node)
         h.close()
 
 

@@ -43,6 +43,7 @@ from rkgnn_ros.core.plant import PDController, PlanarArm
 from rkgnn_ros.core.simulate import simulate
 from rkgnn_ros.core.trajectories import paper_reference
 from rkgnn_ros.sim_arm import ArmSimulator, ConfigurationError, PARAMETERS, SimArm
+from ros_helpers import retire_node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -105,8 +106,7 @@ class Probe:
         executor.add_node(self.node)
 
     def close(self):
-        self.executor.remove_node(self.node)
-        self.node.destroy_node()
+        retire_node(self.executor, self.node)
 
 
 def start(context, executor, **overrides):
@@ -117,8 +117,7 @@ def start(context, executor, **overrides):
 
 
 def stop(executor, node):
-    executor.remove_node(node)
-    node.destroy_node()
+    retire_node(executor, node)
 
 
 def set_parameter(probe, name, value):

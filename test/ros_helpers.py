@@ -1,0 +1,51 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Helpers for tests whose executor spins in a background thread."""
+
+import threading
+
+
+def run_in_executor(executor, fn, timeout=10.0):
+    """
+    Run ``fn`` in the executor's own thread, between two waits, and return its result.
+
+    Destroying a publisher, subscription or node from another thread while the executor
+    is building its wait set makes rclpy (Jazzy 7.1) raise in ``add_to_wait_set`` and the
+    spinning thread dies: the QoS-event waitables it collected are already invalid. Run as
+    an executor task, the destruction happens before the next collection.
+    """
+    done = threading.Event()
+    outcome = {}
+
+    def task():
+        try:
+            outcome['value'] = fn()
+        except BaseException as exc:  # re-raised in the caller's thread
+            outcome['error'] = exc
+        finally:
+            done.set()
+    executor.create_task(task)
+    if not done.wait(timeout):
+        raise TimeoutError(f'the executor did not run {fn!r} within {timeout} s')
+    if 'error' in outcome:
+        raise outcome['error']
+    return outcome.get('value')
+
+
+def retire_node(executor, node, timeout=10.0):
+    """Remove ``node`` from a spinning executor and destroy it in the executor's thread."""
+    def retire():
+        executor.remove_node(node)
+        node.destroy_node()
+    run_in_executor(executor, retire, timeout)
