@@ -92,8 +92,8 @@ def main(argv=None):
             now = time.perf_counter()
             sec, nanosec = struct.unpack_from('<iI', data, 4)
             stamp = sec * 1_000_000_000 + nanosec
-            with lock:
-                t_sent = sent.get(stamp)
+            with lock:  # the first prediction from a state counts (a timer may predict
+                t_sent = sent.pop(stamp, None)  # again from it once the stream stops)
             if t_sent is not None:
                 latencies.append(now - t_sent)
                 latency_at.append(t_sent)

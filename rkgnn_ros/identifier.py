@@ -648,6 +648,7 @@ class IdentifierNode(Node):
         self._kernels_ready = threading.Event()
         self._prediction_wanted = threading.Event()
         self._latencies: deque = deque(maxlen=LATENCY_WINDOW)  # ms, newest predictions
+        self._last_predicted_ns = None  # receipt time of the state last predicted from
 
         # worker-owned search state
         self._evo: Optional[Evolution] = None
@@ -1122,6 +1123,9 @@ class IdentifierNode(Node):
         # serialized directly (a third of the Python time of building the message objects)
         self._prediction_pub.publish(serialize_joint_trajectory(stamp, joints, t, positions,
                                                                 velocities))
+        if received_ns == self._last_predicted_ns:
+            return  # predicted again from the same state (a timer, the stream stopped)
+        self._last_predicted_ns = received_ns
         latency = 1e-6 * (time.time_ns() - received_ns)  # ms, receipt of the state -> publish
         with self._lock:
             self._latencies.append(latency)

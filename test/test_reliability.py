@@ -270,6 +270,23 @@ def test_item_04_non_finite_values_are_rejected(harness, field, bad):
     _fault(harness, reason, lambda: harness.state(_js(JOINTS, **values)))
 
 
+def test_latency_counts_the_first_prediction_from_each_state(data, model_path):
+    # a timer predicting again from the same state (the stream stopped) is not a latency
+    h = _fresh(data, model_path)
+    try:
+        h.pause(True)
+        h.feed(data, 0, 200)
+        before = len(h.node._latencies)
+        h.predict_finite()
+        h.predict_finite()  # published again, not counted again
+        assert len(h.node._latencies) == before + 1
+        h.feed(data, 200, 201)
+        h.predict_finite()
+        assert len(h.node._latencies) == before + 2
+    finally:
+        h.close()
+
+
 def test_item_05_extra_joints_ignored_missing_joint_dropped(harness, data):
     h = harness
     k = 300
