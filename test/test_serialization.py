@@ -60,3 +60,19 @@ def test_bad_input_is_refused_like_the_message_builder():
         serialize_joint_trajectory(1.0, ['a'], [0.0, 0.0], np.zeros((2, 1)))
     with pytest.raises(ValueError, match='stamp'):
         serialize_joint_trajectory(-1.0, ['a'], [0.0], np.zeros((1, 1)))
+
+
+def test_a_kept_layout_carries_no_values_from_an_earlier_call():
+    names = ['j1', 'j2', 'j3']
+    times = np.arange(201) * 0.01
+    rng = np.random.default_rng(3)
+    for stamp in (5.25, 1795406535.299744, 7.0):  # same layout, new values every call
+        positions = rng.standard_normal((201, 3))
+        velocities = rng.standard_normal((201, 3))
+        data = serialize_joint_trajectory(stamp, names, times, positions, velocities)
+        expected = make_joint_trajectory(stamp, names, times, positions, velocities)
+        assert deserialize_message(data, JointTrajectory) == expected
+    # another horizon and other names get their own layout
+    data = serialize_joint_trajectory(1.0, ['a'], times[:3], np.ones((3, 1)))
+    assert deserialize_message(data, JointTrajectory) == make_joint_trajectory(
+        1.0, ['a'], times[:3], np.ones((3, 1)))
