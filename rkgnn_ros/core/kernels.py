@@ -153,51 +153,61 @@ def _min_minor(x, n, chol, eps, inv_sqrt_ms, centres, inv_w2, weights, bias, phi
 
 
 @njit(cache=True, nogil=True, error_model='numpy', inline='always')
-def _christoffel(xs, n, chol, centres, inv_w2, weights, phi, out, lmat, dout, dl, dmat, vvec):
+def _christoffel(xs, n, chol, centres, inv_w2, weights, phi, lmat, dout, dl, dmat, vvec, y, z):
     """
-    Fill vvec with V = Ṁθ̇ - ½ ∂(θ̇ᵀMθ̇)/∂θ from the RBF inertia outputs (phi, out, lmat set).
+    Fill vvec with V = Ṁθ̇ - ½ ∂(θ̇ᵀMθ̇)/∂θ from the RBF inertia outputs (phi, lmat set).
 
-    dmat[k] = ∂M/∂θ_k; with M = L Lᵀ + εI, ∂M/∂θ_k = (∂L/∂θ_k) Lᵀ + L (∂L/∂θ_k)ᵀ.
+    With w_k = (∂M/∂θ_k) θ̇, V_a = Σ_k θ̇_k w_k[a] - ½ Σ_j θ̇_j w_a[j]. For M = L Lᵀ + εI,
+    ∂M/∂θ_k = (∂L/∂θ_k) Lᵀ + L (∂L/∂θ_k)ᵀ, so w_k = (∂L/∂θ_k) y + L (∂L/∂θ_k)ᵀ θ̇ with
+    y = Lᵀθ̇: triangular products, no n x n x n tensor. dl holds w (row k = w_k), y and z
+    are work vectors; dmat is used only without ``chol`` (M's outputs are M itself).
     """
     n_in = n * (n + 1) // 2
     n_units = centres.shape[0]
+    # dout[k, o] = ∂out_o/∂θ_k: Σ_u weights[o, u] phi_u (-2 / w_u²)(θ_k - c_uk)
     for kk in range(n):
         for o in range(n_in):
-            val = 0.0
-            for u in range(n_units):
-                val += weights[o, u] * phi[u] * (-2.0 * inv_w2[u] * (xs[kk] - centres[u, kk]))
-            dout[kk, o] = val
-    for kk in range(n):
-        if chol:
-            for i in range(n):
-                for j in range(n):
-                    dl[i, j] = 0.0
-            idx = 0
-            for i in range(n):
-                for j in range(i + 1):
-                    dl[i, j] = dout[kk, idx]
-                    idx += 1
-            for i in range(n):
-                for j in range(n):
-                    acc = 0.0
-                    for m in range(n):
-                        acc += dl[i, m] * lmat[j, m] + lmat[i, m] * dl[j, m]
-                    dmat[kk, i, j] = acc
-        else:
+            dout[kk, o] = 0.0
+        for u in range(n_units):
+            g = -2.0 * phi[u] * inv_w2[u] * (xs[kk] - centres[u, kk])
+            for o in range(n_in):
+                dout[kk, o] += weights[o, u] * g
+    if chol:
+        # outputs fill L row by row: L[i, m] = out[i (i + 1) / 2 + m], m <= i
+        for m in range(n):
+            acc = 0.0
+            for j in range(m, n):
+                acc += lmat[j, m] * xs[n + j]
+            y[m] = acc
+        for kk in range(n):
+            for m in range(n):
+                acc = 0.0
+                for j in range(m, n):
+                    acc += dout[kk, j * (j + 1) // 2 + m] * xs[n + j]
+                z[m] = acc
+            for a in range(n):
+                base = a * (a + 1) // 2
+                acc = 0.0
+                for m in range(a + 1):
+                    acc += dout[kk, base + m] * y[m] + lmat[a, m] * z[m]
+                dl[kk, a] = acc
+    else:
+        for kk in range(n):
             idx = 0
             for i in range(n):
                 for j in range(i, n):
                     dmat[kk, i, j] = dout[kk, idx]
                     dmat[kk, j, i] = dout[kk, idx]
                     idx += 1
+            for a in range(n):
+                acc = 0.0
+                for j in range(n):
+                    acc += dmat[kk, a, j] * xs[n + j]
+                dl[kk, a] = acc
     for a in range(n):
         v = 0.0
         for kk in range(n):
-            for j in range(n):
-                v += xs[n + kk] * dmat[kk, a, j] * xs[n + j]
-        for j in range(n):
-            for kk in range(n):
-                v -= 0.5 * xs[n + j] * dmat[a, j, kk] * xs[n + kk]
+            v += xs[n + kk] * dl[kk, a] - 0.5 * xs[n + kk] * dl[a, kk]
         vvec[a] = v
 
 
@@ -259,8 +269,9 @@ def _advance(x, u_flat, row, h, substeps, case_id, chol, christ, kp_known, kd_kn
                 out[o] = val + bias[o]
             _mass(out, n, chol, eps, mat, lmat)
             if christ:
-                _christoffel(xs, n, chol, centres, inv_w2, weights, phi, out, lmat, dout, dl,
-                             dmat, vvec)
+                # rhs and acc are free until the solve below: the work vectors y, z
+                _christoffel(xs, n, chol, centres, inv_w2, weights, phi, lmat, dout, dl, dmat,
+                             vvec, rhs, acc)
             else:
                 _learned_velocity(xs, n, out, vvec)
             for a in range(n):

@@ -215,13 +215,15 @@ def _inertial_terms(x, acc, chol, christ, eps, centres, inv_w2, weights, bias, o
         dl = np.empty((n, n))
         dmat = np.empty((n, n, n))
         vvec = np.empty(n)
+        y = np.empty(n)
+        z = np.empty(n)
         for s in range(samples):
             xs = x[s]
             _theta_outputs(xs, centres[p], inv_w2[p], weights[p], bias[p], phi, out)
             _mass(out, n, chol, eps, mat, lmat)
             if christ:
-                _christoffel(xs, n, chol, centres[p], inv_w2[p], weights[p], phi, out, lmat,
-                             dout, dl, dmat, vvec)
+                _christoffel(xs, n, chol, centres[p], inv_w2[p], weights[p], phi, lmat, dout,
+                             dl, dmat, vvec, y, z)
                 g0 = n_in
             else:
                 _learned_velocity(xs, n, out, vvec)
