@@ -116,11 +116,14 @@ def main():
         out += ['## Responsiveness (`bench/latency.py`)', '',
                 f"joint_states at {latency['rate_hz']:.0f} Hz while evolving: "
                 f"{latency['drops_1khz']} drops, "
-                f"{latency['generations_during_run']:.0f} generations in the run; "
+                f"{latency['generations_during_run']:.0f} generations per run; "
                 f'state-to-prediction latency p50 '
                 f"{latency['latency_p50_ms']:.1f} ms, p99 {latency['latency_p99_ms']:.1f} ms "
                 f"(node's own: p50 {latency.get('node_latency_p50_ms')} ms, p99 "
-                f"{latency.get('node_latency_p99_ms')} ms).", '']
+                f"{latency.get('node_latency_p99_ms')} ms)"
+                + (f"; worst of {latency['runs_count']} runs of {latency['duration_s']:.0f} s, "
+                   f"p99 per run {[round(r['latency_p99_ms'], 1) for r in latency['runs']]} "
+                   'ms' if latency.get('runs') else '') + '.', '']
     scaling = _load('scaling')
     if scaling:
         out += ['## Scale (`bench/scaling.py`)', '',
