@@ -130,6 +130,7 @@ import traceback
 from types import MappingProxyType
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -141,8 +142,10 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rkgnn_ros.conversions import (joint_state_to_arrays, joint_trajectory_to_arrays,
-                                   make_float64_multiarray, REJECTION_REASONS,
+from rclpy.serialization import deserialize_message
+from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arrays,
+                                   joint_trajectory_to_arrays, make_float64_multiarray,
+                                   parse_joint_state_cdr, Rejection, REJECTION_REASONS,
                                    serialize_joint_trajectory)
 from rkgnn_ros.core.controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
 from rkgnn_ros.core.data import Dataset
@@ -626,7 +629,7 @@ class IdentifierNode(Node):
         self._buffer: Optional[StreamBuffer] = None
         self._retired_drops: Dict[str, int] = {}
         self._extra_drops: Dict[str, int] = {}
-        self._latest_state = None    # (stamp msg, t, θ (n,), θ̇ (n,), τ (n,) or None)
+        self._latest_state = None    # ((sec, nanosec), t, θ, θ̇, τ or None, receipt ns)
         self._latest_command = None  # θd (n,)
         self._reference_end: Optional[float] = None
         self._last_rx: Dict[str, float] = {}
@@ -694,11 +697,14 @@ class IdentifierNode(Node):
                                                     event_callbacks=pub_events)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10,
                                                       event_callbacks=pub_events)
+        # the two 1 kHz-capable streams are taken as CDR bytes and read without building
+        # message objects (conversions.joint_state_cdr_to_arrays)
         self._state_sub = self.create_subscription(
-            JointState, 'joint_states', self._on_state, stream_qos, event_callbacks=sub_events)
+            JointState, 'joint_states', self._on_state, stream_qos, event_callbacks=sub_events,
+            raw=True)
         self._command_sub = self.create_subscription(
             JointState, 'joint_commands', self._on_command, stream_qos,
-            event_callbacks=sub_events)
+            event_callbacks=sub_events, raw=True)
         self.create_subscription(JointTrajectory, 'reference_trajectory', self._on_reference,
                                  stream_qos, event_callbacks=sub_events)
         self.create_service(Trigger, '~/reset', self._on_reset)
@@ -908,14 +914,14 @@ class IdentifierNode(Node):
 
     # ------------------------------------------------------------------ subscriptions
 
-    def _on_state(self, msg: JointState, info) -> None:
+    def _on_state(self, raw: bytes, info) -> None:
         # two parameters: rclpy passes the message info (its receive time, for the latency)
         try:
             received = info.get('received_timestamp') if isinstance(info, dict) else None
-            self._handle_state(msg, received if received else time.time_ns())
-            for msg, info in self._drain(self._state_sub):
+            self._handle_state(raw, received if received else time.time_ns())
+            for raw, info in self._drain(self._state_sub):
                 received = info.get('received_timestamp') if isinstance(info, dict) else None
-                self._handle_state(msg, received if received else time.time_ns())
+                self._handle_state(raw, received if received else time.time_ns())
         except Exception:  # noqa: B902 - a callback must never raise
             self._internal_error('joint_states')
 
@@ -939,20 +945,44 @@ class IdentifierNode(Node):
                 return
             yield taken
 
-    def _handle_state(self, msg: JointState, received_ns: int) -> None:
+    @staticmethod
+    def _joint_sample(raw: bytes, joints, need_effort: bool):
+        """Read a raw JointState: the CDR fast path, else rclpy's deserialization."""
+        sample = joint_state_cdr_to_arrays(raw, joints, need_velocity=True,
+                                           need_effort=need_effort)
+        if sample is None:  # not plain CDR we read: let rclpy decide what it is
+            try:
+                msg = deserialize_message(raw, JointState)
+            except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
+                return Rejection('malformed', f'cannot read JointState: {error!r}')
+            sample = joint_state_to_arrays(msg, joints, need_velocity=True,
+                                           need_effort=need_effort)
+        return sample
+
+    @staticmethod
+    def _message_names(raw: bytes):
+        """Return the joint names of a raw JointState, or None if it has none readable."""
+        try:
+            parsed = parse_joint_state_cdr(raw)
+            if parsed is not None:
+                return parsed[2]
+            return tuple(deserialize_message(raw, JointState).name)
+        except Exception:  # noqa: B902 - the sample's own reading reports why
+            return None
+
+    def _handle_state(self, raw: bytes, received_ns: int) -> None:
         cfg = self._cfg
         need_tau = cfg.case == 'torque'
         joints = self._joints
         if joints is None:
-            names = tuple(msg.name)
-            sample = joint_state_to_arrays(msg, names, need_velocity=True,
-                                           need_effort=need_tau)
+            names = self._message_names(raw) or ()
+            sample = self._joint_sample(raw, names, need_tau)
             if not sample.ok:
                 self._reject('joint_states', 'state', sample.reason, sample.message)
                 return
             self._set_joints(names, 'the first joint_states message')
             joints = self._joints
-        sample = joint_state_to_arrays(msg, joints, need_velocity=True, need_effort=need_tau)
+        sample = self._joint_sample(raw, joints, need_tau)
         if not sample.ok:
             self._reject('joint_states', 'state', sample.reason, sample.message)
             return
@@ -968,7 +998,7 @@ class IdentifierNode(Node):
             self._log_drop('joint_states', result.reason,
                            f'stamp {sample.stamp:.6f} s rejected by the buffer')
             return
-        self._latest_state = (msg.header.stamp, sample.stamp, sample.position,
+        self._latest_state = (sample.sec_nanosec, sample.stamp, sample.position,
                               sample.velocity, sample.effort, received_ns)
         self._last_rx['state'] = time.monotonic()
         if cfg['prediction.on_state']:
@@ -977,21 +1007,21 @@ class IdentifierNode(Node):
                 self._last_state_prediction = now
                 self._prediction_wanted.set()
 
-    def _on_command(self, msg: JointState) -> None:
+    def _on_command(self, raw: bytes) -> None:
         try:
-            self._handle_command(msg)
-            for msg, _ in self._drain(self._command_sub):
-                self._handle_command(msg)
+            self._handle_command(raw)
+            for raw, _ in self._drain(self._command_sub):
+                self._handle_command(raw)
         except Exception:  # noqa: B902 - a callback must never raise
             self._internal_error('joint_commands')
 
-    def _handle_command(self, msg: JointState) -> None:
+    def _handle_command(self, raw: bytes) -> None:
         joints = self._joints
         if joints is None:
             self._reject('joint_commands', 'command', 'no_joints',
                          'joints not known yet (waiting for joint_states)')
             return
-        sample = joint_state_to_arrays(msg, joints, need_velocity=True, need_effort=False)
+        sample = self._joint_sample(raw, joints, False)
         if not sample.ok:
             self._reject('joint_commands', 'command', sample.reason, sample.message)
             return
@@ -1121,8 +1151,8 @@ class IdentifierNode(Node):
                          'the model diverged over the horizon; prediction not published')
             return
         # serialized directly (a third of the Python time of building the message objects)
-        self._prediction_pub.publish(serialize_joint_trajectory(stamp, joints, t, positions,
-                                                                velocities))
+        self._prediction_pub.publish(serialize_joint_trajectory(
+            Time(sec=stamp[0], nanosec=stamp[1]), joints, t, positions, velocities))
         if received_ns == self._last_predicted_ns:
             return  # predicted again from the same state (a timer, the stream stopped)
         self._last_predicted_ns = received_ns

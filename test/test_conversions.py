@@ -27,6 +27,7 @@ from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
+from rclpy.serialization import serialize_message
 from rkgnn_ros import conversions as conv
 from rkgnn_ros.stream_buffer import StreamBuffer
 from sensor_msgs.msg import JointState
@@ -69,9 +70,19 @@ def trajectory(names=JOINTS, times=(0.0, 0.5, 1.0), positions=None, velocities=N
 
 
 def ingest(buffer, msg, need_velocity=True):
-    """Do what the identifier's joint_states callback does."""
+    """Do what the identifier's joint_states callback does, by both ways of reading."""
     result = conv.joint_state_to_arrays(msg, buffer.joints, need_velocity=need_velocity,
                                         need_effort=buffer.need_tau)
+    from_bytes = conv.joint_state_cdr_to_arrays(
+        serialize_message(msg), buffer.joints, need_velocity=need_velocity,
+        need_effort=buffer.need_tau)
+    assert from_bytes.ok == result.ok
+    if not result.ok:
+        assert from_bytes == result
+    else:
+        assert from_bytes.stamp == result.stamp and from_bytes.sec_nanosec == result.sec_nanosec
+        for x, y in zip(from_bytes[1:4], result[1:4]):
+            assert (x is None and y is None) or np.array_equal(x, y)
     if not result.ok:
         buffer.count_drop('state', result.reason)
         return result
@@ -305,8 +316,8 @@ def test_item11_zero_trajectory_stamp_means_now_when_given():
 def test_joint_state_result_unpacks_in_configured_order():
     msg = joint_state(names=('joint2', 'joint1'), position=(0.2, 0.1), velocity=(2.0, 1.0),
                       effort=(20.0, 10.0), stamp=T0 + 0.25)
-    stamp, position, velocity, effort = conv.joint_state_to_arrays(msg, JOINTS)
-    assert stamp == T0 + 0.25
+    stamp, position, velocity, effort, sec_nanosec = conv.joint_state_to_arrays(msg, JOINTS)
+    assert stamp == T0 + 0.25 and sec_nanosec == (1000, 250_000_000)
     np.testing.assert_array_equal(position, [0.1, 0.2])
     np.testing.assert_array_equal(velocity, [1.0, 2.0])
     np.testing.assert_array_equal(effort, [10.0, 20.0])

@@ -41,7 +41,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.core.fitness import FitnessProblem
 from rkgnn_ros.core.identify import Evolution, RKGNNModel
@@ -123,12 +123,13 @@ class Harness:
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
 
-    # feeding, exactly as rclpy calls the subscription callbacks
+    # feeding, exactly as rclpy calls the subscription callbacks (the two streams are
+    # raw subscriptions: the callbacks get the CDR bytes)
     def state(self, msg):
-        self.node._on_state(msg, None)
+        self.node._on_state(serialize_message(msg), None)
 
     def command(self, msg):
-        self.node._on_command(msg)
+        self.node._on_command(serialize_message(msg))
 
     def feed(self, data, k0, k1, t0=T0, names=JOINTS, commands=True):
         for k in range(k0, k1):
