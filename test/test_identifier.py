@@ -413,6 +413,33 @@ def test_on_set_callback_never_raises(rig):
     assert node._on_set_parameters([Parameter('use_sim_time', value=False)]).successful
 
 
+def test_streams_are_taken_by_the_ingest_thread_not_the_executor(rig):
+    node = rig.node
+    # the executor never waits on the two stream subscriptions (one wake per message cost
+    # more than the message) ...
+    assert not rig.executor.can_execute(node._state_sub)
+    assert not rig.executor.can_execute(node._command_sub)
+    # ... the ingest thread takes what the streamer publishes, states and commands
+    seen = {'state': [], 'command': []}
+    state, command = node._handle_state_locked, node._handle_command_locked
+
+    def spy_state(raw, received_ns):
+        seen['state'].append(threading.current_thread().name)
+        return state(raw, received_ns)
+
+    def spy_command(raw):
+        seen['command'].append(threading.current_thread().name)
+        return command(raw)
+
+    node._handle_state_locked, node._handle_command_locked = spy_state, spy_command
+    try:
+        assert wait_for(lambda: min(map(len, seen.values())) >= 20, 5.0)
+    finally:
+        del node._handle_state_locked, node._handle_command_locked
+    assert set(seen['state']) == set(seen['command']) == {'rkgnn_ingest'}
+    assert node._buffer.latest_state() is not None
+
+
 def test_malformed_messages_are_dropped_and_counted(rig):
     pub = rig.test_node.create_publisher(JointState, f'{NS}/joint_states', 10)
     ref = rig.test_node.create_publisher(JointTrajectory, f'{NS}/reference_trajectory', 10)
