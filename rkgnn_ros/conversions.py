@@ -145,7 +145,11 @@ class TrajectorySample(NamedTuple):
 
 def stamp_to_seconds(stamp) -> float:
     """Return a ``builtin_interfaces`` Time (or Duration) as float seconds."""
-    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+    return _seconds(stamp.sec, stamp.nanosec)
+
+
+def _seconds(sec, nanosec) -> float:
+    return float(sec) + float(nanosec) * 1e-9
 
 
 def duration_to_seconds(duration) -> float:
@@ -392,7 +396,7 @@ def _joint_sample(names, position, velocity, effort, sec, nanosec, joints, need_
     index, rejection = _name_index(names, joints)
     if rejection is not None:
         return rejection
-    stamp = float(sec) + float(nanosec) * 1e-9  # as stamp_to_seconds
+    stamp = _seconds(sec, nanosec)
     rejection = _stamp_rejection(stamp)
     if rejection is not None:
         return rejection

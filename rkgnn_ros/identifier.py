@@ -954,12 +954,16 @@ class IdentifierNode(Node):
                                        (self._command_sub, self._handle_command,
                                         'joint_commands')):
                 try:
-                    for raw, info in self._drain(sub):
-                        handle(raw, _received_ns(info))
+                    self._handle_queued(sub, handle)
                 except Exception:  # noqa: B902 - the thread must survive
                     if self._stop.is_set() or not self.context.ok():
                         return
                     self._internal_error(topic)
+
+    def _handle_queued(self, sub, handle) -> None:
+        """Pass every message queued on ``sub`` (at most DRAIN_LIMIT) to ``handle``."""
+        for raw, info in self._drain(sub):
+            handle(raw, _received_ns(info))
 
     def _on_state(self, raw: bytes, info) -> None:
         """
@@ -970,20 +974,17 @@ class IdentifierNode(Node):
         """
         try:
             self._handle_state(raw, _received_ns(info))
-            for raw, info in self._drain(self._state_sub):
-                self._handle_state(raw, _received_ns(info))
+            self._handle_queued(self._state_sub, self._handle_state)
         except Exception:  # noqa: B902 - a callback must never raise
             self._internal_error('joint_states')
 
     @staticmethod
     def _drain(sub):
         """
-        Yield the messages already queued on ``sub``, at most DRAIN_LIMIT.
+        Yield the ``(message, info)`` pairs already queued on ``sub``, at most DRAIN_LIMIT.
 
-        rclpy's executor rebuilds its whole wait set in Python for every message it
-        delivers; at 2 x 1 kHz that alone kept the executor thread at 100 % of a core, so a
-        queue that formed while the worker held the CPU drained slowly (state-to-prediction
-        p99 of 80-115 ms). Messages already waiting are taken here directly instead.
+        Taken straight from the subscription's handle, without an executor (the ingest
+        thread's way of reading the two streams).
         """
         for _ in range(DRAIN_LIMIT):
             try:
@@ -1065,8 +1066,7 @@ class IdentifierNode(Node):
         """Handle one joint_commands message and those queued behind (see _on_state)."""
         try:
             self._handle_command(raw)
-            for raw, info in self._drain(self._command_sub):
-                self._handle_command(raw, _received_ns(info))
+            self._handle_queued(self._command_sub, self._handle_command)
         except Exception:  # noqa: B902 - a callback must never raise
             self._internal_error('joint_commands')
 
