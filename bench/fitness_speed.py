@@ -48,11 +48,11 @@ import time
 
 import numba
 import numpy as np
-from rkgnn_ros.core.fitness import FitnessProblem
-from rkgnn_ros.core.network import NetworkSpec
-from rkgnn_ros.core.plant import PDController, PlanarArm
-from rkgnn_ros.core.simulate import simulate
-from rkgnn_ros.core.trajectories import paper_reference
+from rkgnn_ros.core.fitting.fitness import FitnessProblem
+from rkgnn_ros.core.model.network import NetworkSpec
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
 
 POPULATION = 100
 SEED = 0

@@ -109,9 +109,9 @@ def _measure(args) -> dict:
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
     from trajectory_msgs.msg import JointTrajectory
-    from rkgnn_ros.core.plant import PDController, PlanarArm
-    from rkgnn_ros.core.simulate import simulate
-    from rkgnn_ros.core.trajectories import paper_reference
+    from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+    from rkgnn_ros.core.sim.simulate import simulate
+    from rkgnn_ros.core.sim.trajectories import paper_reference
 
     data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3),
                     args.duration + 1.0, rate=args.rate)

@@ -63,13 +63,13 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.core.identify import Evolution, fit_best, nrmse  # noqa: E402
-from rkgnn_ros.core.network import NetworkSpec  # noqa: E402
-from rkgnn_ros.core.plant import PDController, PlanarArm  # noqa: E402
-from rkgnn_ros.core.refine import refine_equation_error  # noqa: E402
-from rkgnn_ros.core.simulate import NoiseModel, simulate, simulate_open_loop  # noqa: E402
-from rkgnn_ros.core.trajectories import (Chirp, hanging_pose, heldout_reference,  # noqa: E402
-                                         paper_reference, SumOfSines)
+from rkgnn_ros.core.fitting.identify import Evolution, fit_best, nrmse  # noqa: E402
+from rkgnn_ros.core.fitting.refine import refine_equation_error  # noqa: E402
+from rkgnn_ros.core.model.network import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
+from rkgnn_ros.core.sim.simulate import NoiseModel, simulate, simulate_open_loop  # noqa: E402
+from rkgnn_ros.core.sim.trajectories import (Chirp, hanging_pose, heldout_reference,  # noqa: E402
+                                             paper_reference, SumOfSines)
 from scipy.signal import savgol_filter  # noqa: E402
 
 CASES = {'1': 'torque', '2': 'pd_gains', '3': 'unknown'}

@@ -85,7 +85,7 @@ reported in ``/diagnostics`` (``prediction_latency_p50_ms`` / ``_p99_ms`` over t
 (``gc.freeze``) and no QoS-event handlers are created, both to keep the executor thread
 cheap. One worker thread (nice 19, stopped by an Event, joined before the node is
 destroyed) owns the
-:class:`~rkgnn_ros.core.identify.Evolution`. Before each generation it takes, under the
+:class:`~rkgnn_ros.core.fitting.identify.Evolution`. Before each generation it takes, under the
 node's lock, one snapshot of the settings (an immutable mapping with version counters) and
 of the flags (pause, reset), so a generation runs with one consistent configuration. The
 training data is refreshed from the buffer at most once a second (``set_data``, a warm
@@ -110,7 +110,7 @@ non-finite value is not published (counted as ``prediction_non_finite``).
 Case 'torque' (measured effort): the future torque is the arm controller's answer to the
 future state, so the node fits the controller's law τ = Kp (θd − θ) + Kd (θ̇d − θ̇) + c per
 joint by least squares on the buffered effort paired with joint_commands
-(:mod:`rkgnn_ros.core.controller`), at every data refresh. While that law explains the
+(:mod:`rkgnn_ros.core.fitting.controller`), at every data refresh. While that law explains the
 torque (RMS residual below 10 % of the RMS torque, Kp > 0, Kd >= 0), the search runs in
 closed loop (exactly a case-2 search with the fitted gains: the same genome, the rollout
 driven by the commands) and predictions follow the reference in closed loop, like case 2;
@@ -152,12 +152,12 @@ from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arr
                                    joint_trajectory_to_arrays, make_float64_multiarray,
                                    parse_joint_state_cdr, Rejection, REJECTION_REASONS,
                                    serialize_joint_trajectory)
-from rkgnn_ros.core.controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.identify import (Evolution, normalize_case, nrmse, precompile,
-                                     remove_stale_temp_files, RKGNNModel)
-from rkgnn_ros.core.network import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
-from rkgnn_ros.core.optimizers import CMAES, make_optimizer, OPTIMIZERS, PaperEA
+from rkgnn_ros.core.fitting.controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
+from rkgnn_ros.core.fitting.identify import (Evolution, normalize_case, nrmse, precompile,
+                                             remove_stale_temp_files, RKGNNModel)
+from rkgnn_ros.core.fitting.optimizers import CMAES, make_optimizer, OPTIMIZERS, PaperEA
+from rkgnn_ros.core.model.network import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.stream_buffer import DROP_REASONS, StreamBuffer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
@@ -1628,7 +1628,7 @@ class IdentifierNode(Node):
         search from the default genome takes many generations to find. Kept only when its
         rollout on the training data does not diverge; the optimizer restarts around it.
         """
-        from .core.refine import refine_equation_error
+        from rkgnn_ros.core.fitting.refine import refine_equation_error
         evo = self._evo
         t0 = time.perf_counter()
         self._set_status('evolving', 'warm start: equation-error fit')
@@ -1651,7 +1651,7 @@ class IdentifierNode(Node):
         grown by REWARM_GROWTH sees more of the motion. Its genome replaces the best (and
         the optimizer restarts around it) only if its rollout cost on the new data is lower.
         """
-        from .core.refine import refine_equation_error
+        from rkgnn_ros.core.fitting.refine import refine_equation_error
         evo = self._evo
         t0 = time.perf_counter()
         before = float(evo.optimizer.best_cost)

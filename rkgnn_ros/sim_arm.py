@@ -15,8 +15,8 @@
 """
 The ``sim_arm`` node: the planar arm under PD control, simulated in real time.
 
-The plant of :mod:`rkgnn_ros.core.plant` (``PlanarArm``) tracks a reference of
-:mod:`rkgnn_ros.core.trajectories` under the PD servo τ = Kp (θd - θ) + Kd (θ̇d - θ̇), on the
+The plant of :mod:`rkgnn_ros.core.sim.plant` (``PlanarArm``) tracks a reference of
+:mod:`rkgnn_ros.core.sim.trajectories` under the PD servo τ = Kp (θd - θ) + Kd (θ̇d - θ̇), on the
 node's clock (``use_sim_time`` is honoured like in any node).
 
 Topics (published)
@@ -50,7 +50,7 @@ clock jumps backwards (a replayed bag starting over) the origin moves back the s
 Integration
 -----------
 Between samples the continuous plant is advanced by fixed Runge-Kutta-Gill steps
-(:func:`rkgnn_ros.core.rkg.rkg_step`, the package's 4-stage 4th-order Runge-Kutta; it has
+(:func:`.core.integration.rkg.rkg_step`, the package's 4-stage 4th-order Runge-Kutta; it has
 the stability polynomial of classical RK4) of at most ``integration_step`` seconds: each
 interval is split into equal steps. With ``control_rate`` = 0 the PD is continuous (the
 reference is evaluated at every stage time); with ``control_rate`` > 0 a digital PD
@@ -83,11 +83,11 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from .conversions import make_joint_state, make_joint_trajectory
-from .core.plant import (ArmParameters, forward_dynamics_kernel, MASS_MODELS,
-                         max_stable_rkg_step, PDController, PlanarArm,
-                         RK4_REAL_STABILITY_LIMIT)
-from .core.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
-from .core.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
+from .core.integration.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
+from .core.sim.plant import (ArmParameters, forward_dynamics_kernel, MASS_MODELS,
+                             max_stable_rkg_step, PDController, PlanarArm,
+                             RK4_REAL_STABILITY_LIMIT)
+from .core.sim.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
 
 NODE_NAME = 'sim_arm'
 
@@ -144,7 +144,7 @@ def _rkg_pd_steps(x, h, steps, ref, tau_held, kp, kd, d, gh, fv, fc, vc):
     """
     Return ``x`` (2n,) advanced by ``steps`` Runge-Kutta-Gill steps of width ``h``.
 
-    The compiled twin of :func:`rkgnn_ros.core.rkg.rkg_step` (Gill's coefficients imported
+    The compiled twin of :func:`.core.integration.rkg.rkg_step` (Gill's coefficients imported
     from there) applied to :func:`_pd_rate`: ``ref`` (2 steps + 1, 2, n) holds θd, θ̇d at the
     stage times t + k h/2, or has shape (0, 2, n) for the held torque ``tau_held``. The
     other arguments are those of :func:`_pd_rate`.

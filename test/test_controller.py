@@ -16,12 +16,12 @@
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.controller import closed_loop_model, fit_pd_law, PDLaw
-from rkgnn_ros.core.identify import RKGNNModel
-from rkgnn_ros.core.network import NetworkSpec, Scales
-from rkgnn_ros.core.plant import PDController, PlanarArm
-from rkgnn_ros.core.simulate import NoiseModel, simulate
-from rkgnn_ros.core.trajectories import paper_reference, SumOfSines
+from rkgnn_ros.core.fitting.controller import closed_loop_model, fit_pd_law, PDLaw
+from rkgnn_ros.core.fitting.identify import RKGNNModel
+from rkgnn_ros.core.model.network import NetworkSpec, Scales
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import NoiseModel, simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference, SumOfSines
 from rkgnn_ros.stream_buffer import StreamBuffer
 
 N = 3

@@ -24,11 +24,11 @@ which the compiled kernel and the numpy reference must agree to rounding.
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.fitness import FitnessProblem, hermite, stage_inputs, stage_times
-from rkgnn_ros.core.network import BatchedNetwork, NetworkSpec, Scales
-from rkgnn_ros.core.trajectories import paper_reference
-from rkgnn_ros.core.warmstart import (_design, estimate_acceleration, least_squares_genome,
-                                      LINEAR_BLOCKS)
+from rkgnn_ros.core.fitting.fitness import FitnessProblem, hermite, stage_inputs, stage_times
+from rkgnn_ros.core.fitting.warmstart import (_design, estimate_acceleration, least_squares_genome,
+                                              LINEAR_BLOCKS)
+from rkgnn_ros.core.model.network import BatchedNetwork, NetworkSpec, Scales
+from rkgnn_ros.core.sim.trajectories import paper_reference
 
 N = 3
 SCALES = Scales(theta_center=[-1.5, 0.0, 0.0], theta_spread=[0.3, 0.3, 0.3],

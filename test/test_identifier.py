@@ -44,10 +44,10 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
-from rkgnn_ros.core.identify import RKGNNModel
-from rkgnn_ros.core.plant import PDController, PlanarArm
-from rkgnn_ros.core.simulate import simulate
-from rkgnn_ros.core.trajectories import paper_reference
+from rkgnn_ros.core.fitting.identify import RKGNNModel
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode, split_validation
 from ros_helpers import run_in_executor
 from sensor_msgs.msg import JointState

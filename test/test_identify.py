@@ -23,16 +23,16 @@ import os
 
 import numpy as np
 import pytest
-from rkgnn_ros.core import identify
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.fitness import FitnessProblem
-from rkgnn_ros.core.identify import (default_substeps, Evolution, fit, normalize_case, nrmse,
-                                     RKGNNModel)
-from rkgnn_ros.core.network import BatchedNetwork, NetworkSpec, Scales
-from rkgnn_ros.core.plant import ArmParameters, PDController, PlanarArm
-from rkgnn_ros.core.rkg import rkg_integrate
-from rkgnn_ros.core.simulate import simulate
-from rkgnn_ros.core.trajectories import paper_reference
+from rkgnn_ros.core.fitting import identify
+from rkgnn_ros.core.fitting.fitness import FitnessProblem
+from rkgnn_ros.core.fitting.identify import (default_substeps, Evolution, fit, normalize_case,
+                                             nrmse, RKGNNModel)
+from rkgnn_ros.core.integration.rkg import rkg_integrate
+from rkgnn_ros.core.model.network import BatchedNetwork, NetworkSpec, Scales
+from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
 import yaml
 
 N = 3

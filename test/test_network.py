@@ -26,8 +26,8 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.network import (BatchedNetwork, check_genome, genome_report,
-                                    NetworkSpec, pair_products, Scales)
+from rkgnn_ros.core.model.network import (BatchedNetwork, check_genome, genome_report, NetworkSpec,
+                                          pair_products, Scales)
 
 CASES = ('torque', 'pd_gains', 'unknown')
 

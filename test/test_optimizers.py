@@ -25,8 +25,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 import numpy as np
 import pytest
-from rkgnn_ros.core.optimizers import (CMAES, finite_costs, make_optimizer, minimize,
-                                       OPTIMIZERS, PaperEA, SEPARABLE_ABOVE)
+from rkgnn_ros.core.fitting.optimizers import (CMAES, finite_costs, make_optimizer, minimize,
+                                               OPTIMIZERS, PaperEA, SEPARABLE_ABOVE)
 from scipy import stats
 
 SHIFT20 = np.linspace(-1.0, 1.0, 20) + 0.3  # optimum of the shifted sphere, shape (20,)

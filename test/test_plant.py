@@ -16,11 +16,11 @@
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.plant import (
+from rkgnn_ros.core.sim.plant import (
     _forward_kernel, ArmParameters, forward_dynamics_into, forward_dynamics_kernel,
     KernelConstants, MASS_MODELS, max_stable_rkg_step, PDController, PlanarArm,
     RK4_IMAG_STABILITY_LIMIT, RK4_REAL_STABILITY_LIMIT, rk4_stability_radius)
-from rkgnn_ros.core.trajectories import paper_reference
+from rkgnn_ros.core.sim.trajectories import paper_reference
 from scipy.integrate import solve_ivp
 
 SIZES = (1, 2, 3, 5)

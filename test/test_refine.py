@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.network import BatchedNetwork, NetworkSpec, Scales
-from rkgnn_ros.core.refine import (_openblas_controls, blas_threads, equation_residuals,
-                                   refine_equation_error)
+from rkgnn_ros.core.fitting.refine import (_openblas_controls, blas_threads, equation_residuals,
+                                           refine_equation_error)
+from rkgnn_ros.core.model.network import BatchedNetwork, NetworkSpec, Scales
 
 
 def _spec(case='torque', velocity='christoffel', inertia='cholesky'):

@@ -43,13 +43,13 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rkgnn_ros.conversions import make_joint_state
-from rkgnn_ros.core.fitness import FitnessProblem
-from rkgnn_ros.core.identify import Evolution, RKGNNModel
-from rkgnn_ros.core.network import NetworkSpec
-from rkgnn_ros.core.optimizers import make_optimizer
-from rkgnn_ros.core.plant import PDController, PlanarArm
-from rkgnn_ros.core.simulate import simulate
-from rkgnn_ros.core.trajectories import paper_reference
+from rkgnn_ros.core.fitting.fitness import FitnessProblem
+from rkgnn_ros.core.fitting.identify import Evolution, RKGNNModel
+from rkgnn_ros.core.fitting.optimizers import make_optimizer
+from rkgnn_ros.core.model.network import NetworkSpec
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identifier import IdentifierNode
 from ros_helpers import retire_node
 from sensor_msgs.msg import JointState
@@ -741,7 +741,7 @@ def test_item_24_sigint_mid_generation_exits_cleanly(data, tmp_path):
 
 KILL_SAVER = """
 import sys, numpy as np
-from rkgnn_ros.core.identify import RKGNNModel
+from rkgnn_ros.core.fitting.identify import RKGNNModel
 model = RKGNNModel.load(sys.argv[1])
 k = 0
 while True:

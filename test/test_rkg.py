@@ -16,7 +16,7 @@
 
 import numpy as np
 import pytest
-from rkgnn_ros.core import rkg
+from rkgnn_ros.core.integration import rkg
 from scipy.integrate import solve_ivp
 
 

@@ -39,9 +39,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rkgnn_ros.core.plant import PDController, PlanarArm
-from rkgnn_ros.core.simulate import simulate
-from rkgnn_ros.core.trajectories import paper_reference
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.sim_arm import ArmSimulator, ConfigurationError, PARAMETERS, SimArm
 from ros_helpers import retire_node
 from rosgraph_msgs.msg import Clock

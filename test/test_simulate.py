@@ -17,10 +17,10 @@
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.plant import ArmParameters, PDController, PlanarArm
-from rkgnn_ros.core.simulate import (
+from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import (
     NoiseModel, simulate, simulate_open_loop, SimulationError)
-from rkgnn_ros.core.trajectories import paper_reference
+from rkgnn_ros.core.sim.trajectories import paper_reference
 
 
 @pytest.fixture(scope='module')

@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
-from rkgnn_ros.core.trajectories import (
+from rkgnn_ros.core.sim.trajectories import (
     Chirp, hanging_pose, heldout_reference, paper_reference, SampledReference, SumOfSines)
 
 

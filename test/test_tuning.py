@@ -15,18 +15,18 @@
 """
 PD gain tuning: the eq. (10) cost against simulate(), kernel against numpy, divergence, EA.
 
-The reference errors come from :func:`rkgnn_ros.core.simulate.simulate` (LSODA at rtol
+The reference errors come from :func:`rkgnn_ros.core.sim.simulate.simulate` (LSODA at rtol
 1e-9), independent of the fixed-step kernel under test.
 """
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.plant import PDController, PlanarArm, RK4_REAL_STABILITY_LIMIT
-from rkgnn_ros.core.simulate import simulate
-from rkgnn_ros.core.trajectories import paper_reference
-from rkgnn_ros.core.tuning import (DEFAULT_BOUNDS, genome_to_gains, HISTORY_COLUMNS,
-                                   paper_gains, STEP_SAFETY, tracking_cost, TrackingProblem,
-                                   tune_pd_gains, tuning_step)
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm, RK4_REAL_STABILITY_LIMIT
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
+from rkgnn_ros.core.sim.tuning import (DEFAULT_BOUNDS, genome_to_gains, HISTORY_COLUMNS,
+                                       paper_gains, STEP_SAFETY, tracking_cost, TrackingProblem,
+                                       tune_pd_gains, tuning_step)
 
 ARM = PlanarArm.paper()
 REFERENCE = paper_reference(3)

@@ -28,7 +28,7 @@ Each model is then rolled out open loop for 10 s on a held-out reference
 (``heldout_reference``) that neither saw. Writes ``paper.json``, ``paper.md`` and figures
 like the paper's Figs. 9-14 (measured vs identified trajectories, evolutionary history) to
 ``bench/results``. Also tunes the PD gains with the same EA (eq. 10) when
-``rkgnn_ros.core.tuning`` is available.
+``rkgnn_ros.core.sim.tuning`` is available.
 """
 
 import argparse
@@ -44,11 +44,11 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.core.identify import Evolution, fit_best, nrmse  # noqa: E402
-from rkgnn_ros.core.network import NetworkSpec  # noqa: E402
-from rkgnn_ros.core.plant import PDController, PlanarArm  # noqa: E402
-from rkgnn_ros.core.simulate import simulate  # noqa: E402
-from rkgnn_ros.core.trajectories import heldout_reference, paper_reference  # noqa: E402
+from rkgnn_ros.core.fitting.identify import Evolution, fit_best, nrmse  # noqa: E402
+from rkgnn_ros.core.model.network import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
+from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
+from rkgnn_ros.core.sim.trajectories import heldout_reference, paper_reference  # noqa: E402
 
 CASES = {'1': 'torque', '2': 'pd_gains', '3': 'unknown'}
 TITLES = {'1': 'case 1: torque known', '2': 'case 2: PD gains known',
@@ -146,9 +146,9 @@ def plot_case(case, fit_data, held, runs, out_dir):
 def tune_gains(generations, log):
     """Run the paper's PD tuning (eq. 10) if the tuning module exists; return a dict."""
     try:
-        from rkgnn_ros.core.tuning import tune_pd_gains
+        from rkgnn_ros.core.sim.tuning import tune_pd_gains
     except ImportError:
-        log('  PD tuning: rkgnn_ros.core.tuning is not available, skipped')
+        log('  PD tuning: rkgnn_ros.core.sim.tuning is not available, skipped')
         return None
     arm = PlanarArm.paper()
     result = tune_pd_gains(arm, paper_reference(3), duration=10.0, population_size=60,

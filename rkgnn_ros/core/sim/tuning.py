@@ -24,20 +24,20 @@ minimising the tracking error of eq. (10)::
 and found Kp = diag(32.84, 42.05, 42.31), Kd = diag(42.44, 0.19, 4.86). Here the sum runs
 over the samples t_i = i / rate, i = 1 .. N-1, of the closed loop started on the
 reference at t = 0 (the initial sample is given, not simulated, as in
-:mod:`rkgnn_ros.core.fitness`), and the norms are Euclidean over the joints. The same
-error computed from :func:`rkgnn_ros.core.simulate.simulate` output (LSODA, rtol 1e-9)
+:mod:`rkgnn_ros.core.fitting.fitness`), and the norms are Euclidean over the joints. The same
+error computed from :func:`rkgnn_ros.core.sim.simulate.simulate` output (LSODA, rtol 1e-9)
 agrees to 4e-8 relative or better (6e-10 for the paper's gains, 4e-8 at the stiffest).
 
 Simulation. The closed loop (continuous PD, torque computed from the reference at every
 stage) is integrated by fixed Runge-Kutta-Gill steps (the package's 4th-order Runge-Kutta,
-:mod:`rkgnn_ros.core.rkg`, the stability polynomial of classical RK4), ``substeps`` steps
+:mod:`..integration.rkg`, the stability polynomial of classical RK4), ``substeps`` steps
 per sampling interval. The reference is evaluated once on the stage grid t_i + k h / 2 and
 shared by every candidate. :meth:`TrackingProblem.cost` runs one compiled numba kernel
 over the whole population: parallel over candidates (``prange``, dynamic chunks of one
 candidate, since diverging candidates stop early), ``nogil``, the plant's arithmetic from
-:func:`rkgnn_ros.core.plant.forward_dynamics_into` with per-candidate buffers (no
+:func:`rkgnn_ros.core.sim.plant.forward_dynamics_into` with per-candidate buffers (no
 allocation in the loop). :meth:`TrackingProblem.cost_numpy` is the plain numpy reference
-(:func:`rkgnn_ros.core.rkg.rkg_step` on ``PlanarArm.dynamics``, batched over the
+(:func:`rkgnn_ros.core.integration.rkg.rkg_step` on ``PlanarArm.dynamics``, batched over the
 population); the two agree to rounding.
 
 Step. The gains are bounded, so the stiffest closed loop is bounded: the step is the
@@ -72,12 +72,11 @@ from typing import Callable, Optional, Tuple, Union
 from numba import get_parallel_chunksize, njit, prange, set_parallel_chunksize
 import numpy as np
 
-from .optimizers import PaperEA
-from .plant import (forward_dynamics_into, PDController, PlanarArm,
-                    RK4_IMAG_STABILITY_LIMIT)
-from .rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
+from .plant import forward_dynamics_into, PDController, PlanarArm, RK4_IMAG_STABILITY_LIMIT
 from .simulate import MAX_SPEED
 from .trajectories import Reference
+from ..fitting.optimizers import PaperEA
+from ..integration.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
 
 __all__ = ['DEFAULT_BOUNDS', 'EA_SETTINGS', 'HISTORY_COLUMNS', 'STEP_SAFETY',
            'TrackingProblem', 'TuningResult', 'genome_to_gains', 'paper_gains',
@@ -95,7 +94,7 @@ DEFAULT_BOUNDS = ((0.0, 100.0), (0.0, 50.0))
 #: tight adaptive solution to 4e-8.
 STEP_SAFETY = 0.75
 
-#: Settings of :class:`rkgnn_ros.core.optimizers.PaperEA` used by :func:`tune_pd_gains`,
+#: Settings of :class:`rkgnn_ros.core.fitting.optimizers.PaperEA` used by :func:`tune_pd_gains`,
 #: besides ``population_size``. The paper's operators (tournament 6, 20 % crossover, 100 %
 #: mutation); the genome is in units of the gain ranges, so the mutation spread starts at
 #: 20 % of each range and shrinks to a floor of 0.5 % (Kp 0.5, Kd 0.25 with the default
@@ -553,7 +552,7 @@ class TrackingProblem:
         A candidate is unstable if, at any of the ``check_samples`` states, an eigenvalue
         with Re λ < 0 has |R(h λ)| > 1 (R the RK4 stability polynomial) or one with
         Re λ >= 0 has h |λ| > 2√2 (the step does not resolve it; the rule of
-        :func:`rkgnn_ros.core.plant.rk4_stability_radius`).
+        :func:`rkgnn_ros.core.sim.plant.rk4_stability_radius`).
 
         Parameters
         ----------
@@ -676,7 +675,7 @@ def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
     """
     Tune diagonal PD gains with the paper's EA, minimising the tracking error of eq. (10).
 
-    :class:`rkgnn_ros.core.optimizers.PaperEA` (ask/tell, :data:`EA_SETTINGS`) on the
+    :class:`rkgnn_ros.core.fitting.optimizers.PaperEA` (ask/tell, :data:`EA_SETTINGS`) on the
     normalised genome of :func:`genome_to_gains`; every generation is one call of
     :meth:`TrackingProblem.cost`. The defaults are the paper's: 60 individuals, 200
     generations. On the paper's arm, ``paper_reference(3)`` over 10 s at 100 Hz, this is

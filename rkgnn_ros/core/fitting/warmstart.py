@@ -38,7 +38,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 from scipy.signal import savgol_filter
 
-from .network import NetworkSpec, Scales
+from ..model.network import NetworkSpec, Scales
 
 # Genome blocks solved here; everything else (centres, widths) is kept from the start genome.
 LINEAR_BLOCKS = ('theta_weights', 'theta_bias', 'friction', 'pd_linear')
@@ -238,7 +238,7 @@ def least_squares_genome(spec: NetworkSpec, datasets: Sequence, scales: Scales,
 
 def _fix_gauge(spec, scales, g, datasets):
     """Scale the linear elements so that mean diag(M)/inertia scale = 1 (case 3 gauge)."""
-    from .network import BatchedNetwork
+    from ..model.network import BatchedNetwork
     theta = np.vstack([d.theta for d in datasets])
     step = max(1, theta.shape[0] // 200)
     net = BatchedNetwork(spec, spec.decode(g[None], scales), scales)

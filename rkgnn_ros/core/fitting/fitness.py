@@ -28,7 +28,7 @@ plausible state range or turns non-finite costs +inf, never NaN.
 
 Three implementations share one :class:`FitnessProblem`: ``cost_loop`` (a per-individual
 Python loop), ``cost_numpy`` (batched over the population: the reference) and ``cost`` (the
-compiled numba kernel of :mod:`rkgnn_ros.core.kernels`, which releases the GIL). Tests hold
+compiled numba kernel of :mod:`rkgnn_ros.core.model.kernels`, which releases the GIL). Tests hold
 them equal.
 """
 
@@ -36,9 +36,9 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-from .data import Dataset
-from .network import BatchedNetwork, NetworkSpec, Scales
-from .rkg import rkg_step
+from ..data import Dataset
+from ..integration.rkg import rkg_step
+from ..model.network import BatchedNetwork, NetworkSpec, Scales
 
 
 def hermite(t_knots, values, slopes, t_eval):
@@ -315,7 +315,7 @@ class FitnessProblem:
 
     # ----- compiled fast path
     def kernel_args(self, genomes):
-        """Decode into contiguous arrays for :func:`rkgnn_ros.core.kernels.population_cost`."""
+        """Decode into contiguous arrays for :func:`..model.kernels.population_cost`."""
         p = self.spec.decode(genomes, self.scales)
         spec = self.spec
         case_id = {'torque': 0, 'pd_gains': 1, 'unknown': 2}[spec.case]
@@ -335,7 +335,7 @@ class FitnessProblem:
 
     def cost(self, genomes):
         """Costs of a population with the compiled kernel: (P, N) -> (P,)."""
-        from .kernels import population_cost
+        from ..model.kernels import population_cost
         genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
         return population_cost(*self.kernel_args(genomes))
 
@@ -352,7 +352,7 @@ class FitnessProblem:
             shooting restart).
 
         """
-        from .kernels import population_rollouts
+        from ..model.kernels import population_rollouts
         args = self.kernel_args(np.atleast_2d(np.asarray(genomes, dtype=float)))
         # the cost-only arguments (minor scaling, penalty, normaliser) are not needed here
         (x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol, christ, kp_known,

@@ -37,7 +37,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .fitness import FitnessProblem
-from .kernels import _christoffel, _learned_velocity, _mass, _theta_outputs
+from ..model.kernels import _christoffel, _learned_velocity, _mass, _theta_outputs
 
 DIVERGED_RESIDUAL = 10.0
 
@@ -272,7 +272,7 @@ def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=N
         over samples; the gauge residual is appended in case 'unknown'.
 
     """
-    from .network import BatchedNetwork
+    from ..model.network import BatchedNetwork
     genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
     pop, samples = genomes.shape[0], x.shape[0]
     n = spec.n_joints

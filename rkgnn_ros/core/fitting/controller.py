@@ -33,7 +33,7 @@ from typing import Optional
 
 import numpy as np
 
-from rkgnn_ros.core.identify import RKGNNModel
+from .identify import RKGNNModel
 
 __all__ = ['PDLaw', 'fit_pd_law', 'closed_loop_model', 'open_loop_model']
 

@@ -26,7 +26,7 @@ import math
 from numba import njit, prange
 import numpy as np
 
-from .rkg import ALPHA, BETA, D, E, G, GAMMA
+from ..integration.rkg import ALPHA, BETA, D, E, G, GAMMA
 
 
 @njit(cache=True, nogil=True, error_model='numpy', inline='always')

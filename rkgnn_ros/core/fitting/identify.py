@@ -34,11 +34,11 @@ from typing import Callable, List, Optional, Sequence
 import numpy as np
 import yaml
 
-from .data import Dataset
 from .fitness import FitnessProblem, stage_inputs
-from .network import BatchedNetwork, NetworkSpec, Scales
 from .optimizers import make_optimizer
-from .rkg import choose_substeps
+from ..data import Dataset
+from ..integration.rkg import choose_substeps
+from ..model.network import BatchedNetwork, NetworkSpec, Scales
 
 MODEL_FORMAT = 'rkgnn_ros/model'
 MODEL_VERSION = 1
@@ -266,7 +266,7 @@ class RKGNNModel:
 
     # ----- rollouts (compiled kernel)
     def _rollout(self, x0, u_flat, h, substeps):
-        from .kernels import rollout
+        from ..model.kernels import rollout
         p = self._params
         c = np.ascontiguousarray
         case_id = {'torque': 0, 'pd_gains': 1, 'unknown': 2}[self.case]
@@ -514,7 +514,7 @@ class Evolution:
     optimizer : str
         'cmaes', 'sep-cmaes' or 'paper'.
     settings : dict, optional
-        Optimizer settings (see :mod:`rkgnn_ros.core.optimizers`).
+        Optimizer settings (see :mod:`rkgnn_ros.core.fitting.optimizers`).
     seed : int
         Seeds the optimizer's ``rng``.
     kp, kd : array_like, optional
@@ -697,11 +697,11 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
        every sample (no rollout: fast, and it places gravity and inertia, which short
        shooting windows leave weakly constrained), for at most ``equation_nfev`` residual
        evaluations and ``equation_fraction`` of the budget
-       (:func:`rkgnn_ros.core.refine.refine_equation_error`; skipped if ``equation_nfev``
+       (:func:`rkgnn_ros.core.fitting.refine.refine_equation_error`; skipped if ``equation_nfev``
        is 0);
     2. Levenberg-Marquardt on the rollout residuals, over a continuation of multiple-shooting
        windows (``shootings``), until ``lm_fraction`` of the budget
-       (:func:`rkgnn_ros.core.refine.refine_lm`);
+       (:func:`rkgnn_ros.core.fitting.refine.refine_lm`);
     3. CMA-ES around that genome on the paper's cost J of the full rollout for the rest of
        the budget (it tolerates the diverged candidates that stop a gradient method).
 

@@ -26,8 +26,8 @@ from typing import Callable, Optional, Sequence, Union
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, OdeSolver, Radau, RK23, RK45
 
-from .data import Dataset
 from .plant import PlanarArm
+from ..data import Dataset
 
 METHODS = {'RK23': RK23, 'RK45': RK45, 'DOP853': DOP853, 'Radau': Radau, 'BDF': BDF,
            'LSODA': LSODA}
