@@ -387,7 +387,8 @@ class ControllerLaw:
 
     def describe(self) -> str:
         """Return the law's form, e.g. 'PID + θ-terms (measured)'."""
-        kind = 'PID' if np.any(self.ki != 0.0) else 'PD'
+        # an integral gain below 0.1 % of Kp (1/s) is a fitted zero
+        kind = 'PID' if np.any(np.abs(self.ki) > 1e-3 * np.abs(self.kp)) else 'PD'
         if self.theta_weights.size:
             kind += f' + θ-terms ({self.theta_input})'
         if np.any(self.feedforward != 0.0):
