@@ -22,14 +22,10 @@ set), executor spinning in a background thread, as in ``test_sim_arm.py``.
 import os
 import random
 import re
-import threading
-import time
 
 import numpy as np
 import pytest
 from rcl_interfaces.srv import SetParameters
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -38,7 +34,7 @@ from rkgnn_ros.core.sim.servo import Servo
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.sim_arm import ArmSimulator, ConfigurationError, SimArm
-from ros_helpers import retire_node
+from ros_helpers import retire_node, spinning_context, stamp_ns, wait_for
 from sensor_msgs.msg import JointState
 
 pytestmark = pytest.mark.ros
@@ -52,27 +48,8 @@ ARM = PlanarArm.paper()
 @pytest.fixture(scope='module')
 def ros():
     """Yield (context, executor) with the executor spinning in a background thread."""
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    executor = SingleThreadedExecutor(context=context)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    yield context, executor
-    executor.shutdown(timeout_sec=2.0)
-    rclpy.try_shutdown(context=context)
-    thread.join(timeout=5.0)
-
-
-def wait_for(condition, timeout, what):
-    end = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > end:
-            raise AssertionError(f'timed out after {timeout} s waiting for {what}')
-        time.sleep(0.01)
-
-
-def stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    with spinning_context(DOMAIN_ID) as pair:
+        yield pair
 
 
 def record(context, executor, count, **overrides):
