@@ -13,7 +13,9 @@
 # limitations under the License.
 """Helpers for tests whose executor spins in a background thread."""
 
+from contextlib import contextmanager
 import threading
+import time
 
 
 def run_in_executor(executor, fn, timeout=10.0):
@@ -49,3 +51,35 @@ def retire_node(executor, node, timeout=10.0):
         executor.remove_node(node)
         node.destroy_node()
     run_in_executor(executor, retire, timeout)
+
+
+def wait_for(condition, timeout, what):
+    """Poll ``condition`` every 10 ms; fail naming ``what`` after ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > end:
+            raise AssertionError(f'timed out after {timeout} s waiting for {what}')
+        time.sleep(0.01)
+
+
+def stamp_ns(msg) -> int:
+    """Return a message's header stamp in nanoseconds."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+@contextmanager
+def spinning_context(domain_id):
+    """Yield (context, executor) on a private context, the executor spinning in a thread."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    executor = SingleThreadedExecutor(context=context)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield context, executor
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        rclpy.try_shutdown(context=context)
+        thread.join(timeout=5.0)
