@@ -18,8 +18,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from rkgnn_ros.core.control.feedforward import plan_feedforward
 from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
-from rkgnn_ros.core.sim.servo import (Servo, servo_integral_rate_into, servo_torque_into)
+from rkgnn_ros.core.sim.servo import (FeedforwardTrack, Servo, servo_integral_rate_into,
+                                      servo_torque_into)
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import hanging_pose, paper_reference, SumOfSines
 
@@ -138,3 +140,103 @@ def test_invalid_servos_are_refused():
         Servo(KP, KD, ki=1.0, windup_time=0.0)
     with pytest.raises(ValueError, match='ki must'):
         Servo(KP, KD, ki=[np.nan, 0.0, 0.0])
+
+
+# ----- the feed-forward input of a servo with an effort interface
+
+
+def true_feedforward(reference, duration, spacing=0.02, arm=ARM):
+    """Return the true arm's feed-forward along ``reference`` on points ``spacing`` apart."""
+    t = np.arange(0.0, duration + spacing / 2, spacing)
+    theta_d, theta_d_dot = reference.evaluate(t)
+    return FeedforwardTrack(t, plan_feedforward(arm, t, theta_d, theta_d_dot).effort)
+
+
+@pytest.mark.parametrize('gravity', ['none', 'desired'])
+def test_compiled_servo_with_feedforward_equals_numpy(gravity):
+    rng = np.random.default_rng(3)
+    servo = Servo(KP, KD, ki=[5.0, 0.0, 2.0], tau_limit=[8.0, np.inf, 1.5], gravity=gravity,
+                  arm=ARM)
+    c = servo.constants()
+    raw, out = np.empty(N), np.empty(N)
+    saturated = 0
+    for theta, theta_dot, theta_d, theta_d_dot, integral in zip(*random_states(rng)):
+        ff = rng.normal(0.0, 4.0, N)
+        servo_torque_into(c, theta, theta_dot, theta_d, theta_d_dot, integral, raw, out, ff)
+        expected_raw, expected = servo.torques(theta, theta_dot, theta_d, theta_d_dot,
+                                               integral, ff)
+        np.testing.assert_allclose(raw, expected_raw, rtol=1e-13, atol=1e-12)
+        np.testing.assert_allclose(out, expected, rtol=1e-13, atol=1e-12)
+        # the feed-forward adds before saturation
+        np.testing.assert_allclose(expected_raw - servo.torques(
+            theta, theta_dot, theta_d, theta_d_dot, integral)[0], ff, rtol=1e-12, atol=1e-12)
+        saturated += int(np.any(out != raw))
+    assert saturated > 0                            # the limits were exercised
+
+
+def test_feedforward_track_interpolates_like_a_trajectory_controller():
+    t = np.array([1.0, 1.5, 2.5])
+    effort = np.array([[0.0, 2.0], [1.0, -2.0], [3.0, 0.0]])
+    track = FeedforwardTrack(t, effort)
+    np.testing.assert_allclose(track.evaluate(1.25), [0.5, 0.0])
+    np.testing.assert_allclose(track.evaluate(2.0), [2.0, -1.0])
+    np.testing.assert_array_equal(track.evaluate(t), effort)
+    # before the first point and after the last (stale): no feed-forward
+    np.testing.assert_array_equal(track.evaluate(np.array([0.99, 2.51])), np.zeros((2, 2)))
+    assert track.covers(2.5) and not track.covers(2.5001)
+    assert track.evaluate(np.array([1.0, 2.0])).shape == (2, 2)
+
+
+def test_malformed_feedforward_is_refused_with_the_reason():
+    t = np.array([0.0, 0.1, 0.2])
+    good = np.ones((3, N))
+    cases = [
+        ((t, np.where(np.eye(3, N, dtype=bool), np.nan, 1.0)), 'NaN or inf effort'),
+        ((t, np.full((3, N), np.inf)), 'NaN or inf effort'),
+        ((np.array([0.0, 0.2, 0.1]), good), 'strictly increasing'),
+        ((np.array([0.0, np.nan, 0.2]), good), 'NaN or inf'),
+        ((t[:1], good[:1]), 'at least 2 points'),
+        ((t, good[:2]), 'shape'),
+        ((t, 'abc'), 'not numeric'),
+    ]
+    for args, reason in cases:
+        with pytest.raises(ValueError, match=reason):
+            FeedforwardTrack(*args)
+    with pytest.raises(ValueError, match='beyond its limit'):
+        FeedforwardTrack(t, good * [1.0, 5.0, 1.0], tau_limit=[2.0, 4.0, 2.0])
+    FeedforwardTrack(t, good, tau_limit=[2.0, 4.0, 2.0])      # within the limits
+
+
+@pytest.mark.parametrize('control_rate', [None, 1000.0])
+def test_simulated_servo_applies_the_feedforward_and_records_it(control_rate):
+    reference = paper_reference(N)
+    servo = Servo(KP, KD, gravity='desired', arm=ARM)
+    track = true_feedforward(reference, 3.0)
+    pd = simulate(ARM, servo, reference, 3.0, control_rate=control_rate)
+    with_ff = simulate(ARM, Servo(KP, KD), reference, 3.0, control_rate=control_rate,
+                       feedforward=track)
+    rmse = [np.sqrt(np.mean((d.theta_d - d.theta) ** 2)) for d in (pd, with_ff)]
+    # the true model's feed-forward leaves the PD almost nothing to correct, far less than
+    # gravity compensation alone does
+    assert rmse[1] < 0.01 * rmse[0], rmse
+    # the recorded torque is the applied one, feed-forward included (every sample is a tick)
+    feedforward = track.evaluate(with_ff.t)
+    np.testing.assert_allclose(with_ff.tau, Servo(KP, KD).torque(
+        with_ff.theta, with_ff.theta_dot, with_ff.theta_d, with_ff.theta_d_dot, None,
+        feedforward), rtol=1e-12, atol=1e-9)
+    assert np.max(np.abs(with_ff.tau - feedforward)) < 0.05 * np.max(np.abs(feedforward))
+
+
+def test_ended_feedforward_leaves_the_servo_alone():
+    reference = paper_reference(N)
+    servo = Servo(KP, KD)
+    ended = FeedforwardTrack(np.array([-2.0, -1.0]), np.full((2, N), 5.0))
+    pd = simulate(ARM, servo, reference, 1.0)
+    stale = simulate(ARM, servo, reference, 1.0, feedforward=ended)
+    np.testing.assert_array_equal(stale.theta, pd.theta)
+    np.testing.assert_array_equal(stale.tau, pd.tau)
+    with pytest.raises(TypeError, match='needs a Servo'):
+        simulate(ARM, PDController.paper(), reference, 1.0, feedforward=ended)
+    with pytest.raises(ValueError, match='2 joints'):
+        simulate(PlanarArm(ArmParameters([1.0, 1.0], [0.2, 0.2])), Servo([1.0, 1.0], [1.0, 1.0]),
+                 paper_reference(2), 1.0, feedforward=ended)

@@ -13,13 +13,15 @@
 # limitations under the License.
 
 """
-Joint servos as real arms run them: PD, PD + gravity compensation, PID, torque limits.
+Joint servos as real arms run them: PD, gravity compensation, PID, feed-forward, limits.
 
 The paper's servo is a pure PD, eq. (9). An industrial servo adds a model-based gravity
-torque Ĝ(θ) (on the measured or on the desired position), often an integral term, and its
-drive saturates. A :class:`Servo` is all of these in one law, per joint::
+torque Ĝ(θ) (on the measured or on the desired position), often an integral term, an
+additive feed-forward torque τ_ff(t) sent with the plan (what a servo with an effort
+interface takes), and its drive saturates. A :class:`Servo` is all of these in one law,
+per joint::
 
-    τ_raw = Kp e + Kd ė + I + Ĝ(θ or θd),   e = θd − θ,   ė = θ̇d − θ̇
+    τ_raw = Kp e + Kd ė + I + Ĝ(θ or θd) + τ_ff(t),   e = θd − θ,   ė = θ̇d − θ̇
     τ     = clip(τ_raw, −τ_max, τ_max)        (the applied torque, what a driver reports)
     İ     = Ki e + (τ − τ_raw) / T_t          (back-calculation anti-windup)
 
@@ -32,6 +34,16 @@ grow without bound; it changes nothing while the torque is inside its limits.
 Ĝ is the simulated arm's own gravity vector (:meth:`PlanarArm.gravity_terms`), i.e. exact
 compensation, the best case a servo vendor can reach. With ``Ki = 0``, no limit and no
 compensation a :class:`Servo` is the paper's PD (:class:`PDController`).
+
+The feed-forward reaches a servo as points of a trajectory (a JointTrajectory with
+``effort`` filled). :class:`FeedforwardTrack` holds one such trajectory and evaluates
+τ_ff at the servo's own time: linear between points, as joint_trajectory_controller
+interpolates efforts, and zero before the first point and after the last, so a plan that
+has ended or not yet begun leaves the PD alone (joint_trajectory_controller would hold the
+last effort; a feed-forward computed for a motion that is over is not a safe torque to
+hold). A malformed trajectory (NaN, an effort beyond the drive's limit, times not
+increasing) is refused whole when the track is built, with the reason, and the servo runs
+without it.
 
 :func:`servo_torque_into` and :func:`servo_integral_rate_into` are the compiled twins used
 inside compiled simulation steps; they take the record :class:`ServoConstants` from
@@ -183,8 +195,8 @@ class Servo:
         return self.arm.gravity_terms(at)
 
     def torques(self, theta: ArrayLike, theta_dot: ArrayLike, theta_d: ArrayLike,
-                theta_d_dot: ArrayLike, integral: Optional[ArrayLike] = None
-                ) -> Tuple[np.ndarray, np.ndarray]:
+                theta_d_dot: ArrayLike, integral: Optional[ArrayLike] = None,
+                feedforward: Optional[ArrayLike] = None) -> Tuple[np.ndarray, np.ndarray]:
         """
         Return the unsaturated and the applied torque.
 
@@ -194,6 +206,9 @@ class Servo:
             Measured and desired joint angles and velocities.
         integral : array_like, shape (..., n), optional
             The integral term I (N m); zero when None.
+        feedforward : array_like, shape (..., n), optional
+            The feed-forward torque τ_ff (N m) at this instant, added before saturation
+            (e.g. :meth:`FeedforwardTrack.evaluate` at the servo's time); zero when None.
 
         Returns
         -------
@@ -207,12 +222,15 @@ class Servo:
                + self.gravity_torque(theta, theta_d))
         if integral is not None:
             raw = raw + integral
+        if feedforward is not None:
+            raw = raw + np.asarray(feedforward, dtype=float)
         return raw, np.clip(raw, -self.tau_limit, self.tau_limit)
 
     def torque(self, theta: ArrayLike, theta_dot: ArrayLike, theta_d: ArrayLike,
-               theta_d_dot: ArrayLike, integral: Optional[ArrayLike] = None) -> np.ndarray:
+               theta_d_dot: ArrayLike, integral: Optional[ArrayLike] = None,
+               feedforward: Optional[ArrayLike] = None) -> np.ndarray:
         """Return the applied (saturated) torque, shape (..., n); see :meth:`torques`."""
-        return self.torques(theta, theta_dot, theta_d, theta_d_dot, integral)[1]
+        return self.torques(theta, theta_dot, theta_d, theta_d_dot, integral, feedforward)[1]
 
     __call__ = torque
 
@@ -235,14 +253,114 @@ class Servo:
             on_desired=self.gravity == 'desired')
 
 
+class FeedforwardTrack:
+    """
+    A feed-forward torque trajectory as a servo with an effort interface applies it.
+
+    Parameters
+    ----------
+    t : array_like, shape (K,)
+        Times of the points on the servo's clock (s): finite, strictly increasing, K >= 2.
+    effort : array_like, shape (K, n)
+        The feed-forward torque at each point (N m), finite.
+    tau_limit : array_like, shape (n,) or scalar, optional
+        The drive's limits (N m); a point beyond them makes the track malformed (a plan that
+        asks for more than the drive has is not applied, not even in part). None: no check.
+
+    Raises
+    ------
+    ValueError
+        If the track is malformed; the message says how. The servo then runs without it.
+
+    """
+
+    def __init__(self, t, effort, tau_limit=None):
+        try:
+            t = np.asarray(t, dtype=float)
+            effort = np.asarray(effort, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f'feed-forward: not numeric ({exc})') from None
+        if t.ndim != 1 or t.size < 2:
+            raise ValueError(f'feed-forward: needs at least 2 points, got times of shape '
+                             f'{t.shape}')
+        if effort.ndim != 2 or effort.shape[0] != t.size or effort.shape[1] < 1:
+            raise ValueError(f'feed-forward: efforts must have shape ({t.size}, n), got '
+                             f'{effort.shape}')
+        if not np.all(np.isfinite(t)):
+            raise ValueError('feed-forward: a point time is NaN or inf')
+        if np.any(np.diff(t) <= 0.0):
+            raise ValueError('feed-forward: point times must be strictly increasing')
+        if not np.all(np.isfinite(effort)):
+            bad = sorted(set(np.nonzero(~np.isfinite(effort))[1].tolist()))
+            raise ValueError(f'feed-forward: NaN or inf effort for joint(s) {bad}')
+        if tau_limit is not None:
+            limit = _joint_vector('tau_limit', tau_limit, effort.shape[1], allow_inf=True)
+            over = np.abs(effort) > limit
+            if np.any(over):
+                joint = int(np.nonzero(over)[1][0])
+                raise ValueError(
+                    f'feed-forward: effort {effort[over][0]:.6g} N m for joint {joint} beyond '
+                    f'its limit {limit[joint]:.6g} N m')
+        self.t = t
+        self.effort = effort
+
+    @property
+    def n_joints(self) -> int:
+        """Count of joints, n."""
+        return self.effort.shape[1]
+
+    @property
+    def start(self) -> float:
+        """Return the time of the first point (s)."""
+        return float(self.t[0])
+
+    @property
+    def end(self) -> float:
+        """Return the time of the last point (s); later, the track is stale."""
+        return float(self.t[-1])
+
+    def covers(self, t: ArrayLike) -> Union[bool, np.ndarray]:
+        """Return whether time(s) ``t`` lie within [start, end]."""
+        t = np.asarray(t, dtype=float)
+        inside = (t >= self.t[0]) & (t <= self.t[-1])
+        return bool(inside) if inside.ndim == 0 else inside
+
+    def evaluate(self, t: ArrayLike) -> np.ndarray:
+        """
+        Return τ_ff at time(s) ``t``: linear between points, zero outside [start, end].
+
+        Parameters
+        ----------
+        t : float or array_like, shape (T,)
+            The servo's time(s) (s), finite.
+
+        Returns
+        -------
+        ndarray, shape (n,) for a scalar ``t``, (T, n) for an array
+
+        """
+        tq = np.asarray(t, dtype=float)
+        if tq.ndim > 1 or not np.all(np.isfinite(tq)):
+            raise ValueError(f't must be a finite scalar or 1-D array, got {tq!r}')
+        times = np.atleast_1d(tq)
+        k = np.clip(np.searchsorted(self.t, times, side='right') - 1, 0, self.t.size - 2)
+        w = (times - self.t[k]) / (self.t[k + 1] - self.t[k])
+        out = self.effort[k] + w[:, None] * (self.effort[k + 1] - self.effort[k])
+        out[~self.covers(times)] = 0.0
+        return out[0] if tq.ndim == 0 else out
+
+
 @njit(cache=True, nogil=True)
-def servo_torque_into(c, theta, theta_dot, theta_d, theta_d_dot, integral, raw, out):
+def servo_torque_into(c, theta, theta_dot, theta_d, theta_d_dot, integral, raw, out,
+                      feedforward=None):
     """
     Write the unsaturated torque into ``raw`` and the applied torque into ``out``.
 
     The compiled twin of :meth:`Servo.torques` for one state. ``c`` is the record of
     :meth:`Servo.constants`; every array has shape (n,); ``raw`` and ``out`` must not alias
     the inputs. Ĝ_i = Σ_{k>=i} g h_k cos(θ_1 + ... + θ_k) at θ or θd (zero when ``c.gh`` is).
+    ``feedforward`` (n,), τ_ff at this instant, is added before saturation; omitted or None,
+    there is none (numba compiles that case without the addition).
     """
     n = theta.shape[0]
     at = theta_d if c.on_desired else theta
@@ -256,6 +374,8 @@ def servo_torque_into(c, theta, theta_dot, theta_d, theta_d_dot, integral, raw, 
     for i in range(n):
         r = (c.kp[i] * (theta_d[i] - theta[i]) + c.kd[i] * (theta_d_dot[i] - theta_dot[i])
              + integral[i] + out[i])
+        if feedforward is not None:
+            r += feedforward[i]
         raw[i] = r
         limit = c.tau_limit[i]
         out[i] = limit if r > limit else (-limit if r < -limit else r)

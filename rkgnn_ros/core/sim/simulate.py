@@ -20,7 +20,9 @@ The ground truth for identification: the plant is integrated by scipy's adaptive
 discontinuities are never stepped over), and only the recorded measurements carry noise.
 The servo is the paper's PD or any :class:`~.servo.Servo` (gravity compensation, PID with
 its integral as n more states of the loop, torque limits); what is recorded goes through
-a :class:`NoiseModel` or a driver's :class:`~.sensors.SensorModel`.
+a :class:`NoiseModel` or a driver's :class:`~.sensors.SensorModel`. A servo can take an
+additive feed-forward torque τ_ff(t) (a :class:`~.servo.FeedforwardTrack`, as a servo with
+an effort interface applies it), evaluated at the servo's own time.
 """
 
 from dataclasses import dataclass
@@ -220,6 +222,11 @@ def _initial_state(arm: PlanarArm, x0) -> np.ndarray:
     return x0
 
 
+def _no_feedforward(t):
+    """Return None: no feed-forward torque at any time."""
+    return None
+
+
 def _generator(rng) -> np.random.Generator:
     return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 
@@ -250,7 +257,7 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
              control_rate: Optional[float] = None, method=None, rtol: float = 1e-9,
              atol: float = 1e-10, t0: float = 0.0,
              joint_names: Optional[Sequence[str]] = None,
-             max_speed: float = MAX_SPEED) -> Dataset:
+             max_speed: float = MAX_SPEED, feedforward=None) -> Dataset:
     """
     Simulate the arm under its servo tracking a reference and sample it.
 
@@ -302,14 +309,19 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         Names for the dataset's columns.
     max_speed : float
         A true joint speed above this (rad/s) is taken as divergence.
+    feedforward : FeedforwardTrack, optional
+        An additive feed-forward torque for a :class:`~.servo.Servo`: anything with
+        ``evaluate(t) -> τ_ff`` (shape (n,) for a float, (T, n) for an array of times). It
+        is added before saturation at the servo's time: continuously, or at each tick of a
+        digital servo (then held with the rest of the torque).
 
     Returns
     -------
     Dataset
         ``t``, measured ``theta`` and ``theta_dot``, ``tau`` (the torque applied at each
-        sample instant: the continuous servo torque, or the held digital torque, which at
-        a tick is the newly computed one; saturated if the servo is), ``theta_d``,
-        ``theta_d_dot``.
+        sample instant, feed-forward included: the continuous servo torque, or the held
+        digital torque, which at a tick is the newly computed one; saturated if the servo
+        is), ``theta_d``, ``theta_d_dot``.
 
     Raises
     ------
@@ -324,6 +336,16 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         raise ValueError(f'controller has {controller.n_joints} joints, the arm {n}')
     if reference.n_joints != n:
         raise ValueError(f'reference has {reference.n_joints} joints, the arm {n}')
+    if feedforward is not None:
+        if not isinstance(controller, Servo):
+            raise TypeError('a feed-forward needs a Servo (a PDController has no effort '
+                            'input; Servo(kp, kd) is the same PD)')
+        ff_n = np.shape(feedforward.evaluate(float(t0)))
+        if ff_n != (n,):
+            raise ValueError(f'the feed-forward gives shape {ff_n}, the arm has {n} joints')
+        ff_at = feedforward.evaluate
+    else:
+        ff_at = _no_feedforward
     if method is None:
         method = 'LSODA' if control_rate is None else 'RK45'
     solver_cls = _solver_class(method)
@@ -338,7 +360,8 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
             # the servo's integral term is n more states of the loop: x = [θ, θ̇, I]
             def fun(s, x):
                 ref, ref_dot = reference.evaluate(s)
-                raw, tau = controller.torques(x[:n], x[n:2 * n], ref, ref_dot, x[2 * n:])
+                raw, tau = controller.torques(x[:n], x[n:2 * n], ref, ref_dot, x[2 * n:],
+                                              ff_at(s))
                 return np.concatenate([arm.dynamics(x[:2 * n], tau),
                                        controller.integral_rate(x[:n], ref, raw, tau)])
 
@@ -346,7 +369,10 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         else:
             def fun(s, x):
                 ref, ref_dot = reference.evaluate(s)
-                return arm.dynamics(x, controller.torque(x[:n], x[n:], ref, ref_dot))
+                if feedforward is None:
+                    return arm.dynamics(x, controller.torque(x[:n], x[n:], ref, ref_dot))
+                return arm.dynamics(x, controller.torque(x[:n], x[n:], ref, ref_dot, None,
+                                                         ff_at(s)))
 
             x_start = x0
         x_end, inner, _ = _integrate(fun, t[0], x_start, t[-1], t[1:-1], solver_cls, rtol,
@@ -354,7 +380,10 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         states = np.vstack([x_start, inner, x_end])
         if integral:
             tau = controller.torque(states[:, :n], states[:, n:2 * n], theta_d, theta_d_dot,
-                                    states[:, 2 * n:])
+                                    states[:, 2 * n:], ff_at(t))
+        elif feedforward is not None:
+            tau = controller.torque(states[:, :n], states[:, n:], theta_d, theta_d_dot, None,
+                                    ff_at(t))
         else:
             tau = controller.torque(states[:, :n], states[:, n:], theta_d, theta_d_dot)
     else:
@@ -373,9 +402,12 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
             ref, ref_dot = reference.evaluate(ticks[j])
             if integral:
                 raw, tick_tau[j] = controller.torques(x[:n], x[n:], ref, ref_dot,
-                                                      tick_integral[j])
+                                                      tick_integral[j], ff_at(ticks[j]))
                 rate_j = controller.integral_rate(x[:n], ref, raw, tick_tau[j])
                 tick_integral[j + 1] = tick_integral[j] + rate_j / control_rate
+            elif feedforward is not None:
+                tick_tau[j] = controller.torque(x[:n], x[n:], ref, ref_dot, None,
+                                                ff_at(ticks[j]))
             else:
                 tick_tau[j] = controller.torque(x[:n], x[n:], ref, ref_dot)
             return tick_tau[j].copy()
