@@ -221,7 +221,8 @@ def paired_torques(model, validation: Sequence[Dataset],
     ----------
     model : RKGNNModel
         The identified model (``case``, ``inverse_dynamics``; ``kp``, ``kd`` in case 2,
-        ``controller_torque`` in case 3).
+        ``controller_torque`` in case 3). A model without ``case`` (e.g. the simulated
+        arm) is judged as in case 1, against the measured torque.
     validation : sequence of Dataset
         Held-out segments.
     torque_scale : float
@@ -239,6 +240,7 @@ def paired_torques(model, validation: Sequence[Dataset],
         If the samples lack what the case needs (torque, or the desired trajectory).
 
     """
+    case = getattr(model, 'case', 'torque')
     predicted, reference = [], []
     for data in validation:
         keep, acc = _trimmed(data)
@@ -248,16 +250,16 @@ def paired_torques(model, validation: Sequence[Dataset],
         with np.errstate(all='ignore'):
             tau_hat = torque_scale * np.asarray(
                 model.inverse_dynamics(theta, theta_dot, acc), dtype=float)
-        if model.case == 'torque' or (model.case == 'unknown' and data.tau is not None):
+        if case == 'torque' or (case == 'unknown' and data.tau is not None):
             if data.tau is None:
                 raise ValueError('case 1: the validation samples carry no measured torque')
             tau = data.tau[keep]
         else:
             if data.theta_d is None or data.theta_d_dot is None:
-                raise ValueError(f'case {model.case!r}: the validation samples carry no '
+                raise ValueError(f'case {case!r}: the validation samples carry no '
                                  'desired trajectory')
             theta_d, theta_d_dot = data.theta_d[keep], data.theta_d_dot[keep]
-            if model.case == 'pd_gains':
+            if case == 'pd_gains':
                 tau = (model.kp * (theta_d - theta) + model.kd * (theta_d_dot - theta_dot))
             else:
                 with np.errstate(all='ignore'):
@@ -458,7 +460,7 @@ class FeedforwardGate:
         if getattr(model, 'n_joints', None) != self.settings.n_joints:
             return Assessment(False, f'the model has {getattr(model, "n_joints", None)} '
                                      f'joints, the gate {self.settings.n_joints}')
-        problem = torque_scale_problem(model.case, torque_scale)
+        problem = torque_scale_problem(getattr(model, 'case', 'torque'), torque_scale)
         if problem is not None:
             return Assessment(False, problem)
         if not np.all(np.isfinite(getattr(model, 'genome', np.zeros(1)))):
