@@ -55,8 +55,10 @@ The fit (:class:`LinearDynamics`)
   rounds; (2) :func:`certify_inertia` proves the floor on the whole range by adaptive
   cells when their number allows (3 joints: a few hundred cells; a planar 4-joint arm
   some 10^4; not 6 joints, where the certificate reports failure rather than a bound);
-  (3) the rollouts use :meth:`LinearDynamics.safe_mass_matrix`, which raises M to the
-  floor wherever it falls short, so no configuration can make M singular or indefinite.
+  (3) the model's M (:meth:`LinearDynamics.mass_matrix`, used by the inverse and forward
+  dynamics) is the fitted one raised to the floor wherever it falls short, so no
+  configuration can make it singular or indefinite (``floor_active_``: the share of the
+  check configurations where that guard acts).
   A global diagonal shift by the certificate's deficit was tried and rejected: where the
   certificate fails its bound is far below the true minimum, and the shift ruins M.
 
@@ -625,6 +627,38 @@ class LinearDynamics:
         """Return the number of joints n."""
         return self.basis.n_joints
 
+    @classmethod
+    def from_coefficients(cls, basis, coefficients, coulomb_velocity: float = 0.05, kp=None,
+                          kd=None, **settings) -> 'LinearDynamics':
+        """
+        Return a model with given coefficients (no fit, no floor on M).
+
+        Parameters
+        ----------
+        basis : TrigBasis or int
+            The basis.
+        coefficients : array_like, shape (P,)
+            [M entries | U | f_v | f_c] in the order of :class:`Layout`.
+        coulomb_velocity : float
+            v_c of the Coulomb friction.
+        kp, kd : array_like, shape (n,), optional
+            Gains of a known PD controller (closed-loop rollouts).
+        **settings
+            Other constructor settings.
+
+        """
+        model = cls(basis, coulomb_velocity, **settings)
+        lay = Layout.of(model.basis)
+        coef = np.asarray(coefficients, dtype=float)
+        if coef.shape != (lay.size,):
+            raise ValueError(f'coefficients must have shape ({lay.size},), got {coef.shape}')
+        case = 'torque' if kp is None else 'pd_gains'
+        model.case_, model.layout_ = case, lay
+        model._set(coef, lay, case, kp, kd)
+        model.inertia_scale_, model.min_eigenvalue_ = None, 0.0
+        model.certificate_, model.cuts_, model.floor_active_ = None, 0, None
+        return model
+
     # ----- fitting
     def fit(self, datasets, case: str = 'torque', kp=None, kd=None) -> 'LinearDynamics':
         """
@@ -704,6 +738,7 @@ class LinearDynamics:
         self.min_eigenvalue_ = 0.0
         self.certificate_ = None
         self.cuts_ = 0
+        self.floor_active_ = None
         if self.certify:
             self._enforce_positive(samples, chol, normal, scale, lay, case, kp, kd)
 
@@ -737,8 +772,10 @@ class LinearDynamics:
 
     def _constrained(self, chol, normal, scale, lay, cuts):
         rows, rhs, eq = self._constraints(lay, scale, cuts)
-        z = _solve_qp(chol, normal.rhs / scale, rows, rhs, eq)
-        return z / scale
+        coef = _solve_qp(chol, normal.rhs / scale, rows, rhs, eq) / scale
+        for block in (lay.viscous, lay.coulomb):        # the dual is exact up to rounding
+            coef[block] = np.maximum(coef[block], 0.0)
+        return coef
 
     def _solve_path(self, train, held, weights, lay, stride):
         """Fit every ridge weight on ``train``, score on ``held``; refit the best on both."""
@@ -794,10 +831,10 @@ class LinearDynamics:
         self._full_coef = coef.copy()
 
     def _enforce_positive(self, samples, chol, normal, scale, lay, case, kp, kd,
-                          rounds: int = 12, cuts_per_round: int = 48):
+                          rounds: int = 20, cuts_per_round: int = 48):
         """Cut and refit until λ_min(S M S) >= floor on the check set; then certify."""
         step = max(1, samples.n_samples // 2000)
-        data = self.mass_matrix(samples.theta[::step])
+        data = self.raw_mass_matrix(samples.theta[::step])
         diag = np.diagonal(data, axis1=1, axis2=2).mean(axis=0)
         if np.any(diag <= 0.0):
             diag = np.full(self.n_joints, np.abs(diag).max() or 1.0)
@@ -816,7 +853,7 @@ class LinearDynamics:
         check = rng.uniform(lo, hi, (self.check_points, self.n_joints))
         cuts = []
         for _ in range(rounds):
-            lam, vecs = np.linalg.eigh(self.mass_matrix(check) * np.outer(s, s))
+            lam, vecs = np.linalg.eigh(self.raw_mass_matrix(check) * np.outer(s, s))
             bad = np.flatnonzero(lam[:, 0] < floor)
             if bad.size == 0:
                 break
@@ -825,8 +862,9 @@ class LinearDynamics:
             coef = self._constrained(chol, normal, scale, lay, cuts)
             self._set(coef, lay, case, kp, kd)
         self.cuts_ = len(cuts)
-        self.check_min_eigenvalue_ = float(np.linalg.eigvalsh(
-            self.mass_matrix(check) * np.outer(s, s))[:, 0].min())
+        lam = np.linalg.eigvalsh(self.raw_mass_matrix(check) * np.outer(s, s))[:, 0]
+        self.check_min_eigenvalue_ = float(lam.min())
+        self.floor_active_ = float(np.mean(lam < floor))
         self.certificate_ = None
         if self.max_cells > 0:
             self.certificate_ = certify_inertia(
@@ -862,11 +900,23 @@ class LinearDynamics:
             raise ValueError(f'theta must have shape (..., {self.n_joints}), got {theta.shape}')
         return theta
 
-    def mass_matrix(self, theta) -> np.ndarray:
-        """Return M(θ), shape (..., n, n) for ``theta`` of shape (..., n)."""
+    def raw_mass_matrix(self, theta) -> np.ndarray:
+        """Return M(θ) = Σ_f W_f φ_f(θ) as fitted (no floor), shape (..., n, n)."""
         self._check()
         phi = self.basis.values(self._theta(theta))
         return np.einsum('...f,fij->...ij', phi, self._w_mass)
+
+    def mass_matrix(self, theta) -> np.ndarray:
+        """
+        Return the model's M(θ), raised to the floor, shape (..., n, n).
+
+        M + S⁻¹ max(0, ε - λ_min(S M S)) S⁻¹ with M = :meth:`raw_mass_matrix`: symmetric
+        positive definite for every θ by construction. The fit enforces the floor on the
+        joint range (module docstring), so this equals the raw M wherever that held
+        (everywhere when :attr:`certificate_` is certified); elsewhere it is the last
+        guard, and V (the raw M's Christoffel symbols) no longer matches it exactly.
+        """
+        return self._lift(self.raw_mass_matrix(theta))
 
     def potential(self, theta) -> np.ndarray:
         """Return U(θ) (its constant is not identifiable; 0 here), shape (...)."""
@@ -903,27 +953,16 @@ class LinearDynamics:
         return self.viscous_ * qd + self.coulomb_ * np.tanh(qd / self.coulomb_velocity)
 
     def inverse_dynamics(self, theta, theta_dot, theta_ddot) -> np.ndarray:
-        """Return τ = M θ̈ + V + G + F, shape (..., n)."""
+        """Return τ = M θ̈ + V + G + F (M floored, as :meth:`mass_matrix`), shape (..., n)."""
         self._check()
         theta, theta_dot, theta_ddot = np.broadcast_arrays(
             self._theta(theta), self._theta(theta_dot), self._theta(theta_ddot))
         m, v, g = self._terms(theta, theta_dot)
-        return (np.einsum('...ij,...j->...i', m, theta_ddot) + v + g
+        return (np.einsum('...ij,...j->...i', self._lift(m), theta_ddot) + v + g
                 + self.friction_terms(theta_dot))
 
-    def safe_mass_matrix(self, theta) -> np.ndarray:
-        """
-        Return M(θ) raised to the floor: M + S⁻¹ max(0, ε - λ_min(S M S)) S⁻¹, (..., n, n).
-
-        The fit enforces λ_min(S M S) >= ε on the joint range (module docstring); this is
-        the last guard, where a configuration between the checked ones still falls short:
-        the rollouts never invert an M below the floor. Equal to :meth:`mass_matrix` where
-        the floor holds (everywhere, when :attr:`certificate_` is certified).
-        """
-        return self._lift(self.mass_matrix(theta))
-
     def _lift(self, m):
-        """Raise M (..., n, n) to the floor (see :meth:`safe_mass_matrix`)."""
+        """Raise M (..., n, n) to the floor (see :meth:`mass_matrix`)."""
         if self.inertia_scale_ is None:
             return m
         s = self.inertia_scale_
@@ -932,7 +971,7 @@ class LinearDynamics:
         return m + lift[..., None, None] * np.diag(1.0 / s ** 2)
 
     def forward_dynamics(self, theta, theta_dot, tau) -> np.ndarray:
-        """Return θ̈ = M⁻¹ (τ - V - G - F), M by :meth:`safe_mass_matrix`, shape (..., n)."""
+        """Return θ̈ = M⁻¹ (τ - V - G - F) with the floored M, shape (..., n)."""
         self._check()
         theta, theta_dot, tau = np.broadcast_arrays(
             self._theta(theta), self._theta(theta_dot), self._theta(tau))
@@ -1044,8 +1083,8 @@ class LinearDynamics:
         return out
 
     def energy(self, theta, theta_dot) -> np.ndarray:
-        """Return ½ θ̇ᵀ M θ̇ + U (U's constant taken as 0), shape (...)."""
-        m = self.mass_matrix(theta)
+        """Return ½ θ̇ᵀ M θ̇ + U with the raw M (U's constant taken as 0), shape (...)."""
+        m = self.raw_mass_matrix(theta)
         return (0.5 * np.einsum('...i,...ij,...j->...', theta_dot, m, theta_dot)
                 + self.potential(theta))
 
