@@ -120,16 +120,16 @@ class SpatialArm:
         n = self.n_joints
         links = self._links(theta)
         m = np.zeros((n, n), dtype=theta.dtype)
-        for l, (rot_l, _, com) in enumerate(links):
+        for link, (rot_l, _, com) in enumerate(links):
             jv = np.zeros((3, n), dtype=theta.dtype)
             jw = np.zeros((3, n), dtype=theta.dtype)
-            for k in range(l + 1):
+            for k in range(link + 1):
                 rot_k, origin, _ = links[k]
                 z = rot_k[:, 2]
                 jv[:, k] = np.cross(z, com - origin)
                 jw[:, k] = z
-            inertia = rot_l @ self.inertias[l] @ rot_l.T
-            m = m + self.masses[l] * jv.T @ jv + jw.T @ inertia @ jw
+            inertia = rot_l @ self.inertias[link] @ rot_l.T
+            m = m + self.masses[link] * jv.T @ jv + jw.T @ inertia @ jw
         return m
 
     def mass_matrix(self, theta):

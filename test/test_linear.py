@@ -68,7 +68,8 @@ def random_coefficients(basis, rng):
 
 # -- the regressor ------------------------------------------------------------------------
 
-@pytest.mark.parametrize('settings', [{'mass_degree': 2}, {'planar': True}])
+@pytest.mark.parametrize('settings', [{'mass_degree': 2}, {'planar': True},
+                                      {'planar': True, 'tied': True}])
 def test_regressor_times_coefficients_is_the_models_inverse_dynamics(settings):
     rng = np.random.default_rng(1)
     basis = TrigBasis(3, **settings)
@@ -114,10 +115,12 @@ def test_gravity_is_the_gradient_of_the_potential():
 
 # -- exact recovery -----------------------------------------------------------------------
 
-def test_exact_planar_data_give_the_arm_on_the_whole_torus(training):
+@pytest.mark.parametrize('tied', [False, True])
+def test_exact_planar_data_give_the_arm_on_the_whole_torus(training, tied):
     acc = ARM.forward_dynamics(training.theta, training.theta_dot, training.tau)
     samples = Samples(training.theta, training.theta_dot, acc, training.tau)
-    model = LinearDynamics(TrigBasis(3, planar=True)).fit_samples(samples, 'torque')
+    model = LinearDynamics(TrigBasis(3, planar=True, tied=tied))
+    model.fit_samples(samples, 'torque')
     theta = np.random.default_rng(4).uniform(-np.pi, np.pi, (2000, 3))
     truth = ARM.mass_matrix(theta)
     assert np.abs(model.mass_matrix(theta) - truth).max() < 1e-5 * np.abs(truth).max()

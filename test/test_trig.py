@@ -42,10 +42,10 @@ def residual_in_span(features, values):
 
 # -- features -----------------------------------------------------------------------------
 
-@pytest.mark.parametrize('settings', [dict(n_joints=3, mass_degree=1),
-                                      dict(n_joints=3, mass_degree=2),
-                                      dict(n_joints=4, planar=True),
-                                      dict(n_joints=4, mass_degree=2, max_order=2)])
+@pytest.mark.parametrize('settings', [{'n_joints': 3, 'mass_degree': 1},
+                                      {'n_joints': 3, 'mass_degree': 2},
+                                      {'n_joints': 4, 'planar': True},
+                                      {'n_joints': 4, 'mass_degree': 2, 'max_order': 2}])
 def test_gradients_match_central_differences(settings, rng):
     basis = TrigBasis(**settings)
     theta = rng.uniform(-np.pi, np.pi, (20, basis.n_joints))
@@ -97,10 +97,10 @@ def test_run_modes_refuse_joints_that_are_not_consecutive():
 # -- counts -------------------------------------------------------------------------------
 
 @pytest.mark.parametrize('n', [1, 2, 3, 4])
-@pytest.mark.parametrize('settings', [dict(mass_degree=1), dict(mass_degree=2),
-                                      dict(mass_degree=1, chain=False),
-                                      dict(mass_degree=2, max_order=1),
-                                      dict(planar=True)])
+@pytest.mark.parametrize('settings', [{'mass_degree': 1}, {'mass_degree': 2},
+                                      {'mass_degree': 1, 'chain': False},
+                                      {'mass_degree': 2, 'max_order': 1},
+                                      {'planar': True}, {'planar': True, 'tied': True}])
 def test_counts_in_closed_form_match_the_tables(n, settings):
     basis = TrigBasis(n, **settings)
     counts = feature_counts(n, **settings)
@@ -115,6 +115,8 @@ def test_documented_counts():
     planar = [feature_counts(n, planar=True) for n in (2, 3, 4, 6, 7)]
     assert [(c['mass'], c['potential']) for c in planar] == [
         (7, 4), (28, 6), (80, 8), (371, 12), (672, 14)]
+    tied = feature_counts(6, planar=True, tied=True)
+    assert tied == {'mass': 36, 'potential': 12, 'total': 48}
     assert feature_counts(6, 2, max_order=2)['mass'] == 1981
     assert feature_counts(7, 2, max_order=2)['mass'] == 3836
     # without the chain structure every entry takes all 3^n (degree 1) modes
@@ -228,3 +230,46 @@ def test_a_spatial_arm_needs_degree_two_in_its_mass_matrix(rng):
     u = vertical.potential(theta)
     with_constant = np.column_stack([np.ones(len(theta)), phi[:, skip.potential_index]])
     assert residual_in_span(with_constant, u - u.mean()) < 1e-10
+
+
+def test_tied_planar_basis_holds_every_planar_arm_and_no_spatial_one(rng):
+    basis = TrigBasis(4, planar=True, tied=True)
+    tie = basis.mass_tie
+    assert tie.shape == (basis.n_entry_features, 16)
+    theta = rng.uniform(-np.pi, np.pi, (300, 4))
+    phi = basis.values(theta)
+
+    def entry_features(entry_coefficients):
+        # the (T, E) values of the entries for the tied coefficients' columns
+        cols, start = [], 0
+        for ix in basis.mass_index:
+            cols.append(phi[:, ix] @ entry_coefficients[start:start + ix.size])
+            start += ix.size
+        return np.stack(cols, axis=1)
+
+    design = np.stack([entry_features(tie[:, c]) for c in range(16)], axis=-1)  # (T, E, C)
+    design = design.reshape(-1, 16)
+    for mass_model in ('point', 'rod'):
+        arm = planar_arm(4, mass_model, rng)
+        m = arm.mass_matrix(theta)
+        target = np.stack([m[:, i, j] for i, j in basis.mass_entries], axis=1).reshape(-1)
+        assert residual_in_span(design, target) < 1e-10
+    # the tying is the planar chain's own structure: a spatial arm's M is not in it
+    spatial = SpatialArm.elbow()
+    tied3 = TrigBasis(3, planar=True, tied=True)
+    phi3 = tied3.values(theta[:, :3])
+    cols = []
+    for c in range(9):
+        start, entries = 0, []
+        for ix in tied3.mass_index:
+            entries.append(phi3[:, ix] @ tied3.mass_tie[start:start + ix.size, c])
+            start += ix.size
+        cols.append(np.stack(entries, axis=1))
+    m = spatial.mass_matrix(theta[:, :3])
+    target = np.stack([m[:, i, j] for i, j in tied3.mass_entries], axis=1).reshape(-1)
+    assert residual_in_span(np.stack(cols, axis=-1).reshape(-1, 9), target) > 1e-2
+
+
+def test_tied_needs_the_planar_chain():
+    with pytest.raises(ValueError, match='tied needs planar'):
+        TrigBasis(3, tied=True)

@@ -198,9 +198,12 @@ class Layout(NamedTuple):
     def groups(self, basis: TrigBasis) -> List[slice]:
         """Return the coefficient groups the ridge weight is scaled per."""
         out, start = [], 0
-        for ix in basis.mass_index:
-            out.append(slice(start, start + ix.size))
-            start += ix.size
+        if basis.mass_tie is not None:
+            out.append(self.mass)
+        else:
+            for ix in basis.mass_index:
+                out.append(slice(start, start + ix.size))
+                start += ix.size
         out += [self.potential, self.viscous, self.coulomb]
         out += [s for s in (self.kp, self.kd) if s is not None]
         return out
@@ -240,18 +243,22 @@ def regressor(basis: TrigBasis, theta, theta_dot, theta_ddot, coulomb_velocity: 
     out = np.zeros((n_samples, n, lay.size))
     phi, grad = basis.values(theta, gradient=True)              # (N, F), (N, F, n)
     phi_dot = np.einsum('tfk,tk->tf', grad, qd)
+    tie = basis.mass_tie
+    mass = out if tie is None else np.zeros((n_samples, n, basis.n_entry_features))
     start = 0
     for (a, b), ix in zip(basis.mass_entries, basis.mass_index):
         cols = slice(start, start + ix.size)
         p, pd, g = phi[:, ix], phi_dot[:, ix], grad[:, ix, :]
-        out[:, a, cols] += p * qdd[:, b, None] + pd * qd[:, b, None]
+        mass[:, a, cols] += p * qdd[:, b, None] + pd * qd[:, b, None]
         if a != b:
-            out[:, b, cols] += p * qdd[:, a, None] + pd * qd[:, a, None]
+            mass[:, b, cols] += p * qdd[:, a, None] + pd * qd[:, a, None]
             q = qd[:, a] * qd[:, b]
         else:
             q = 0.5 * qd[:, a] ** 2
-        out[:, :, cols] -= q[:, None, None] * np.swapaxes(g, 1, 2)
+        mass[:, :, cols] -= q[:, None, None] * np.swapaxes(g, 1, 2)
         start += ix.size
+    if tie is not None:
+        out[:, :, lay.mass] = mass @ tie
     out[:, :, lay.potential] = np.swapaxes(grad[:, basis.potential_index, :], 1, 2)
     joints = np.arange(n)
     out[:, joints, lay.viscous.start + joints] = qd
@@ -265,6 +272,8 @@ def regressor(basis: TrigBasis, theta, theta_dot, theta_ddot, coulomb_velocity: 
 def unpack_mass(basis: TrigBasis, coefficients) -> np.ndarray:
     """Return the symmetric coefficient matrices W_f of M, shape (F, n, n)."""
     n = basis.n_joints
+    if basis.mass_tie is not None:
+        coefficients = basis.mass_tie @ np.asarray(coefficients, dtype=float)
     w = np.zeros((basis.n_features, n, n))
     start = 0
     for (a, b), ix in zip(basis.mass_entries, basis.mass_index):
@@ -587,6 +596,9 @@ class LinearDynamics:
         Random configurations over the range where the floor is enforced.
     max_cells : int
         Cell budget of the certificate (0: no certificate).
+    max_certified_joints : int
+        Attempt the certificate only when M depends on at most this many joints (the cells
+        it needs grow like (1/r)^d: about 10^4 for d = 3 and beyond any budget for d = 5).
     gain_normalisation : float
         Case 3: the mean of the identified Kp (fixes the unidentifiable scale).
 
@@ -599,7 +611,8 @@ class LinearDynamics:
                  window: Optional[int] = None,
                  stride: int = 1, min_eigenvalue: Optional[float] = None, joint_lower=None,
                  joint_upper=None, certify: bool = True, check_points: int = 20_000,
-                 max_cells: int = 50_000, gain_normalisation: float = 1.0):
+                 max_cells: int = 50_000, max_certified_joints: int = 4,
+                 gain_normalisation: float = 1.0):
         self.basis = basis if isinstance(basis, TrigBasis) else TrigBasis(int(basis))
         if not (np.isfinite(coulomb_velocity) and coulomb_velocity > 0.0):
             raise ValueError(f'coulomb_velocity must be positive, got {coulomb_velocity}')
@@ -620,6 +633,7 @@ class LinearDynamics:
         self.gain_normalisation = float(gain_normalisation)
         self.check_points = int(check_points)
         self.max_cells = int(max_cells)
+        self.max_certified_joints = int(max_certified_joints)
         self.coef_ = None
 
     @property
@@ -866,7 +880,9 @@ class LinearDynamics:
         self.check_min_eigenvalue_ = float(lam.min())
         self.floor_active_ = float(np.mean(lam < floor))
         self.certificate_ = None
-        if self.max_cells > 0:
+        varying = np.count_nonzero(np.any(self.basis.frequencies[
+            np.any(self._w_mass != 0.0, axis=(1, 2))] != 0, axis=0))
+        if self.max_cells > 0 and varying <= self.max_certified_joints:
             self.certificate_ = certify_inertia(
                 self.basis, self._full_coef[lay.mass], floor, s, self.joint_lower,
                 self.joint_upper, self.max_cells)
@@ -874,12 +890,16 @@ class LinearDynamics:
     def _cut_row(self, theta, v, lay):
         """Row r with ``r @ coef`` = vᵀ M(θ) v."""
         phi = self.basis.values(theta)
-        row = np.zeros(lay.size)
-        start = lay.mass.start
+        entries = np.zeros(self.basis.n_entry_features)
+        start = 0
         for (a, b), ix in zip(self.basis.mass_entries, self.basis.mass_index):
             weight = v[a] * v[b] * (1.0 if a == b else 2.0)
-            row[start:start + ix.size] = weight * phi[ix]
+            entries[start:start + ix.size] = weight * phi[ix]
             start += ix.size
+        if self.basis.mass_tie is not None:
+            entries = entries @ self.basis.mass_tie
+        row = np.zeros(lay.size)
+        row[lay.mass] = entries
         return row
 
     def condition_number(self) -> float:
@@ -1075,8 +1095,11 @@ class LinearDynamics:
         h = dt / substeps
         with np.errstate(all='ignore'):
             for k in range(t.size - 1):
-                for s in range(substeps):
-                    x = rkg_step(f, x, h, u[k, s, 0], u[k, s, 1], u[k, s, 2])
+                try:
+                    for s in range(substeps):
+                        x = rkg_step(f, x, h, u[k, s, 0], u[k, s, 1], u[k, s, 2])
+                except np.linalg.LinAlgError:        # a non-finite state reached M
+                    break
                 if not np.all(np.isfinite(x)) or np.abs(x).max() > 1e6:
                     break
                 out[k + 1] = x

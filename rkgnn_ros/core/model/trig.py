@@ -47,6 +47,11 @@ Pruning
 - ``planar``: all axes parallel (a planar arm). Angles about parallel axes add, so link l's
   absolute angle is φ_l = θ1 + ... + θl: M is a sum of cos and sin of φ_k - φ_l (a run of
   consecutive joints, frequency 1 on each) and U of cos and sin of φ_l (runs from joint 1).
+  ``tied`` goes one step further: the kinetic energy of a planar chain is ½ φ̇ᵀ D φ̇ with
+  D_kl = a_kl cos(φ_k - φ_l) + b_kl sin(φ_k - φ_l) (k ≠ l) and D_kk constant, so
+  M = Sᵀ D S (S the lower-triangular ones, θ̇ = S⁻¹ φ̇) and M_ij = Σ_{k >= i, l >= j} D_kl:
+  every entry shares the n² link-pair coefficients. Exact for any planar arm (links of any
+  shape), and the coefficients drop from Σ_i (n - i + 1)(m_i (m_i + 1) + 1) to n².
 - ``max_order`` keeps the modes of M with at most that many joints involved: couplings of
   far-apart joints through many intermediate ones are dropped. That is an approximation
   (a planar arm's M_11 holds cos(θ2 + ... + θn)), for where the full set is too large. U is
@@ -62,7 +67,8 @@ D = 2 degree + 1 values per joint::
 
 Spatial (degree 2) serial chain, n = 2, 3, 4, 6, 7: 11 + 8, 86 + 26, 586 + 80,
 22 461 + 728, 131 836 + 2186; degree 1 (parallel axes, full modes): 7 + 8, 34 + 26,
-142 + 80, 2005 + 728, 7108 + 2186; planar: 7 + 4, 28 + 6, 80 + 8, 371 + 12, 672 + 14.
+142 + 80, 2005 + 728, 7108 + 2186; planar: 7 + 4, 28 + 6, 80 + 8, 371 + 12, 672 + 14;
+planar tied: n² + 2n.
 All modes of a chain grow like D^n: one least-squares solve handles them up to 4 spatial
 joints. For 6-7 spatial joints, ``max_order=2`` (M) gives 1981 + 728 and 3836 + 2186, a
 polynomial growth in n, and ``planar`` (or the parallel pairs of an industrial arm, once
@@ -233,6 +239,9 @@ class TrigBasis:
         are parallel.
     planar : bool
         All axes parallel: runs of consecutive joints only (module docstring).
+    tied : bool
+        With ``planar``: M = Sᵀ D S (module docstring), one coefficient per link pair
+        instead of one per entry and feature.
     max_order : int, optional
         At most this many joints per mode of M; None: no limit.
     chain : bool
@@ -250,6 +259,9 @@ class TrigBasis:
         The upper triangle (i <= j) of M, row by row.
     mass_index : tuple of E ndarrays of int
         Features of each entry (indices into the table).
+    mass_tie : ndarray, shape (Σ_e |mass_index[e]|, C) or None
+        ``tied``: the entries' feature coefficients are ``mass_tie @ c``, c the C = n²
+        free ones (D_kk, then a_kl and b_kl per pair k > l).
     potential_index : ndarray of int
         Features of U (the constant left out: it exerts no torque).
 
@@ -258,6 +270,7 @@ class TrigBasis:
     n_joints: int
     mass_degree: int = 2
     planar: bool = False
+    tied: bool = False
     max_order: Optional[int] = None
     chain: bool = True
     potential_skips_first: bool = False
@@ -265,6 +278,7 @@ class TrigBasis:
     kinds: np.ndarray = field(init=False, repr=False, compare=False)
     mass_entries: np.ndarray = field(init=False, repr=False, compare=False)
     mass_index: Tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
+    mass_tie: Optional[np.ndarray] = field(init=False, repr=False, compare=False)
     potential_index: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -300,6 +314,34 @@ class TrigBasis:
         object.__setattr__(self, 'mass_entries', entries)
         object.__setattr__(self, 'mass_index', tuple(index(*mk) for mk in per_entry))
         object.__setattr__(self, 'potential_index', index(*potential))
+        if self.tied and not (self.planar and self.chain):
+            raise ValueError('tied needs planar (and chain)')
+        object.__setattr__(self, 'mass_tie', self._tie() if self.tied else None)
+
+    def _tie(self) -> np.ndarray:
+        """Return the map from (D_kk, a_kl, b_kl) to the entries' feature coefficients."""
+        n = self.n_joints
+        pairs = [(k, j) for k in range(n) for j in range(k)]          # k > j
+        names = {}
+        for f, (freq, kind) in enumerate(zip(self.frequencies.tolist(), self.kinds.tolist())):
+            names[(tuple(freq), kind)] = f
+        rows = []
+        for (i, j), ix in zip(self.mass_entries, self.mass_index):
+            position = {int(f): r for r, f in enumerate(ix)}
+            block = np.zeros((ix.size, n + 2 * len(pairs)))
+            for k in range(max(i, j), n):                               # D_kk, constant
+                block[position[0], k] += 1.0
+            for p, (k, m) in enumerate(pairs):
+                # ordered pairs (k, m) and (m, k) of M_ij = Σ_{a >= i, b >= j} D_ab
+                count = int(k >= i and m >= j) + int(m >= i and k >= j)
+                if count == 0:
+                    continue
+                run = np.zeros(n, dtype=int)
+                run[m + 1:k + 1] = 1
+                block[position[names[(tuple(run), 0)]], n + p] += count
+                block[position[names[(tuple(run), 1)]], n + len(pairs) + p] += count
+            rows.append(block)
+        return np.vstack(rows)
 
     @property
     def n_features(self) -> int:
@@ -307,9 +349,14 @@ class TrigBasis:
         return self.kinds.size
 
     @property
-    def n_mass_coefficients(self) -> int:
-        """Coefficients of M (all entries)."""
+    def n_entry_features(self) -> int:
+        """Features of all the entries of M together (Σ_e |mass_index[e]|)."""
         return int(sum(ix.size for ix in self.mass_index))
+
+    @property
+    def n_mass_coefficients(self) -> int:
+        """Free coefficients of M (n² when ``tied``, else one per entry and feature)."""
+        return self.n_joints ** 2 if self.tied else self.n_entry_features
 
     @property
     def n_potential_coefficients(self) -> int:
@@ -332,14 +379,15 @@ class TrigBasis:
     def to_dict(self) -> Dict[str, object]:
         """Return the settings that rebuild this basis (for a model file)."""
         return {'n_joints': int(self.n_joints), 'mass_degree': int(self.mass_degree),
-                'planar': bool(self.planar),
+                'planar': bool(self.planar), 'tied': bool(self.tied),
                 'max_order': None if self.max_order is None else int(self.max_order),
                 'chain': bool(self.chain),
                 'potential_skips_first': bool(self.potential_skips_first)}
 
 
 def feature_counts(n_joints: int, mass_degree: int = 2, max_order: Optional[int] = None,
-                   chain: bool = True, planar: bool = False) -> Dict[str, int]:
+                   chain: bool = True, planar: bool = False,
+                   tied: bool = False) -> Dict[str, int]:
     """
     Return how many coefficients M and U take for a basis setting, in closed form.
 
@@ -361,6 +409,10 @@ def feature_counts(n_joints: int, mass_degree: int = 2, max_order: Optional[int]
             return m * (m + 1) + 1
         return sum(comb(m, k) * (2 * mass_degree) ** k for k in range(min(m, order) + 1))
 
-    mass = sum(count(n - 1 - min(i, j) if chain else n) for i in range(n) for j in range(i, n))
+    if tied:
+        mass = n * n
+    else:
+        mass = sum(count(n - 1 - min(i, j) if chain else n)
+                   for i in range(n) for j in range(i, n))
     potential = 2 * n if planar else 3 ** n - 1
     return {'mass': mass, 'potential': potential, 'total': mass + potential}
