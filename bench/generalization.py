@@ -66,7 +66,11 @@ import os
 import sys
 import time
 
-import numpy as np
+# one BLAS thread: the solves here are small, and on a loaded 2-core machine OpenBLAS's
+# waiting threads made them hundreds of times slower (set before numpy is imported)
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
+
+import numpy as np  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
