@@ -16,7 +16,8 @@
 Inverse dynamics linear in the trigonometric basis: a closed-form, global fit.
 
 With M(θ) = Σ_f W_f φ_f(θ) (W_f symmetric, one coefficient per entry and feature of
-:class:`~rkgnn_ros.core.model.trig.TrigBasis`), U(θ) = Σ_f u_f φ_f(θ) and the friction
+:class:`~rkgnn_ros.core.model.trig.TrigBasis`, or the entries' coefficients a fixed linear
+map of fewer, for the tied planar basis), U(θ) = Σ_f u_f φ_f(θ) and the friction
 F = f_v θ̇ + f_c tanh(θ̇ / v_c), Lagrange's equations
 
     τ = d/dt (M θ̇) - ½ ∂(θ̇ᵀ M θ̇)/∂θ + ∇U + F = M θ̈ + V(θ, θ̇) + G(θ) + F(θ̇)
@@ -27,8 +28,9 @@ are linear in every coefficient: τ = Y(θ, θ̇, θ̈) w. The coefficient of fe
     δ_ka (φ θ̈_b + φ̇ θ̇_b) + δ_kb (φ θ̈_a + φ̇ θ̇_a) - θ̇_a θ̇_b ∂_k φ      (a ≠ b)
     δ_ka (φ θ̈_a + φ̇ θ̇_a) - ½ θ̇_a² ∂_k φ                               (a = b)
 
-so V comes from the Christoffel symbols of the same M (the model conserves energy), and
-G = ∇U is conservative by construction.
+so V comes from the Christoffel symbols of the same M (without friction the model
+conserves energy wherever M is above its floor, see below), and G = ∇U is conservative by
+construction.
 
 The fit (:class:`LinearDynamics`)
 ---------------------------------
@@ -40,7 +42,8 @@ The fit (:class:`LinearDynamics`)
 - Each joint's equations are divided by that joint's RMS torque, so every joint counts
   alike; the normal equations are assembled in chunks of samples (the regressor of 20 s of
   a 6-joint arm need not be in memory at once) and solved by Cholesky.
-- Ridge regularisation, per coefficient group (each M entry, U, each friction kind) scaled
+- Ridge regularisation, per coefficient group (each M entry, or all of M when tied, U,
+  each friction kind) scaled
   by the group's mean squared column, so it is a flat prior within a group whatever the
   units. The weight is chosen on held-out samples, never on the training fit: the newest
   ``validation_fraction`` of the samples is held out, every weight of ``ridges`` is fitted
@@ -54,7 +57,8 @@ The fit (:class:`LinearDynamics`)
   vᵀ S M(θ) S v >= 2ε (v the eigenvector found there) joins the least squares, for a few
   rounds; (2) :func:`certify_inertia` proves the floor on the whole range by adaptive
   cells when their number allows (3 joints: a few hundred cells; a planar 4-joint arm
-  some 10^4; not 6 joints, where the certificate reports failure rather than a bound);
+  some 10^4); it is not attempted when M depends on more than 4 joints (6-joint arms),
+  where the cells needed are beyond any budget, and ``certificate_`` is then None;
   (3) the model's M (:meth:`LinearDynamics.mass_matrix`, used by the inverse and forward
   dynamics) is the fitted one raised to the floor wherever it falls short, so no
   configuration can make it singular or indefinite (``floor_active_``: the share of the

@@ -59,20 +59,22 @@ Pruning
   sin(θ1 + ... + θn) with the full weight of the last link).
 
 Counts (coefficients of M + those of U, :func:`feature_counts`): E = n(n+1)/2 entries,
-D = 2 degree + 1 values per joint::
+q = 2 degree + 1 values per joint::
 
-    all modes:        E D^n + 3^n - 1
-    serial chain:     Σ_i (n - i + 1) D^(n-i) + 3^n - 1      (entry (i, j), i <= j)
+    all modes:        E q^n + 3^n - 1
+    serial chain:     Σ_i (n - i + 1) q^(n-i) + 3^n - 1      (entry (i, j), i <= j)
     planar chain:     Σ_i (n - i + 1) (m_i (m_i + 1) + 1) + 2n,  m_i = n - i
+    planar, tied:     n² + 2n
 
 Spatial (degree 2) serial chain, n = 2, 3, 4, 6, 7: 11 + 8, 86 + 26, 586 + 80,
 22 461 + 728, 131 836 + 2186; degree 1 (parallel axes, full modes): 7 + 8, 34 + 26,
 142 + 80, 2005 + 728, 7108 + 2186; planar: 7 + 4, 28 + 6, 80 + 8, 371 + 12, 672 + 14;
-planar tied: n² + 2n.
-All modes of a chain grow like D^n: one least-squares solve handles them up to 4 spatial
-joints. For 6-7 spatial joints, ``max_order=2`` (M) gives 1981 + 728 and 3836 + 2186, a
-polynomial growth in n, and ``planar`` (or the parallel pairs of an industrial arm, once
-described) removes most of the rest.
+planar tied: 4 + 4, 9 + 6, 16 + 8, 36 + 12, 49 + 14. All modes of a chain grow like q^n:
+one least-squares solve handles them up to 4 spatial joints. For 6-7 spatial joints,
+``max_order=2`` (M) gives 1981 + 728 and 3836 + 2186, a polynomial growth in n; that many
+coefficients need data from far more of the joint space than one 20 s run about one pose
+(``bench/generalization.py``), and a structure that ties the entries (as ``tied`` does for
+parallel axes) is what makes a 6-joint fit well posed.
 
 Everything here is numpy, vectorised over leading batch axes of θ, and ROS-free.
 """
