@@ -770,6 +770,8 @@ class SimArm(Node):
         except SimulationDiverged as error:
             self._fail(str(error))
         except Exception:  # nothing may escape a callback
+            if not self.context.ok():
+                return  # shut down (SIGINT) while publishing: the requested end, no failure
             self._fail(f'unexpected error in the simulation step:\n{traceback.format_exc()}')
 
     def _fail(self, message: str):
