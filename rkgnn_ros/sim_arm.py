@@ -63,6 +63,7 @@ All parameters are read-only (set them at start; they define the simulated syste
 except ``noise.theta_std`` and ``noise.theta_dot_std``, which can be changed at any time.
 """
 
+from functools import partial
 import math
 import sys
 import traceback
@@ -70,8 +71,7 @@ from typing import List, NamedTuple, Optional, Tuple
 
 from numba import njit
 import numpy as np
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -88,6 +88,7 @@ from .core.sim.plant import (ArmParameters, forward_dynamics_kernel, MASS_MODELS
                              max_stable_rkg_step, PDController, PlanarArm,
                              RK4_REAL_STABILITY_LIMIT)
 from .core.sim.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
+from .parameters import Change, ParameterSpec
 
 NODE_NAME = 'sim_arm'
 
@@ -377,15 +378,8 @@ class ArmSimulator:
 # -- parameters ---------------------------------------------------------------------------
 
 
-class _Spec(NamedTuple):
-    name: str
-    default: object
-    description: str
-    low: Optional[float] = None
-    high: Optional[float] = None
-    constraints: str = ''
-    read_only: bool = True
-
+#: A row of the table below: set at start unless it says ``change=Change.LIVE``.
+_Spec = partial(ParameterSpec, change=Change.START)
 
 _MAX_INT = 2 ** 31 - 1
 
@@ -433,10 +427,10 @@ PARAMETERS = (
     _Spec('reference.chirp_duration', 60.0, "Sweep time of 'chirp' (s).", 0.01, 1e9),
     _Spec('noise.theta_std', 0.0,
           'Standard deviation of the white noise on the published positions (rad); '
-          'may be changed at run time.', 0.0, 1.0, read_only=False),
+          'may be changed at run time.', 0.0, 1.0, change=Change.LIVE),
     _Spec('noise.theta_dot_std', 0.0,
           'Standard deviation of the white noise on the published velocities (rad/s); '
-          'may be changed at run time.', 0.0, 100.0, read_only=False),
+          'may be changed at run time.', 0.0, 100.0, change=Change.LIVE),
     _Spec('seed', 0, 'Seed of the measurement noise generator.', 0, _MAX_INT),
     _Spec('publish_rate', 100.0, 'Rate of joint_states and joint_commands (Hz).',
           1.0, 10000.0),
@@ -463,26 +457,7 @@ PARAMETERS = (
           0.0, 1e9),
 )
 
-_PARAMETER_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-                    float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
-
-
-def _descriptor(spec: _Spec) -> ParameterDescriptor:
-    if isinstance(spec.default, list):
-        kind = (ParameterType.PARAMETER_STRING_ARRAY if isinstance(spec.default[0], str)
-                else ParameterType.PARAMETER_DOUBLE_ARRAY)
-    else:
-        kind = _PARAMETER_TYPES[type(spec.default)]
-    descriptor = ParameterDescriptor(
-        name=spec.name, type=kind, description=spec.description,
-        additional_constraints=spec.constraints, read_only=spec.read_only)
-    if spec.low is not None and kind == ParameterType.PARAMETER_DOUBLE:
-        descriptor.floating_point_range = [FloatingPointRange(
-            from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-    elif spec.low is not None and kind == ParameterType.PARAMETER_INTEGER:
-        descriptor.integer_range = [IntegerRange(
-            from_value=int(spec.low), to_value=int(spec.high), step=1)]
-    return descriptor
+_BY_NAME = {spec.name: spec for spec in PARAMETERS}
 
 
 class SimConfig(NamedTuple):
@@ -707,24 +682,21 @@ class SimArm(Node):
         values = {}
         for spec in PARAMETERS:
             try:
-                values[spec.name] = self.declare_parameter(
-                    spec.name, spec.default, _descriptor(spec)).value
+                values[spec.name] = spec.declare(self)
             except ParameterException as error:
                 reason = error.args[0] if error.args else repr(error)
                 raise ConfigurationError(f'parameter {spec.name!r}: {reason}') from None
         return values
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
-        """Accept run-time changes of the noise levels only if finite and >= 0; never raise."""
+        """Check run-time changes of the live parameters by their table rows; never raise."""
         try:
             for param in parameters:
-                if param.name in ('noise.theta_std', 'noise.theta_dot_std'):
-                    value = param.value
-                    if not (isinstance(value, float) and math.isfinite(value)
-                            and value >= 0.0):
-                        return SetParametersResult(
-                            successful=False,
-                            reason=f'{param.name} must be a finite float >= 0, got {value!r}')
+                spec = _BY_NAME.get(param.name)
+                if spec is not None and spec.change == Change.LIVE:
+                    reason = spec.check(param.value)
+                    if reason:
+                        return SetParametersResult(successful=False, reason=reason)
             return SetParametersResult(successful=True)
         except Exception as error:  # a callback must never raise
             return SetParametersResult(successful=False, reason=f'rejected: {error!r}')

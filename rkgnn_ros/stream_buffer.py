@@ -91,7 +91,7 @@ import numpy as np
 
 from rkgnn_ros.core.data import Dataset
 
-__all__ = ['DROP_REASONS', 'AddResult', 'Snapshot', 'StreamBuffer']
+__all__ = ['DROP_REASONS', 'AddResult', 'Capture', 'PlannedReference', 'Snapshot', 'StreamBuffer']
 
 #: Counter keys of the buffer (callers add their own, e.g. conversions', by count_drop).
 #: All are drops decided when a sample is added, except: 'clock_jump' and
@@ -249,6 +249,139 @@ def _runs(mask: np.ndarray) -> List[Tuple[int, int]]:
     """Return ``[start, stop)`` index pairs of the True runs in a boolean array."""
     edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
     return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+class PlannedReference:
+    """
+    One planned reference, immutable: θd, θ̇d at ``t0 + times``.
+
+    What :meth:`StreamBuffer.reference` hands out: readers keep it as long as they like,
+    whatever the buffer does meanwhile.
+    """
+
+    def __init__(self, t0: float, times: np.ndarray, positions: np.ndarray,
+                 velocities: np.ndarray):
+        self.t0, self.times, self.positions, self.velocities = t0, times, positions, velocities
+        for array in (times, positions, velocities):
+            array.flags.writeable = False
+
+    @property
+    def end(self) -> float:
+        """Return the absolute time (s) of the last point."""
+        return self.t0 + float(self.times[-1])
+
+    def at(self, t) -> Tuple[np.ndarray, np.ndarray]:
+        """
+        Return (θd, θ̇d), each (M, n), at absolute times ``t`` (M,).
+
+        Linear inside the reference; before its first point the first position and after
+        its last point the last position is held, with zero velocity.
+        """
+        s = np.atleast_1d(np.asarray(t, dtype=float)) - self.t0
+        theta_d = _interp_rows(s, self.times, self.positions)
+        theta_d_dot = _interp_rows(s, self.times, self.velocities)
+        theta_d_dot[(s < self.times[0]) | (s > self.times[-1])] = 0.0
+        return theta_d, theta_d_dot
+
+
+class Capture:
+    """
+    A consistent copy of a buffer's streams, read without any lock ever after.
+
+    What :meth:`StreamBuffer.capture` returns: the arrays are copies taken under the
+    buffer's lock, so resampling them (:meth:`segments`) or pairing them for a controller
+    fit (:meth:`controller_samples`) can take its time in another thread while samples
+    keep arriving. ``failures`` counts the segments :meth:`segments` could not build.
+    """
+
+    def __init__(self, buffer: 'StreamBuffer', states, commands, origin, epoch):
+        self.joints = buffer.joints
+        self.model_step, self.window = buffer.model_step, buffer.window
+        self.gap_threshold, self.pair_tolerance = buffer.gap_threshold, buffer.pair_tolerance
+        self.need_tau, self.need_desired = buffer.need_tau, buffer.need_desired
+        self._n = len(buffer.joints)
+        self._ts, self._vs = states    # (K,), (K, 2n or 3n)
+        self._tc, self._vc = commands  # (L,), (L, 2n)
+        self.time_origin = 0.0 if origin is None else origin
+        self.epoch = epoch
+        self.failures = 0
+
+    def segments(self, min_samples: int = 2, pair_commands: bool = False) -> Snapshot:
+        """
+        Return the newest ``window`` seconds as uniformly resampled segments.
+
+        Segments have at least ``max(2, min_samples)`` points at ``model_step``. With
+        ``pair_commands`` the segments carry θd, θ̇d (paired as with ``need_desired``, so
+        only covered grid times make up segments) even when ``need_desired`` is False.
+        """
+        pair = self.need_desired or bool(pair_commands)
+        segments, failures = self._resample(max(2, int(min_samples)), pair)
+        self.failures += failures
+        return Snapshot(segments, self.time_origin, self.epoch)
+
+    def controller_samples(self) -> Optional[Dict[str, np.ndarray]]:
+        """
+        Return the states of the window paired with commands, for a controller fit.
+
+        Only with ``need_tau`` (case 'torque', where the applied torque is measured): the
+        state samples of the newest ``window`` seconds that the command stream covers (see
+        pairing), with θd, θ̇d interpolated at their stamps, whether or not ``need_desired``.
+        Keys ``theta``, ``theta_dot``, ``tau``, ``theta_d``, ``theta_d_dot``, each (K, n);
+        None when τ is not stored or no state is covered.
+        """
+        ts, vs, tc, vc = self._ts, self._vs, self._tc, self._vc
+        if not self.need_tau or not ts.size or not tc.size:
+            return None
+        keep = (ts >= ts[-1] - self.window) & _covered(ts, tc, self.gap_threshold,
+                                                       self.pair_tolerance)
+        if not keep.any():
+            return None
+        n = self._n
+        ts, vs = ts[keep], vs[keep]
+        desired = _interp_rows(ts, tc, vc, self.gap_threshold)
+        return {'theta': vs[:, :n], 'theta_dot': vs[:, n:2 * n], 'tau': vs[:, 2 * n:],
+                'theta_d': desired[:, :n], 'theta_d_dot': desired[:, n:]}
+
+    def _resample(self, min_samples, pair):
+        n, h = self._n, self.model_step
+        ts, vs, tc, vc = self._ts, self._vs, self._tc, self._vc
+        if ts.size < 2:
+            return [], 0
+        t_start = ts[-1] - self.window
+        first = max(int(np.searchsorted(ts, t_start, side='right')) - 1, 0)
+        ts, vs = ts[first:], vs[first:]
+        segments: List[Dataset] = []
+        failures = 0
+        breaks = np.flatnonzero(np.diff(ts) > self.gap_threshold + _EPS) + 1
+        for a, b in zip(np.concatenate(([0], breaks)), np.concatenate((breaks, [ts.size]))):
+            if b - a < 2:
+                continue
+            k0 = math.ceil(max(ts[a], t_start) / h - 1e-9)
+            k1 = math.floor(ts[b - 1] / h + 1e-9)
+            if k1 - k0 + 1 < min_samples:
+                continue
+            grid = np.arange(k0, k1 + 1) * h
+            if pair:
+                runs = _runs(_covered(grid, tc, self.gap_threshold, self.pair_tolerance))
+            else:
+                runs = [(0, grid.size)]
+            for r0, r1 in runs:
+                if r1 - r0 < min_samples:
+                    continue
+                t = grid[r0:r1]
+                state = _interp_rows(t, ts[a:b], vs[a:b])
+                fields = {'theta': state[:, :n], 'theta_dot': state[:, n:2 * n]}
+                if self.need_tau:
+                    fields['tau'] = state[:, 2 * n:]
+                if pair:
+                    desired = _interp_rows(t, tc, vc, self.gap_threshold)
+                    fields['theta_d'] = desired[:, :n]
+                    fields['theta_d_dot'] = desired[:, n:]
+                try:
+                    segments.append(Dataset(t=t, joint_names=self.joints, **fields))
+                except ValueError:  # defensive: validation above should make this unreachable
+                    failures += 1
+        return segments, failures
 
 
 class StreamBuffer:
@@ -513,29 +646,25 @@ class StreamBuffer:
                 np.zeros_like(positions)
             if not np.isfinite(velocities).all():
                 return self._drop('reference', 'non_finite')
+        reference = PlannedReference(t0, times, positions, velocities)
         with self._lock:
-            self._reference = (t0, times, positions, velocities)
+            self._reference = reference
             self._accepted['reference'] += 1
         return _ACCEPTED
+
+    def reference(self) -> Optional[PlannedReference]:
+        """Return the newest planned trajectory, immutable; None if none came since a clear."""
+        with self._lock:
+            return self._reference
 
     def reference_at(self, t) -> Optional[Tuple[np.ndarray, np.ndarray]]:
         """
         Return the reference (θd, θ̇d), each (M, n), at absolute times ``t`` (M,).
 
-        Linear inside the reference; before its first point the first position and after
-        its last point the last position is held, with zero velocity. None when there is
-        no reference.
+        See :meth:`PlannedReference.at`; None when there is no reference.
         """
-        with self._lock:
-            reference = self._reference
-        if reference is None:
-            return None
-        t0, times, positions, velocities = reference
-        s = np.atleast_1d(np.asarray(t, dtype=float)) - t0
-        theta_d = _interp_rows(s, times, positions)
-        theta_d_dot = _interp_rows(s, times, velocities)
-        theta_d_dot[(s < times[0]) | (s > times[-1])] = 0.0
-        return theta_d, theta_d_dot
+        reference = self.reference()
+        return None if reference is None else reference.at(t)
 
     # ------------------------------------------------------------------ reading
 
@@ -638,102 +767,37 @@ class StreamBuffer:
             self._drops['state']['no_command'] += int((~covered).sum())
             self._settled = float(stamps[b - 1])
 
+    def capture(self) -> Capture:
+        """Return a consistent copy of the streams (see :class:`Capture`)."""
+        with self._lock:
+            self._settle_locked()
+            states, commands = self._series['state'], self._series['command']
+            return Capture(self, (states.t.copy(), states.values.copy()),
+                           (commands.t.copy(), commands.values.copy()), self._origin,
+                           self._epoch)
+
     def snapshot(self, min_samples: int = 2, pair_commands: bool = False) -> Snapshot:
         """
         Return the newest ``window`` seconds as uniformly resampled segments.
 
-        A consistent copy taken under the lock and resampled outside it: callbacks keep
-        adding meanwhile, and changing the returned arrays never touches the buffer.
-        Segments have at least ``max(2, min_samples)`` points at ``model_step``. With
-        ``pair_commands`` the segments carry θd, θ̇d (paired as with ``need_desired``, so
-        only covered grid times make up segments) even when ``need_desired`` is False.
+        A consistent copy taken under the lock and resampled outside it
+        (:meth:`Capture.segments`): callbacks keep adding meanwhile, and changing the
+        returned arrays never touches the buffer. A segment that cannot be built is counted
+        as ``'resample_failed'``.
         """
-        pair = self.need_desired or bool(pair_commands)
-        with self._lock:
-            self._settle_locked()
-            states = self._series['state']
-            t_states = states.t.copy()
-            v_states = states.values.copy()
-            commands = self._series['command']
-            if pair:
-                t_commands = commands.t.copy()
-                v_commands = commands.values.copy()
-            else:
-                t_commands = v_commands = None
-            origin, epoch = self._origin, self._epoch
-        segments, failures = self._resample(
-            t_states, v_states, t_commands, v_commands, max(2, int(min_samples)), pair)
-        if failures:
+        capture = self.capture()
+        snapshot = capture.segments(min_samples, pair_commands)
+        self.count_failures(capture)
+        return snapshot
+
+    def count_failures(self, capture: Capture) -> None:
+        """Count the segments a capture of this buffer could not build (should be none)."""
+        if capture.failures:
             with self._lock:
-                self._drops['state']['resample_failed'] += failures
-        return Snapshot(segments, 0.0 if origin is None else origin, epoch)
+                self._drops['state']['resample_failed'] += capture.failures
 
     def controller_samples(self) -> Optional[Dict[str, np.ndarray]]:
-        """
-        Return the buffered states of the window paired with commands, for a controller fit.
-
-        Only with ``need_tau`` (case 'torque', where the applied torque is measured): the
-        state samples of the newest ``window`` seconds that the command stream covers (see
-        pairing), with θd, θ̇d interpolated at their stamps, whether or not ``need_desired``.
-        Keys ``theta``, ``theta_dot``, ``tau``, ``theta_d``, ``theta_d_dot``, each (K, n);
-        None when τ is not stored or no state is covered.
-        """
+        """Return :meth:`Capture.controller_samples` of the streams as they are now."""
         if not self.need_tau:
             return None
-        with self._lock:
-            states, commands = self._series['state'], self._series['command']
-            if not len(states) or not len(commands):
-                return None
-            ts = states.t.copy()
-            vs = states.values.copy()
-            tc = commands.t.copy()
-            vc = commands.values.copy()
-        keep = (ts >= ts[-1] - self.window) & _covered(ts, tc, self.gap_threshold,
-                                                       self.pair_tolerance)
-        if not keep.any():
-            return None
-        n = self._n
-        ts, vs = ts[keep], vs[keep]
-        desired = _interp_rows(ts, tc, vc, self.gap_threshold)
-        return {'theta': vs[:, :n], 'theta_dot': vs[:, n:2 * n], 'tau': vs[:, 2 * n:],
-                'theta_d': desired[:, :n], 'theta_d_dot': desired[:, n:]}
-
-    def _resample(self, ts, vs, tc, vc, min_samples, pair):
-        n, h = self._n, self.model_step
-        if ts.size < 2:
-            return [], 0
-        t_start = ts[-1] - self.window
-        first = max(int(np.searchsorted(ts, t_start, side='right')) - 1, 0)
-        ts, vs = ts[first:], vs[first:]
-        segments: List[Dataset] = []
-        failures = 0
-        breaks = np.flatnonzero(np.diff(ts) > self.gap_threshold + _EPS) + 1
-        for a, b in zip(np.concatenate(([0], breaks)), np.concatenate((breaks, [ts.size]))):
-            if b - a < 2:
-                continue
-            k0 = math.ceil(max(ts[a], t_start) / h - 1e-9)
-            k1 = math.floor(ts[b - 1] / h + 1e-9)
-            if k1 - k0 + 1 < min_samples:
-                continue
-            grid = np.arange(k0, k1 + 1) * h
-            if pair:
-                runs = _runs(_covered(grid, tc, self.gap_threshold, self.pair_tolerance))
-            else:
-                runs = [(0, grid.size)]
-            for r0, r1 in runs:
-                if r1 - r0 < min_samples:
-                    continue
-                t = grid[r0:r1]
-                state = _interp_rows(t, ts[a:b], vs[a:b])
-                fields = {'theta': state[:, :n], 'theta_dot': state[:, n:2 * n]}
-                if self.need_tau:
-                    fields['tau'] = state[:, 2 * n:]
-                if pair:
-                    desired = _interp_rows(t, tc, vc, self.gap_threshold)
-                    fields['theta_d'] = desired[:, :n]
-                    fields['theta_d_dot'] = desired[:, n:]
-                try:
-                    segments.append(Dataset(t=t, joint_names=self.joints, **fields))
-                except ValueError:  # defensive: validation above should make this unreachable
-                    failures += 1
-        return segments, failures
+        return self.capture().controller_samples()
