@@ -40,7 +40,7 @@ from rkgnn_ros.core.model.network import CASES, INERTIA_MODES, NetworkSpec, VELO
 from rkgnn_ros.parameters import Change, ParameterSpec
 
 __all__ = ['PARAMETERS', 'OUTPUTS', 'Config', 'ConfigurationError', 'IdentifierParameters',
-           'check_parameters',
+           'check_parameters', 'make_config',
            'network_spec', 'optimizer_settings', 'online_settings']
 
 _T = Parameter.Type
@@ -294,6 +294,21 @@ class Config:
     def case(self) -> str:
         """Return the normalized identification case: torque, pd_gains or unknown."""
         return self.settings.case
+
+
+def make_config(**values) -> Config:
+    """
+    Return the snapshot of the table's defaults with ``values`` replacing some (by name).
+
+    What the parts get from a node, built without one (tools and tests). Raises
+    ConfigurationError if the values are invalid.
+    """
+    merged = {spec.name: spec.plain(spec.default) for spec in PARAMETERS}
+    merged.update({name: _BY_NAME[name].plain(value) for name, value in values.items()})
+    reason = check_parameters(merged, list(values), at_start=True)
+    if reason:
+        raise ConfigurationError(reason)
+    return Config(MappingProxyType(merged), online_settings(merged))
 
 
 class ConfigurationError(ValueError):

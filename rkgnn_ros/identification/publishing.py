@@ -65,8 +65,10 @@ class Outbox:
         self._wake: Callable[[], None] = lambda: None
 
     def connect(self, wake: Callable[[], None]) -> None:
-        """Call ``wake`` after every ``put``."""
+        """Call ``wake`` after every ``put`` (and now, if anything is queued already)."""
         self._wake = wake
+        if self._items:
+            wake()
 
     def put(self, item) -> None:
         """Queue ``item`` for the executor thread."""
