@@ -54,11 +54,12 @@ Node parameters
 
 Threads
 -------
-The executor thread runs the callbacks, publishes and sets parameters. The ingest thread
-takes the two streams (:mod:`~rkgnn_ros.identification.ingest`), the worker thread runs
-the search (:mod:`~rkgnn_ros.identification.worker`), the prediction thread predicts
-(:mod:`~rkgnn_ros.identification.prediction`); they hand what they publish to the executor
-through an outbox (:mod:`~rkgnn_ros.identification.publishing`). Objects alive at start are
+The executor thread runs the callbacks, publishes and sets parameters, and nothing else
+does. The ingest thread takes the two streams (:mod:`~rkgnn_ros.identification.ingest`),
+the worker thread runs the search (:mod:`~rkgnn_ros.identification.worker`), the
+prediction thread predicts (:mod:`~rkgnn_ros.identification.prediction`); they hand what
+is to be published or logged to the executor through an outbox
+(:mod:`~rkgnn_ros.identification.publishing`). Objects alive at start are
 frozen out of the cyclic garbage collector and no QoS-event handlers are created, both to
 keep the executor thread cheap.
 """
@@ -146,7 +147,7 @@ class IdentifierNode(Node):
         self._outbox = Outbox()
         self._ingestion = Ingestion(config, self._outbox.log, alive=self.context.ok,
                                     on_state=lambda: self._predictor.request())
-        self._predictor = Predictor(self._ingestion, publishers['prediction'].publish,
+        self._predictor = Predictor(self._ingestion, self._outbox.put,
                                     lambda: self._params.config)
         model = self._load_model_file(config)
         self._worker = SearchWorker(self._ingestion, self._predictor, self._outbox,

@@ -231,7 +231,11 @@ def unknown_model(data):
 def _predictor(config, model):
     ingestion = Ingestion(config, lambda level, text: None)
     published = []
-    predictor = Predictor(ingestion, published.append, lambda: config)
+
+    def publish(prediction):  # what the node's executor does with a prediction
+        published.append(prediction.data)
+        predictor.published(prediction)
+    predictor = Predictor(ingestion, publish, lambda: config)
     predictor.set_model(model)
     predictor.warm_up(model)
     return ingestion, predictor, published

@@ -126,13 +126,16 @@ class Streams:
         self.config = make_config(**dict(BASE, **overrides))
         self.outbox = Outbox()
         self.ingestion = Ingestion(self.config, self.outbox.log, clock=self.clock)
-        self.predictions = []
-        self.predictor = Predictor(self.ingestion, self.predictions.append,
-                                   lambda: self.config)
+        self.predictions = []  # CDR bytes, as the executor publishes them
+        self.predictor = Predictor(self.ingestion, self._publish, lambda: self.config)
         self.logs = []
         if model is not None:
             self.predictor.set_model(model)
             self.predictor.warm_up(model)
+
+    def _publish(self, prediction):  # what the node's executor does with a prediction
+        self.predictions.append(prediction.data)
+        self.predictor.published(prediction)
 
     # exactly what the ingest thread passes: the CDR bytes of each message
     def state(self, msg):

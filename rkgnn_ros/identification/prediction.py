@@ -23,13 +23,12 @@ snapshots, never live buffers: the newest planned reference
 (:class:`~rkgnn_ros.stream_buffer.PlannedReference`, immutable), else the newest command
 held, else (case 'torque' without a fitted law) the newest torque held.
 
-A prediction is serialized straight to CDR (``conversions.serialize_joint_trajectory``)
-and handed to ``publish`` from this thread, the one exception to "only the executor thread
-publishes": the identifier passes the publisher's own ``publish`` because handing each
-prediction to the executor added a thread hop to every state-to-prediction latency
-(the README's *Responsiveness* section gives the A/B). Every prediction is checked finite
-before it is published; the latency from the middleware's receipt of the state to the
-publish is kept for ``/diagnostics``.
+A prediction is checked finite, serialized straight to CDR
+(``conversions.serialize_joint_trajectory``) and handed over as a :class:`Prediction` to
+``publish``: the identifier queues it for its executor thread, which publishes it and
+calls :meth:`Predictor.published`, so the latency kept for ``/diagnostics`` runs from the
+middleware's receipt of the state to the actual publish. (Publishing from this thread
+instead showed no lower latency in paired runs; the README's *Responsiveness* has them.)
 """
 
 from collections import deque
@@ -43,7 +42,7 @@ from rkgnn_ros.conversions import serialize_joint_trajectory
 from rkgnn_ros.core.fitting.identify import RKGNNModel
 from rkgnn_ros.core.fitting.online import ClosedLoop
 
-__all__ = ['LATENCY_WINDOW', 'Predictor']
+__all__ = ['LATENCY_WINDOW', 'Prediction', 'Predictor']
 
 LATENCY_WINDOW = 1000  # predictions whose latency the diagnostics summarise
 JOIN_TIMEOUT_S = 10.0
@@ -73,6 +72,13 @@ class _HeldCommand:
         return np.tile(self._theta_d, (m, 1)), np.zeros((m, self._theta_d.size))
 
 
+class Prediction(NamedTuple):
+    """A prediction to publish: its CDR bytes, and the receipt (ns) of its state if new."""
+
+    data: bytes
+    received_ns: Optional[int]  # None: predicted again from the same state
+
+
 class _Published(NamedTuple):
     model: Optional[RKGNNModel] = None
     loop: Optional[ClosedLoop] = None
@@ -88,13 +94,13 @@ class Predictor:
         Where the newest state, command and reference come from, and where a non-finite
         prediction or an internal error is counted.
     publish : callable
-        Called with each prediction's CDR bytes.
+        Called with each :class:`Prediction` (from the prediction thread).
     config : callable
         Returns the current parameters (``model_step``, ``prediction.horizon``).
 
     """
 
-    def __init__(self, ingestion, publish: Callable[[bytes], None], config: Callable):
+    def __init__(self, ingestion, publish: Callable[[Prediction], None], config: Callable):
         self._ingestion = ingestion
         self._publish = publish
         self._config = config
@@ -116,6 +122,13 @@ class Predictor:
     def request(self) -> None:
         """Ask for a prediction from the newest state (requests collapse while one runs)."""
         self._wanted.set()
+
+    def published(self, prediction: Prediction) -> None:
+        """Record that ``prediction`` was published now (its state's latency, if new)."""
+        if prediction.received_ns is not None:
+            latency = 1e-6 * (time.time_ns() - prediction.received_ns)  # ms, receipt -> publish
+            with self._lock:
+                self._latencies.append(latency)
 
     def latencies(self) -> np.ndarray:
         """Return the newest state-to-publish times (ms), oldest first."""
@@ -170,14 +183,12 @@ class Predictor:
                                    'published')
             return False
         sec, nanosec = latest.stamp
-        self._publish(serialize_joint_trajectory(Time(sec=sec, nanosec=nanosec), joints, t,
-                                                 positions, velocities))
+        new = latest.received_ns != self._last_predicted_ns  # not again from the same state
+        self._last_predicted_ns = latest.received_ns
+        self._publish(Prediction(serialize_joint_trajectory(
+            Time(sec=sec, nanosec=nanosec), joints, t, positions, velocities),
+            latest.received_ns if new else None))
         self.inputs = what
-        if latest.received_ns != self._last_predicted_ns:  # not again from the same state
-            self._last_predicted_ns = latest.received_ns
-            latency = 1e-6 * (time.time_ns() - latest.received_ns)  # ms, receipt -> publish
-            with self._lock:
-                self._latencies.append(latency)
         return True
 
     def _inputs(self, case: str, times: np.ndarray, tau) -> Tuple[Optional[dict], str]:

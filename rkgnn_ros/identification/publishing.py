@@ -18,12 +18,11 @@ Publishing: everything the identifier tells the world, from the executor thread 
 The worker, ingest and prediction threads never touch a publisher, a parameter or the
 logger: they put what they have to say into the :class:`Outbox` (a bounded queue whose
 ``put`` triggers a guard condition), and :meth:`Publishing.drain`, the guard condition's
-callback, handles it in the executor thread: a new model goes to ``~/model`` (its YAML was
-made in the worker), to the ``identified.*`` output parameters and to the predictor;
-generation statistics go to ``~/evolution``; log lines to the node's logger.
-:meth:`Publishing.publish_diagnostics` (a 1 Hz timer) gathers ``/diagnostics`` from the
-parts' read-only views. The one exception, predictions, is explained in
-:mod:`.prediction`.
+callback, handles it in the executor thread: a prediction goes to ``~/prediction``; a new
+model to ``~/model`` (its YAML was made in the worker), to the ``identified.*`` output
+parameters and to the predictor; generation statistics to ``~/evolution``; log lines to
+the node's logger. :meth:`Publishing.publish_diagnostics` (a 1 Hz timer) gathers
+``/diagnostics`` from the parts' read-only views.
 """
 
 from collections import deque
@@ -35,6 +34,7 @@ from rkgnn_ros.conversions import make_float64_multiarray
 from rkgnn_ros.core.fitting.identify import RKGNNModel
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Status)
+from rkgnn_ros.identification.prediction import Prediction
 from std_msgs.msg import String
 
 __all__ = ['EVOLUTION_LABELS', 'ModelMessage', 'Outbox', 'Publishing']
@@ -103,7 +103,8 @@ class Publishing:
     outbox : Outbox
         What the other threads queued.
     publishers : dict
-        ``model`` (String), ``evolution`` (Float64MultiArray), ``diagnostics``.
+        ``model`` (String), ``prediction`` (JointTrajectory, takes CDR bytes),
+        ``evolution`` (Float64MultiArray), ``diagnostics``.
     parameters : IdentifierParameters
         Where the ``identified.*`` outputs are set.
     predictor : Predictor
@@ -140,7 +141,10 @@ class Publishing:
                 self._ingestion.internal_error('publishing')
 
     def _handle(self, item) -> None:
-        if isinstance(item, LogLine):
+        if isinstance(item, Prediction):
+            self._publishers['prediction'].publish(item.data)
+            self._predictor.published(item)
+        elif isinstance(item, LogLine):
             self.log(item.level, item.text)
         elif isinstance(item, GenerationStats):
             self._publishers['evolution'].publish(
@@ -150,8 +154,6 @@ class Publishing:
         elif isinstance(item, LoopUpdate):
             if item.model is self._model:
                 self._predictor.set_model(item.model, item.loop)
-        else:
-            self._publishers['prediction'].publish(item)  # serialized prediction (bytes)
 
     def publish_model(self, update: ModelUpdate, text: Optional[str] = None) -> None:
         """Publish a model on ``~/model``, predict with it, set the ``identified.*`` outputs."""
