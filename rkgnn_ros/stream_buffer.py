@@ -420,33 +420,10 @@ class StreamBuffer:
         ``velocities`` (K, n) θ̇d, or None to estimate them from the positions
         (``np.gradient``; zero for a single point). Replaces the previous reference.
         """
-        try:
-            t0 = float(t0)
-            times = np.array(times, dtype=float).reshape(-1)
-            positions = np.array(positions, dtype=float)
-            if velocities is not None:
-                velocities = np.array(velocities, dtype=float)
-        except Exception:
-            return self._drop('reference', 'bad_shape')
-        k = times.size
-        if k == 0 or positions.shape != (k, self._n) or (
-                velocities is not None and velocities.shape != (k, self._n)):
-            return self._drop('reference', 'bad_shape')
-        values = [positions] if velocities is None else [positions, velocities]
-        if not (math.isfinite(t0) and np.isfinite(times).all()):
-            return self._drop('reference', 'bad_stamp')
-        if not all(np.isfinite(v).all() for v in values):
-            return self._drop('reference', 'non_finite')
-        if any(np.abs(v).max() > self.max_abs_value for v in values):
-            return self._drop('reference', 'out_of_range')
-        if k > 1 and not np.all(np.diff(times) > 0.0):
-            return self._drop('reference', 'non_increasing_time')
-        if velocities is None:
-            velocities = np.gradient(positions, times, axis=0) if k > 1 else \
-                np.zeros_like(positions)
-            if not np.isfinite(velocities).all():
-                return self._drop('reference', 'non_finite')
-        reference = PlannedReference(t0, times, positions, velocities)
+        reference, reason = PlannedReference.checked(t0, times, positions, velocities,
+                                                     self._n, self.max_abs_value)
+        if reference is None:
+            return self._drop('reference', reason)
         with self._lock:
             self._reference = reference
             self._accepted['reference'] += 1

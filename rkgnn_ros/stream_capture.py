@@ -119,6 +119,44 @@ class PlannedReference:
         for array in (times, positions, velocities):
             array.flags.writeable = False
 
+    @classmethod
+    def checked(cls, t0, times, positions, velocities, n: int, max_abs_value: float):
+        """
+        Return ``(reference, None)`` from raw arrays, or ``(None, drop reason)``.
+
+        ``times`` (K,) from ``t0``, ``positions`` (K, n) θd, ``velocities`` (K, n) θ̇d or
+        None to estimate them from the positions (``np.gradient``; zero for one point).
+        Reasons: 'bad_shape', 'bad_stamp', 'non_finite', 'out_of_range' (beyond
+        ``max_abs_value``), 'non_increasing_time'.
+        """
+        try:
+            t0 = float(t0)
+            times = np.array(times, dtype=float).reshape(-1)
+            positions = np.array(positions, dtype=float)
+            if velocities is not None:
+                velocities = np.array(velocities, dtype=float)
+        except Exception:  # noqa: B902 - whatever it is, it is not a reference
+            return None, 'bad_shape'
+        k = times.size
+        if k == 0 or positions.shape != (k, n) or (
+                velocities is not None and velocities.shape != (k, n)):
+            return None, 'bad_shape'
+        values = [positions] if velocities is None else [positions, velocities]
+        if not (math.isfinite(t0) and np.isfinite(times).all()):
+            return None, 'bad_stamp'
+        if not all(np.isfinite(v).all() for v in values):
+            return None, 'non_finite'
+        if any(np.abs(v).max() > max_abs_value for v in values):
+            return None, 'out_of_range'
+        if k > 1 and not np.all(np.diff(times) > 0.0):
+            return None, 'non_increasing_time'
+        if velocities is None:
+            velocities = np.gradient(positions, times, axis=0) if k > 1 else \
+                np.zeros_like(positions)
+            if not np.isfinite(velocities).all():
+                return None, 'non_finite'
+        return cls(t0, times, positions, velocities), None
+
     @property
     def end(self) -> float:
         """Return the absolute time (s) of the last point."""
