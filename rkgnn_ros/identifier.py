@@ -112,11 +112,11 @@ class IdentifierNode(Node):
 
     def __init__(self, node_name: str = 'identifier', **kwargs):
         super().__init__(node_name, **kwargs)
+        self._params = IdentifierParameters(self)  # an invalid one refuses at once
         # compile every kernel now (numba holds the GIL while compiling): never in the worker
         seconds = precompile()
         self.get_logger().info(f'compiled kernels ready in {seconds:.1f} s'
                                + (' (first run: compiled and cached)' if seconds > 5 else ''))
-        self._params = IdentifierParameters(self)
         self.add_on_set_parameters_callback(self._params.validate)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         config = self._params.config
@@ -228,8 +228,8 @@ class IdentifierNode(Node):
         self._ingestion.handle_reference(msg, self.get_clock().now().nanoseconds * 1e-9)
 
     def _on_reset(self, request, response):
+        self._ingestion.clear()  # first: whatever the worker takes from now on is new
         self._worker.request_reset()
-        self._ingestion.clear()
         response.success = True
         response.message = ('buffer cleared; the search restarts when '
                             f"{self._params.config['min_window']} s of data are buffered")

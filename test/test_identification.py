@@ -170,7 +170,7 @@ def test_the_ingest_thread_takes_the_streams_without_any_executor(context, data)
         states = publisher.create_publisher(JointState, 'joint_states', 100)
         commands = publisher.create_publisher(JointState, 'joint_commands', 100)
         assert wait_for(lambda: states.get_subscription_count() >= 1
-                        and commands.get_subscription_count() >= 1, 10.0), 'no discovery'
+                        and commands.get_subscription_count() >= 1, 60.0), 'no discovery'
         for k in range(60):
             stamp = T0 + data.t[k]
             states.publish(make_joint_state(stamp, JOINTS, data.theta[k], data.theta_dot[k],
@@ -180,7 +180,7 @@ def test_the_ingest_thread_takes_the_streams_without_any_executor(context, data)
         # the default reliable QoS of these publishers against a best-effort reader:
         # loopback may still lose a few of the burst
         assert wait_for(lambda: ingestion.samples_buffered() >= 30
-                        and ingestion.buffer.stats()['command_samples'] >= 30, 10.0)
+                        and ingestion.buffer.stats()['command_samples'] >= 30, 60.0)
         assert ingestion.drop_counts()['internal_error'] == 0
         assert ingestion.latest_state.received_ns > 0
     finally:
@@ -307,7 +307,7 @@ def test_the_worker_logs_counts_and_survives_a_failing_step(data):
     worker = SearchWorker(ingestion, predictor, outbox, policy=_Failing)
     worker.start()
     try:
-        assert wait_for(lambda: ingestion.drop_counts()['worker_error'] >= 2, 10.0)
+        assert wait_for(lambda: ingestion.drop_counts()['worker_error'] >= 2, 60.0)
         assert worker.status.state == 'error' and 'injected' in worker.status.detail
     finally:
         assert worker.stop()
