@@ -262,9 +262,13 @@ class IdentifierNode(Node):
                 logger.warning(f'the {what} did not stop in time')
         self._publishing.drain()  # publish and log what the threads left
         path = self._params.config['model_file']
-        if path and self._publishing.model is not None:
-            ok, message = save_model_file(path, self._publishing.model)
-            (logger.info if ok else logger.error)(f'at shutdown: {message}')
+        if not path:
+            return
+        if self._publishing.model is None:
+            logger.info(f'at shutdown: no model identified yet, nothing saved to {path}')
+            return
+        ok, message = save_model_file(path, self._publishing.model)
+        (logger.info if ok else logger.error)(f'at shutdown: {message}')
 
 
 def main(args=None):

@@ -761,7 +761,11 @@ def test_item_23_worker_exception_is_logged_counted_and_survived(data, monkeypat
 
 def test_item_24_sigint_mid_generation_exits_cleanly(data, tmp_path):
     path = tmp_path / 'saved.yaml'
-    proc = _run_module(['-p', 'min_window:=0.5', '-p', f'model_file:={path}'])
+    # a node name of its own: a model from any other identifier in this DDS domain (a
+    # lingering process of another test) must not trigger the interrupt
+    name = f'sigint_identifier_{os.getpid()}'
+    proc = _run_module(['-r', f'__node:={name}', '-p', 'min_window:=0.5',
+                        '-p', f'model_file:={path}'])
     node = None
     try:
         # feed it over the middleware so it evolves, then interrupt
@@ -771,7 +775,7 @@ def test_item_24_sigint_mid_generation_exits_cleanly(data, tmp_path):
         pub_s = node.create_publisher(JointState, 'joint_states', 100)
         pub_c = node.create_publisher(JointState, 'joint_commands', 100)
         models = []
-        node.create_subscription(String, 'identifier/model', models.append, QoSProfile(
+        node.create_subscription(String, f'{name}/model', models.append, QoSProfile(
             depth=1, reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL))
         executor = SingleThreadedExecutor(context=context)
@@ -799,6 +803,7 @@ def test_item_24_sigint_mid_generation_exits_cleanly(data, tmp_path):
             rclpy.try_shutdown(context=context)
     assert proc.returncode == 0, err[-2000:]
     assert 'Traceback' not in err
+    assert path.exists(), err[-3000:]
     assert RKGNNModel.load(path).joint_names == JOINTS  # saved at shutdown, loadable
 
 

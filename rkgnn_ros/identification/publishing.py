@@ -158,8 +158,11 @@ class Publishing:
     def publish_model(self, update: ModelUpdate, text: Optional[str] = None) -> None:
         """Publish a model on ``~/model``, predict with it, set the ``identified.*`` outputs."""
         model = update.model
-        self._publishers['model'].publish(String(data=text or model.to_yaml()))
+        # kept before publishing: a SIGINT that lands between the publish call and the next
+        # statement must not lose a model that subscribers have already received (the one
+        # saved at shutdown is the one they saw last)
         self._model = model
+        self._publishers['model'].publish(String(data=text or model.to_yaml()))
         self._predictor.set_model(model, update.loop)
         refused = self._parameters.set_outputs(
             self._node, update.generation, update.cost, update.validation_nrmse, update.kp,
