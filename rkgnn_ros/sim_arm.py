@@ -70,6 +70,7 @@ All parameters are read-only (set them at start; they define the simulated syste
 except ``noise.theta_std`` and ``noise.theta_dot_std``, which can be changed at any time.
 """
 
+from functools import partial
 import math
 import sys
 import traceback
@@ -77,8 +78,7 @@ from typing import List, NamedTuple, Optional, Tuple
 
 from numba import njit
 import numpy as np
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -97,6 +97,7 @@ from .core.sim.sensors import SensorModel, VELOCITY_SOURCES
 from .core.sim.servo import (DEFAULT_WINDUP_TIME, GRAVITY_MODES, Servo,
                              servo_integral_rate_into, servo_torque_into)
 from .core.sim.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
+from .parameters import Change, ParameterSpec
 
 NODE_NAME = 'sim_arm'
 
@@ -408,15 +409,8 @@ class ArmSimulator:
 # -- parameters ---------------------------------------------------------------------------
 
 
-class _Spec(NamedTuple):
-    name: str
-    default: object
-    description: str
-    low: Optional[float] = None
-    high: Optional[float] = None
-    constraints: str = ''
-    read_only: bool = True
-
+#: A row of the table below: set at start unless it says ``change=Change.LIVE``.
+_Spec = partial(ParameterSpec, change=Change.START)
 
 _MAX_INT = 2 ** 31 - 1
 
@@ -477,11 +471,11 @@ PARAMETERS = (
     _Spec('reference.chirp_duration', 60.0, "Sweep time of 'chirp' (s).", 0.01, 1e9),
     _Spec('noise.theta_std', 0.0,
           'Standard deviation of the white noise on the published positions (rad); '
-          'may be changed at run time.', 0.0, 1.0, read_only=False),
+          'may be changed at run time.', 0.0, 1.0, change=Change.LIVE),
     _Spec('noise.theta_dot_std', 0.0,
           'Standard deviation of the white noise on the published velocities (rad/s) when '
           "sensors.velocity is 'sensor'; may be changed at run time.", 0.0, 100.0,
-          read_only=False),
+          change=Change.LIVE),
     _Spec('sensors.velocity', 'sensor',
           "What the driver publishes as velocity: 'sensor' (true velocity plus "
           "noise.theta_dot_std), 'difference' (backward difference of the published "
@@ -519,26 +513,7 @@ PARAMETERS = (
           0.0, 1e9),
 )
 
-_PARAMETER_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-                    float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
-
-
-def _descriptor(spec: _Spec) -> ParameterDescriptor:
-    if isinstance(spec.default, list):
-        kind = (ParameterType.PARAMETER_STRING_ARRAY if isinstance(spec.default[0], str)
-                else ParameterType.PARAMETER_DOUBLE_ARRAY)
-    else:
-        kind = _PARAMETER_TYPES[type(spec.default)]
-    descriptor = ParameterDescriptor(
-        name=spec.name, type=kind, description=spec.description,
-        additional_constraints=spec.constraints, read_only=spec.read_only)
-    if spec.low is not None and kind == ParameterType.PARAMETER_DOUBLE:
-        descriptor.floating_point_range = [FloatingPointRange(
-            from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-    elif spec.low is not None and kind == ParameterType.PARAMETER_INTEGER:
-        descriptor.integer_range = [IntegerRange(
-            from_value=int(spec.low), to_value=int(spec.high), step=1)]
-    return descriptor
+_BY_NAME = {spec.name: spec for spec in PARAMETERS}
 
 
 class SimConfig(NamedTuple):
@@ -799,31 +774,28 @@ class SimArm(Node):
         values = {}
         for spec in PARAMETERS:
             try:
-                values[spec.name] = self.declare_parameter(
-                    spec.name, spec.default, _descriptor(spec)).value
+                values[spec.name] = spec.declare(self)
             except ParameterException as error:
                 reason = error.args[0] if error.args else repr(error)
                 raise ConfigurationError(f'parameter {spec.name!r}: {reason}') from None
         return values
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
-        """Accept run-time changes of the noise levels only if finite and >= 0; never raise."""
+        """Check run-time changes of the live parameters by their table rows; never raise."""
         try:
             for param in parameters:
-                if param.name in ('noise.theta_std', 'noise.theta_dot_std'):
-                    value = param.value
-                    if not (isinstance(value, float) and math.isfinite(value)
-                            and value >= 0.0):
-                        return SetParametersResult(
-                            successful=False,
-                            reason=f'{param.name} must be a finite float >= 0, got {value!r}')
-                    velocity = self.config.sensors.velocity
-                    if param.name == 'noise.theta_dot_std' and value > 0.0 and \
-                            velocity != 'sensor':
-                        return SetParametersResult(
-                            successful=False,
-                            reason=f'noise.theta_dot_std must be 0 with sensors.velocity '
-                                   f'{velocity!r}: only a sensed velocity has noise of its own')
+                spec = _BY_NAME.get(param.name)
+                if spec is not None and spec.change == Change.LIVE:
+                    reason = spec.check(param.value)
+                    if reason:
+                        return SetParametersResult(successful=False, reason=reason)
+                velocity = self.config.sensors.velocity
+                if param.name == 'noise.theta_dot_std' and param.value > 0.0 and \
+                        velocity != 'sensor':
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f'noise.theta_dot_std must be 0 with sensors.velocity '
+                               f'{velocity!r}: only a sensed velocity has noise of its own')
             return SetParametersResult(successful=True)
         except Exception as error:  # a callback must never raise
             return SetParametersResult(successful=False, reason=f'rejected: {error!r}')
@@ -869,6 +841,8 @@ class SimArm(Node):
         except SimulationDiverged as error:
             self._fail(str(error))
         except Exception:  # nothing may escape a callback
+            if not self.context.ok():
+                return  # shut down (SIGINT) while publishing: the requested end, no failure
             self._fail(f'unexpected error in the simulation step:\n{traceback.format_exc()}')
 
     def _fail(self, message: str):

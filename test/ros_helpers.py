@@ -17,6 +17,9 @@ from contextlib import contextmanager
 import threading
 import time
 
+from rcl_interfaces.msg import Log
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
 
 def run_in_executor(executor, fn, timeout=10.0):
     """
@@ -53,13 +56,43 @@ def retire_node(executor, node, timeout=10.0):
     run_in_executor(executor, retire, timeout)
 
 
-def wait_for(condition, timeout, what):
-    """Poll ``condition`` every 10 ms; fail naming ``what`` after ``timeout`` seconds."""
+def wait_for(predicate, timeout, interval=0.02):
+    """Poll ``predicate`` until it is truthy or ``timeout`` s pass; return its last value."""
     end = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > end:
-            raise AssertionError(f'timed out after {timeout} s waiting for {what}')
-        time.sleep(0.01)
+    while True:
+        value = predicate()
+        if value or time.monotonic() > end:
+            return value
+        time.sleep(interval)
+
+
+class Rosout:
+    """
+    The log lines of nodes, as any user sees them: ``/rosout`` (transient local).
+
+    ``lines(logger, *words, level=...)`` returns the texts a logger published that
+    contain every word (``level``: 'info', 'warning' or 'error'; None for all).
+    """
+
+    LEVELS = {'info': Log.INFO, 'warning': Log.WARN, 'error': Log.ERROR}
+
+    def __init__(self, node):
+        self._lock = threading.Lock()
+        self._logs = []
+        node.create_subscription(Log, '/rosout', self._add, QoSProfile(
+            depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+
+    def _add(self, msg):
+        with self._lock:
+            self._logs.append((msg.name, msg.level, msg.msg))
+
+    def lines(self, logger, *words, level=None):
+        wanted = self.LEVELS.get(level)
+        with self._lock:
+            logs = list(self._logs)
+        return [text for name, lvl, text in logs if name == logger
+                and (wanted is None or lvl == wanted) and all(w in text for w in words)]
 
 
 def stamp_ns(msg) -> int:

@@ -63,7 +63,7 @@ def record(context, executor, count, **overrides):
         Parameter(name, value=value) for name, value in overrides.items()])
     executor.add_node(node)
     try:
-        wait_for(lambda: len(states) >= count, 30.0, f'{count} joint_states')
+        assert wait_for(lambda: len(states) >= count, 30.0), f'no {count} joint_states'
         origin = node.time_origin_ns
         return node, probe, states[:count], origin
     except BaseException:
@@ -143,7 +143,7 @@ def test_differenced_velocity_is_published_and_theta_dot_noise_is_refused(ros):
         request = SetParameters.Request(parameters=[
             Parameter('noise.theta_dot_std', value=0.01).to_parameter_msg()])
         future = client.call_async(request)
-        wait_for(future.done, 5.0, 'set_parameters')
+        assert wait_for(future.done, 5.0), 'timed out waiting for set_parameters'
         result = future.result().results[0]
         assert not result.successful and 'sensors.velocity' in result.reason
         probe.destroy_client(client)
