@@ -58,12 +58,14 @@ def peers_section(d):
              f"Evaluation budget {d['meta']['evaluation_budget']}, wall-time budget "
              f"{d['meta']['wall_budget_s']:.0f} s, {d['meta']['wall_s']:.0f} s in all "
              f"(load {d['meta']['load_start'][0]:.1f} at start).", '']
-    extra = d['meta'].get('noisy_only_run')
-    if extra:
-        methods = ', '.join(m for m in extra['methods'] if m != 'true_model')
-        lines[-1:-1] = [f'The noisy figures of {methods} come from a later `--noisy-only` run '
-                        f"of the same script on the same data ({extra['wall_s']:.0f} s, "
-                        f"{extra['date']})."]
+    for key, data in (('clean_only_run', 'noiseless'), ('noisy_only_run', 'noisy')):
+        extra = d['meta'].get(key)
+        if extra:
+            methods = ', '.join(m for m in extra['methods'] if m != 'true_model')
+            flag = '--' + key[:-len('_run')].replace('_', '-')
+            lines[-1:-1] = [f'The {data} figures of {methods} come from a later `{flag}` run '
+                            f"of the same script on the same data ({extra['wall_s']:.0f} s, "
+                            f"{extra['date']}, load {extra['load_start'][0]:.1f} at start)."]
     for title, block, key in (('10 s open loop, no noise', d, 'heldout_nrmse_10s'),
                               ('2 s ahead, no noise', d, 'ahead_nrmse_2s'),
                               ('10 s open loop, encoder noise', d.get('noisy', {}),
