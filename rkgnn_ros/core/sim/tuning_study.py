@@ -49,6 +49,7 @@ import numpy as np
 from .plant import forward_dynamics_into, PlanarArm
 from .simulate import MAX_SPEED
 from .trajectories import Reference
+from .tuning import TrackingProblem
 from ..integration.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
 
 __all__ = ['DEFAULT_STEP', 'SampledTrackingProblem']
@@ -242,14 +243,8 @@ class SampledTrackingProblem:
         theta_d, theta_d_dot = reference.evaluate(times)
         return np.ascontiguousarray(np.stack([theta_d, theta_d_dot], axis=1))
 
-    def _gains(self, gains) -> np.ndarray:
-        g = np.ascontiguousarray(gains, dtype=float)
-        if g.ndim != 2 or g.shape[1] != 2 * self.n:
-            raise ValueError(f'gains must have shape (P, {2 * self.n}) = [Kp, Kd] rows, got '
-                             f'{g.shape}')
-        if not np.all(np.isfinite(g)):
-            raise ValueError('gains must be finite')
-        return g
+    # the same check of the (P, 2n) gain rows as the continuous problem's (it reads self.n)
+    _gains = TrackingProblem._gains
 
     def cost(self, gains) -> np.ndarray:
         """
