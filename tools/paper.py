@@ -266,11 +266,16 @@ def plot_evolution(case, runs, path):
     plt.close(fig)
 
 
-#: The PD tuning study: (servo rate in Hz, None for the continuous PD; torque limit, None
-#: for none or 'peak' for the peak torque per joint of the paper's own loop on the same
-#: reference, rounded up to 0.5 N m), in the order they are run.
-PD_STUDY = ((200.0, None), (200.0, 'peak'), (1000.0, 'peak'), (100.0, 'peak'),
-            (100.0, None), (1000.0, None), (None, None))
+#: The PD tuning study: (servo rate in Hz, None for the continuous PD; torque limit as a
+#: multiple of the paper loop's peak torque per joint on the same reference, rounded up to
+#: 0.5 N m, None for none), in the order they are run.
+PD_STUDY = ((200.0, None), (200.0, 1.0), (1000.0, 1.0), (100.0, None), (None, None),
+            (200.0, 0.75), (1000.0, None), (100.0, 1.0))
+
+#: Coordinate scans of the study: each gain swept over its range (41 values) with the
+#: others at the paper's, for these (servo rate, torque limit factor) pairs.
+PD_SCANS = ((None, None), (1000.0, None), (200.0, None), (100.0, None), (200.0, 1.0),
+            (200.0, 0.75))
 
 
 def peak_torque(arm, reference, duration=10.0):
@@ -316,26 +321,74 @@ def tune_gains(generations, log, servo_rate=None, torque_limit=None, seed=0):
     return out
 
 
+def coordinate_scan(servo_rate, torque_limit, points=41):
+    """
+    Sweep each gain over its bounds with the others at the paper's; return one dict per gain.
+
+    Says, gain by gain, whether eq. (10) has its minimum near the published value under the
+    given servo: the value of the sweep's minimum, its cost and the paper's.
+    """
+    from rkgnn_ros.core.sim.tuning import DEFAULT_BOUNDS, paper_gains, TrackingProblem
+    from rkgnn_ros.core.sim.tuning_study import SampledTrackingProblem
+    arm, reference = PlanarArm.paper(), paper_reference(3)
+    problem = (TrackingProblem(arm, reference, 10.0) if servo_rate is None else
+               SampledTrackingProblem(arm, reference, 10.0, servo_rate, torque_limit))
+    paper = paper_gains()
+    (_, kp_hi), (_, kd_hi) = DEFAULT_BOUNDS
+    out = []
+    for i, name in enumerate(['Kp1', 'Kp2', 'Kp3', 'Kd1', 'Kd2', 'Kd3']):
+        values = np.linspace(0.0, kp_hi if i < 3 else kd_hi, points)
+        gains = np.tile(paper, (points, 1))                                  # (points, 6)
+        gains[:, i] = values
+        cost = problem.cost(gains)
+        k = int(np.argmin(cost))
+        out.append({'gain': name, 'paper': float(paper[i]), 'argmin': float(values[k]),
+                    'cost_at_argmin': float(cost[k])})
+    return {'servo_rate_hz': servo_rate,
+            'torque_limit_nm': None if torque_limit is None else np.asarray(
+                torque_limit, dtype=float).tolist(),
+            'cost_paper_gains': float(problem.cost(paper[None])[0]), 'gains': out}
+
+
 def pd_study(generations, seeds, log, path, argv):
-    """Run :data:`PD_STUDY` and write each row to ``path`` as it finishes."""
-    limit = peak_torque(PlanarArm.paper(), paper_reference(3))
-    study = {'meta': {'date': datetime.date.today().isoformat(),
-                      'command': 'python tools/paper.py ' + ' '.join(argv),
-                      'load_start': os.getloadavg(), 'generations': generations,
-                      'population_size': 60, 'peak_torque_nm': limit.tolist(),
-                      'reference': 'paper_reference(3), 10 s, error sampled at 100 Hz',
-                      'servo': 'state read at the servo instants, torque held (zero-order '
-                               'hold) and clipped to the limit; continuous: PD at every '
-                               'integration stage, no limit'},
-             'rows': []}
-    for servo_rate, torque_limit in PD_STUDY:
+    """
+    Run :data:`PD_STUDY` and :data:`PD_SCANS`, writing ``path`` after every row.
+
+    Rows already in ``path`` (same servo rate, limit and seed) are kept and not run again.
+    """
+    peak = peak_torque(PlanarArm.paper(), paper_reference(3))
+    study = {'rows': []}
+    if os.path.exists(path):
+        with open(path, encoding='utf-8') as f:
+            study = json.load(f)
+    study['meta'] = dict(study.get('meta', {}), **{
+        'date': datetime.date.today().isoformat(),
+        'command': 'python tools/paper.py ' + ' '.join(argv),
+        'load_start': os.getloadavg(), 'generations': generations, 'population_size': 60,
+        'peak_torque_nm': peak.tolist(),
+        'reference': 'paper_reference(3), 10 s, error sampled at 100 Hz',
+        'servo': 'digital: state read at the servo rate, torque held (zero-order hold) and '
+                 'clipped to the limit; continuous: PD at every integration stage, no limit'})
+
+    def write():
+        study['meta']['load_end'] = os.getloadavg()
+        with open(path, 'w', encoding='utf-8') as f:
+            json.dump(_finite_or_none(study), f, indent=2)
+
+    def limit_of(factor):
+        return None if factor is None else (factor * peak).tolist()
+
+    done = {(r['servo_rate_hz'], r['torque_limit_nm'] and tuple(r['torque_limit_nm']),
+             r['seed']) for r in study['rows']}
+    study['scans'] = [coordinate_scan(rate, limit_of(factor)) for rate, factor in PD_SCANS]
+    write()
+    for servo_rate, factor in PD_STUDY:
+        limit = limit_of(factor)
         for seed in seeds:
-            row = tune_gains(generations, log, servo_rate,
-                             limit if torque_limit == 'peak' else torque_limit, seed)
-            study['rows'].append(row)
-            study['meta']['load_end'] = os.getloadavg()
-            with open(path, 'w', encoding='utf-8') as f:
-                json.dump(_finite_or_none(study), f, indent=2)
+            if (servo_rate, limit and tuple(limit), seed) in done:
+                continue
+            study['rows'].append(tune_gains(generations, log, servo_rate, limit, seed))
+            write()
     return study
 
 
