@@ -145,6 +145,21 @@ def pd_tuning_section(d):
         lines.append(f"| {servo} | {limit} | {[round(v, 2) for v in r['kp_found']]} | "
                      f"{[round(v, 2) for v in r['kd_found']]} | {_cost(r['cost_found'])} | "
                      f"{_cost(r['cost_paper_gains'])} |")
+    scans = d.get('scans')
+    if scans:
+        names = [g['gain'] for g in scans[0]['gains']]
+        lines += ['', 'Each gain swept over its bounds (41 values) with the others at the '
+                  "paper's: where J is lowest (the paper's value in the header).", '',
+                  '| servo | torque limit [N m] | ' + ' | '.join(
+                      f"{g['gain']} ({g['paper']:g})" for g in scans[0]['gains'])
+                  + " | J of the paper's gains |", '|---|---|' + '---|' * (len(names) + 1)]
+        for scan in scans:
+            servo = ('continuous' if scan['servo_rate_hz'] is None
+                     else f"{scan['servo_rate_hz']:g} Hz")
+            limit = 'none' if scan['torque_limit_nm'] is None else str(scan['torque_limit_nm'])
+            lines.append(f'| {servo} | {limit} | ' + ' | '.join(
+                f"{g['argmin']:g}" if g['cost_at_argmin'] is not None else 'all diverge'
+                for g in scan['gains']) + f" | {_cost(scan['cost_paper_gains'])} |")
     return lines + ['']
 
 
