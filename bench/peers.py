@@ -194,7 +194,7 @@ def rkgnn_predictor(model, case, refs):
 
 
 def rkgnn_paper_ea(case, fit, kp, kd, generations, seed):
-    """The paper's structure and EA (its defaults: the start genome in the first generation)."""
+    """Fit the paper's structure with its EA (the start genome in the first generation)."""
     spec = NetworkSpec.paper(N, CASES[case])
     evo = Evolution(spec, fit, 'paper', {'population_size': 100}, seed, kp, kd,
                     torque_interpolation='hold')

@@ -94,7 +94,7 @@ def _held(entry):
 
 
 def paper_section(d):
-    """The paper's structure and EA beside our pipeline, per case (paper.json)."""
+    """Return the lines of the paper's structure and EA beside our pipeline (paper.json)."""
     meta = d['meta']
     load = (f", load {meta['load_start'][0]:.1f} at start and {meta['load_end'][0]:.1f} at "
             'the end' if 'load_end' in meta else '')
@@ -115,7 +115,7 @@ def paper_section(d):
 
 
 def spread_section(d):
-    """The paper EA's final J per initial spread (paper_ea_spread.json)."""
+    """Return the lines of the paper EA's final J per initial spread (paper_ea_spread.json)."""
     cases = [c for c in ('1', '2', '3') if c in d]
     spreads = list(d[cases[0]]) if cases else []
     lines = ["## The paper EA's initial spread (`tools/paper.py --spread-study`)", '',
@@ -132,7 +132,7 @@ def spread_section(d):
 
 
 def pd_tuning_section(d):
-    """The PD tuning study (pd_tuning.json)."""
+    """Return the lines of the PD tuning study (pd_tuning.json)."""
     lines = ['## PD tuning, eq. (10) (`tools/paper.py --pd-study`)', '',
              f"The paper EA, {d['meta']['population_size']} individuals × "
              f"{d['meta']['generations']} generations; {d['meta']['servo']}. The paper's "

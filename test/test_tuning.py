@@ -13,8 +13,9 @@
 # limitations under the License.
 
 """
-PD gain tuning: the eq. (10) cost against simulate(), kernel against numpy, divergence, EA;
-the digital servo's cost (tuning_study) against adaptive integration between its instants.
+PD gain tuning: the eq. (10) cost against simulate(), kernel against numpy, divergence, EA.
+
+The digital servo's cost (tuning_study) is held to adaptive integration between its instants.
 
 The reference errors come from :func:`rkgnn_ros.core.sim.simulate.simulate` (LSODA at rtol
 1e-9), independent of the fixed-step kernel under test.
