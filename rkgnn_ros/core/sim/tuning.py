@@ -683,10 +683,9 @@ def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
     100 s to 3 min of wall-clock time on two cores, depending on their load).
 
     Eq. (10) has no torque term and the PD no torque limit, so on that arm and reference
-    the error falls as the gains grow and the EA ends near the upper corner of the bounds
-    (seed 0: Kp = (99.97, 99.96, 99.81), Kd = (49.94, 49.94, 49.21), cost 0.1255 against
-    0.2854 for the paper's gains): the bounds, i.e. what the actuators allow, decide the
-    gains.
+    the error falls as the gains grow and the EA ends near the upper corner of the bounds:
+    the bounds, i.e. what the actuators allow, decide the gains (figures, and the same for
+    a digital servo, in ``bench/results/pd_tuning.json``).
 
     Parameters
     ----------
