@@ -131,6 +131,14 @@ def spread_section(d):
     return lines + ['']
 
 
+def _servo_order(row):
+    """Sort key: continuous first, then faster servos, then looser torque limits."""
+    rate = row['servo_rate_hz']
+    limit = row['torque_limit_nm']
+    return (-(float('inf') if rate is None else rate),
+            -(float('inf') if limit is None else sum(limit)))
+
+
 def pd_tuning_section(d):
     """Return the lines of the PD tuning study (pd_tuning.json)."""
     lines = ['## PD tuning, eq. (10) (`tools/paper.py --pd-study`)', '',
@@ -139,7 +147,7 @@ def pd_tuning_section(d):
              'gains: Kp = diag(32.84, 42.05, 42.31), Kd = diag(42.44, 0.19, 4.86).', '',
              '| servo | torque limit [N m] | Kp found | Kd found | J found | '
              "J of the paper's gains |", '|---|---|---|---|---|---|']
-    for r in d['rows']:
+    for r in sorted(d['rows'], key=_servo_order):
         servo = 'continuous' if r['servo_rate_hz'] is None else f"{r['servo_rate_hz']:g} Hz"
         limit = 'none' if r['torque_limit_nm'] is None else str(r['torque_limit_nm'])
         lines.append(f"| {servo} | {limit} | {[round(v, 2) for v in r['kp_found']]} | "
@@ -153,7 +161,7 @@ def pd_tuning_section(d):
                   '| servo | torque limit [N m] | ' + ' | '.join(
                       f"{g['gain']} ({g['paper']:g})" for g in scans[0]['gains'])
                   + " | J of the paper's gains |", '|---|---|' + '---|' * (len(names) + 1)]
-        for scan in scans:
+        for scan in sorted(scans, key=_servo_order):
             servo = ('continuous' if scan['servo_rate_hz'] is None
                      else f"{scan['servo_rate_hz']:g} Hz")
             limit = 'none' if scan['torque_limit_nm'] is None else str(scan['torque_limit_nm'])
