@@ -83,10 +83,12 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from .conversions import make_joint_state, make_joint_trajectory
-from .core.integration.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
-from .core.sim.plant import (ArmParameters, forward_dynamics_kernel, MASS_MODELS,
-                             max_stable_rkg_step, PDController, PlanarArm,
-                             RK4_REAL_STABILITY_LIMIT)
+from .core.integration.rkg import gill_node, gill_stage, rkg_step
+from .core.integration.rkg import STABILITY_LIMIT as RK4_REAL_STABILITY_LIMIT
+from .core.sim.parameters import ArmParameters, MASS_MODELS
+from .core.sim.plant import PDController, PlanarArm
+from .core.sim.plant_kernels import forward_dynamics_kernel
+from .core.sim.stability import max_stable_rkg_step
 from .core.sim.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
 
 NODE_NAME = 'sim_arm'
@@ -144,10 +146,10 @@ def _rkg_pd_steps(x, h, steps, ref, tau_held, kp, kd, d, gh, fv, fc, vc):
     """
     Return ``x`` (2n,) advanced by ``steps`` Runge-Kutta-Gill steps of width ``h``.
 
-    The compiled twin of :func:`.core.integration.rkg.rkg_step` (Gill's coefficients imported
-    from there) applied to :func:`_pd_rate`: ``ref`` (2 steps + 1, 2, n) holds θd, θ̇d at the
-    stage times t + k h/2, or has shape (0, 2, n) for the held torque ``tau_held``. The
-    other arguments are those of :func:`_pd_rate`.
+    The stage loop of :func:`.core.integration.rkg.rkg_step` with its compiled stage update
+    (:func:`.core.integration.rkg.gill_stage`) applied to :func:`_pd_rate`: ``ref``
+    (2 steps + 1, 2, n) holds θd, θ̇d at the stage times t + k h/2, or has shape (0, 2, n)
+    for the held torque ``tau_held``. The other arguments are those of :func:`_pd_rate`.
     """
     m = x.shape[0]
     x = x.copy()
@@ -155,25 +157,10 @@ def _rkg_pd_steps(x, h, steps, ref, tau_held, kp, kd, d, gh, fv, fc, vc):
     q = np.empty(m)
     y = np.empty(m)
     for i in range(steps):
-        j = 2 * i
-        _pd_rate(x, ref, j, tau_held, kp, kd, d, gh, fv, fc, vc, f)
-        for r in range(m):
-            k = h * f[r]
-            y[r] = x[r] + 0.5 * k
-            q[r] = k
-        _pd_rate(y, ref, j + 1, tau_held, kp, kd, d, gh, fv, fc, vc, f)
-        for r in range(m):
-            k = h * f[r]
-            y[r] += ALPHA * (k - q[r])
-            q[r] = BETA * q[r] + E * k
-        _pd_rate(y, ref, j + 1, tau_held, kp, kd, d, gh, fv, fc, vc, f)
-        for r in range(m):
-            k = h * f[r]
-            y[r] += D * (k - q[r])
-            q[r] = GAMMA * q[r] + G * k
-        _pd_rate(y, ref, j + 2, tau_held, kp, kd, d, gh, fv, fc, vc, f)
-        for r in range(m):
-            x[r] = y[r] + h * f[r] / 6.0 - q[r] / 3.0
+        y[:] = x
+        for stage in range(4):
+            _pd_rate(y, ref, 2 * i + gill_node(stage), tau_held, kp, kd, d, gh, fv, fc, vc, f)
+            gill_stage(stage, h, x, y, f, q)
     return x
 
 

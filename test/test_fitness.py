@@ -24,9 +24,10 @@ which the compiled kernel and the numpy reference must agree to rounding.
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.fitting.fitness import FitnessProblem, hermite, stage_inputs, stage_times
+from rkgnn_ros.core.fitting.fitness import FitnessProblem
 from rkgnn_ros.core.fitting.warmstart import (_design, estimate_acceleration, least_squares_genome,
                                               LINEAR_BLOCKS)
+from rkgnn_ros.core.integration.inputs import hermite, stage_inputs, stage_times
 from rkgnn_ros.core.model.network import BatchedNetwork, NetworkSpec, Scales
 from rkgnn_ros.core.sim.trajectories import paper_reference
 

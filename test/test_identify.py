@@ -30,7 +30,8 @@ from rkgnn_ros.core.fitting.identify import (default_substeps, Evolution, fit, n
                                              nrmse, RKGNNModel)
 from rkgnn_ros.core.integration.rkg import rkg_integrate
 from rkgnn_ros.core.model.network import BatchedNetwork, NetworkSpec, Scales
-from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
+from rkgnn_ros.core.sim.parameters import ArmParameters
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 import yaml

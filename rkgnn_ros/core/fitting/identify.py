@@ -34,9 +34,10 @@ from typing import Callable, List, Optional, Sequence
 import numpy as np
 import yaml
 
-from .fitness import FitnessProblem, stage_inputs
+from .fitness import FitnessProblem
 from .optimizers import make_optimizer
 from ..data import Dataset
+from ..integration.inputs import stage_inputs
 from ..integration.rkg import choose_substeps
 from ..model.network import BatchedNetwork, NetworkSpec, Scales
 
