@@ -154,10 +154,11 @@ from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arr
                                    serialize_joint_trajectory)
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
-from rkgnn_ros.core.fitting.identify import (Evolution, normalize_case, nrmse, precompile,
-                                             remove_stale_temp_files, RKGNNModel)
+from rkgnn_ros.core.fitting.identify import Evolution, normalize_case, nrmse, precompile
 from rkgnn_ros.core.fitting.optimizers import CMAES, make_optimizer, OPTIMIZERS, PaperEA
-from rkgnn_ros.core.model.network import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
+from rkgnn_ros.core.model.files import remove_stale_temp_files
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.stream_buffer import DROP_REASONS, StreamBuffer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String

@@ -28,10 +28,10 @@ import sys
 
 import numpy as np
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
-from rkgnn_ros.core.fitting.identify import RKGNNModel
 from rkgnn_ros.core.fitting.refine import equation_residuals
 from rkgnn_ros.core.fitting.warmstart import estimate_acceleration, least_squares_genome
-from rkgnn_ros.core.model.network import NetworkSpec
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference

@@ -28,7 +28,9 @@ from rkgnn_ros.core.fitting.fitness import FitnessProblem
 from rkgnn_ros.core.fitting.warmstart import (_design, estimate_acceleration, least_squares_genome,
                                               LINEAR_BLOCKS)
 from rkgnn_ros.core.integration.inputs import hermite, stage_inputs, stage_times
-from rkgnn_ros.core.model.network import BatchedNetwork, NetworkSpec, Scales
+from rkgnn_ros.core.model.network import BatchedNetwork
+from rkgnn_ros.core.model.scales import Scales
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.trajectories import paper_reference
 
 N = 3
@@ -584,7 +586,7 @@ def test_least_squares_gauge_in_case_3():
     g[p.start:p.stop] = np.abs(g[p.start:p.stop]) + 0.5
     net = BatchedNetwork(spec, spec.decode(g, SCALES), SCALES)
     params = spec.decode(g, SCALES)
-    kp, kd = params['kp'][0], params['kd'][0]
+    kp, kd = params.kp[0], params.kd[0]
     datasets = []
     rng = np.random.default_rng(11)
     for t, theta, theta_dot, acc in polynomial_segments(rng):

@@ -24,12 +24,14 @@ import os
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.fitting import identify
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
-from rkgnn_ros.core.fitting.identify import (default_substeps, Evolution, fit, normalize_case,
-                                             nrmse, RKGNNModel)
+from rkgnn_ros.core.fitting.identify import default_substeps, Evolution, fit, normalize_case, nrmse
 from rkgnn_ros.core.integration.rkg import rkg_integrate
-from rkgnn_ros.core.model.network import BatchedNetwork, NetworkSpec, Scales
+from rkgnn_ros.core.model import files
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.model.network import BatchedNetwork
+from rkgnn_ros.core.model.scales import Scales
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.parameters import ArmParameters
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
@@ -115,7 +117,7 @@ def test_save_is_atomic(tmp_path, monkeypatch):
     def failing_replace(src, dst):
         raise OSError('disk full')
 
-    monkeypatch.setattr(identify.os, 'replace', failing_replace)
+    monkeypatch.setattr(files.os, 'replace', failing_replace)
     with pytest.raises(OSError, match='disk full'):
         old.save(path)
     # the previous file is intact and no temporary file is left behind
@@ -592,7 +594,7 @@ def test_stale_temp_files_of_a_killed_save_are_removed(tmp_path):
     keep = [tmp_path / '.other.yaml.abc.tmp', tmp_path / 'model.yaml.tmp']
     for other in keep:
         other.write_text('not ours')
-    assert identify.remove_stale_temp_files(path) == 2
+    assert files.remove_stale_temp_files(path) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         ['model.yaml'] + [p.name for p in keep])
     assert RKGNNModel.load(path).case == 'torque'

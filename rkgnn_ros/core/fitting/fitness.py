@@ -28,8 +28,10 @@ plausible state range or turns non-finite costs +inf, never NaN.
 
 Three implementations share one :class:`FitnessProblem`: ``cost_loop`` (a per-individual
 Python loop), ``cost_numpy`` (batched over the population: the reference) and ``cost`` (the
-compiled numba kernel of :mod:`rkgnn_ros.core.model.kernels`, which releases the GIL). Tests hold
-them equal.
+compiled numba kernel of :mod:`rkgnn_ros.core.model.kernels`, which releases the GIL). Tests
+hold them equal. The problem builds the kernels' genome-independent records once
+(:class:`..model.kernels.Segments`, :class:`..model.params.NetworkConstants`); a generation
+decodes its population into one :class:`..model.params.NetworkParams`.
 """
 
 from typing import List, Optional, Sequence
@@ -39,7 +41,9 @@ import numpy as np
 from ..data import Dataset
 from ..integration.inputs import stage_inputs
 from ..integration.rkg import rkg_step
-from ..model.network import BatchedNetwork, NetworkSpec, Scales
+from ..model.network import BatchedNetwork
+from ..model.scales import Scales
+from ..model.spec import NetworkSpec
 
 
 class FitnessProblem:
@@ -129,6 +133,8 @@ class FitnessProblem:
         self.bound_scale = self.bound * np.concatenate(
             [self.scales.theta_spread + 1.0, self.scales.velocity * 10.0 + 1.0])
         self.n_predicted = sum(self._predicted(d.n_samples) for d in datasets)
+        self.constants = spec.constants(self.scales, self.kp, self.kd)
+        self._segments = None
 
     @staticmethod
     def _predicted(n_samples):
@@ -160,7 +166,7 @@ class FitnessProblem:
         net = self.network(genomes)
         data = self.datasets[segment]
         u = self.inputs[segment]
-        pop = net.p['centres'].shape[0]
+        pop = net.p.weights.shape[0]
         x_meas = data.state
         out = np.empty((pop, data.n_samples, x_meas.shape[1]))
         x = np.repeat(x_meas[:1], pop, axis=0)
@@ -214,30 +220,22 @@ class FitnessProblem:
         return np.array([self.cost_numpy(g[None, :])[0] for g in genomes])
 
     # ----- compiled fast path
-    def kernel_args(self, genomes):
-        """Decode into contiguous arrays for :func:`..model.kernels.population_cost`."""
-        p = self.spec.decode(genomes, self.scales)
-        spec = self.spec
-        case_id = {'torque': 0, 'pd_gains': 1, 'unknown': 2}[spec.case]
-        c = np.ascontiguousarray
-        return (self.x_meas, self.seg_start, self.u_flat, self.h, self.substeps,
-                self.shooting, case_id, spec.inertia == 'cholesky',
-                spec.velocity == 'christoffel', c(self.kp), c(self.kd),
-                c(spec.inertia_epsilon(self.scales)),
-                c(1.0 / np.sqrt(self.scales.inertia)), spec.coulomb_velocity,
-                c(p['centres']), c(p['inv_width2']), c(p['weights']), c(p['bias']),
-                c(p['viscous']), c(p['coulomb']),
-                c(p['p_centres']), c(p['p_inv_width2']), c(p['p_weights']),
-                c(p['d_centres']), c(p['d_inv_width2']), c(p['d_weights']),
-                c(p['kp']), c(p['kd']),
-                self.penalty_weight, self.bound_center, self.bound_scale,
-                float(self.n_predicted))
+    @property
+    def segments(self):
+        """Return the measured segments and stage inputs as the kernels take them (once)."""
+        if self._segments is None:
+            from ..model.kernels import Segments
+            self._segments = Segments(self.x_meas, self.seg_start, self.u_flat, self.h,
+                                      self.substeps, self.shooting, self.bound_center,
+                                      self.bound_scale)
+        return self._segments
 
     def cost(self, genomes):
         """Costs of a population with the compiled kernel: (P, N) -> (P,)."""
         from ..model.kernels import population_cost
-        genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
-        return population_cost(*self.kernel_args(genomes))
+        params = self.spec.decode(np.atleast_2d(np.asarray(genomes, dtype=float)), self.scales)
+        return population_cost(self.segments, self.constants, params, self.penalty_weight,
+                               float(self.n_predicted))
 
     __call__ = cost
 
@@ -253,12 +251,5 @@ class FitnessProblem:
 
         """
         from ..model.kernels import population_rollouts
-        args = self.kernel_args(np.atleast_2d(np.asarray(genomes, dtype=float)))
-        # the cost-only arguments (minor scaling, penalty, normaliser) are not needed here
-        (x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol, christ, kp_known,
-         kd_known, eps, _inv_sqrt_ms, vc, *params) = args
-        bound_center, bound_scale = params[15], params[16]
-        params = params[:14]
-        return population_rollouts(x_meas, seg_start, u_flat, h, substeps, shooting, case_id,
-                                   chol, christ, kp_known, kd_known, eps, vc, *params,
-                                   bound_center, bound_scale)
+        params = self.spec.decode(np.atleast_2d(np.asarray(genomes, dtype=float)), self.scales)
+        return population_rollouts(self.segments, self.constants, params)
