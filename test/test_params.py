@@ -94,6 +94,7 @@ def test_constants_describe_the_structure_and_the_known_gains():
     assert (c.case_id, c.chol, c.christ) == (1, True, True)
     n_poly = spec.bases[0].size(spec)
     assert c.kinds.tolist() == [spec.bases[0].kind] * n_poly + [spec.bases[1].kind] * 3
+    assert c.starts.tolist() == [0, n_poly, n_poly + 3] and not c.inlined
     assert c.codes.shape == (n_poly + 3, 3) and c.codes.dtype == np.int64
     np.testing.assert_array_equal(c.kp_known, [1.0, 2.0, 3.0])
     np.testing.assert_allclose(c.inv_sqrt_ms, 1.0 / np.sqrt(1.0 / np.array([2.0, 4.0, 8.0])))

@@ -137,13 +137,27 @@ def gill_stage(stage, h, x, xs, k, q):
         Gill's accumulator, carried from stage to stage.
 
     """
-    for j in range(k.shape[0]):
-        nxt, acc = _gill_update(stage, h * k[j], x[j], xs[j], q[j])
-        q[j] = acc
-        if stage == 3:
-            x[j] = nxt
-        else:
+    # one loop per stage, so that the compiler specialises the update to it
+    m = k.shape[0]
+    if stage == 0:
+        for j in range(m):
+            nxt, acc = _gill_update(0, h * k[j], x[j], xs[j], q[j])
             xs[j] = nxt
+            q[j] = acc
+    elif stage == 1:
+        for j in range(m):
+            nxt, acc = _gill_update(1, h * k[j], x[j], xs[j], q[j])
+            xs[j] = nxt
+            q[j] = acc
+    elif stage == 2:
+        for j in range(m):
+            nxt, acc = _gill_update(2, h * k[j], x[j], xs[j], q[j])
+            xs[j] = nxt
+            q[j] = acc
+    else:
+        for j in range(m):
+            nxt, acc = _gill_update(3, h * k[j], x[j], xs[j], q[j])
+            x[j] = nxt
 
 
 @njit(cache=True, nogil=True, inline='always')

@@ -22,11 +22,12 @@ whole population in parallel over individuals (``prange``) and releases the GIL 
 so the ROS executor keeps running while the identifier's worker thread evaluates a
 generation. A diverged rollout stops early and costs +inf.
 
-N_f is written out inline in every stage loop (the helpers are ``inline='always'``): a
-call per evaluation with dozens of array members would cost more reference counting than the
-arithmetic. The θ features come from the basis registry's dispatch on kind codes, so adding
-a basis changes no kernel here; the integration step is the package's one Runge-Kutta-Gill
-stage update (:func:`..integration.rkg.gill_stage`).
+N_f is written out inline in the stage loop (its helpers are ``inline='always'`` and take
+the arrays they compute on): a call per evaluation, or a record member read per use, would
+cost more reference counting than the arithmetic, so the records are read once per sampling
+interval (:func:`_advance`). The θ features come from the basis registry's dispatch on kind
+codes, so adding a basis changes no kernel here; the integration step is the package's one
+Runge-Kutta-Gill stage update (:func:`..integration.rkg.gill_stage`).
 
 Compiled functions are cached on disk (``cache=True``); the first call compiles (seconds).
 numba's cache notices changes of this file only, so :func:`ensure_current` (run at import)
@@ -38,7 +39,7 @@ import math
 from typing import NamedTuple
 import zlib
 
-from numba import njit, prange
+from numba import literally, njit, prange
 import numpy as np
 
 from . import params as params_module
@@ -85,7 +86,6 @@ class Buffers(NamedTuple):
     """Work arrays of one model's evaluations (allocated once per rollout)."""
 
     phi: np.ndarray         # (F,) features
-    dphi: np.ndarray        # (F, n) their gradients
     work: np.ndarray        # the bases' work table
     out: np.ndarray         # (n_out,) θ outputs
     mat: np.ndarray         # (n, n) M
@@ -124,10 +124,10 @@ def _compiled_fingerprint():
 def buffers(c, p):
     """Allocate the work arrays of one model ``p`` (a row of a population record)."""
     n = c.eps.shape[0]
-    n_feat = c.kinds.shape[0]
-    return Buffers(np.empty(n_feat), np.empty((n_feat, n)),
-                   np.zeros((c.work_rows, c.work_cols)), np.empty(p.weights.shape[0]),
-                   np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty(n),
+    n_feat = c.codes.shape[0]
+    return Buffers(np.empty(n_feat), np.zeros((c.work_rows, c.work_cols)),
+                   np.empty(p.weights.shape[0]), np.empty((n, n)), np.empty((n, n)),
+                   np.empty((n, n)), np.empty(n),
                    np.empty(n), np.empty(2 * n), np.empty(2 * n), np.empty(2 * n),
                    np.empty((n, n * (n + 1) // 2)), np.empty((n, n)), np.empty((n, n, n)),
                    np.empty(n))
@@ -197,16 +197,16 @@ def _det(a, k):
 
 
 @njit(cache=True, nogil=True, error_model='numpy', inline='always')
-def _theta_outputs(x, n, c, p, b):
-    """Fill ``b.phi`` and ``b.out`` with the features and the θ outputs at x (θ = x[:n])."""
-    registry.prepare(x, n, c.bases, b.work)
-    registry.features(x, n, c.kinds, c.codes, p.features, b.work, b.phi)
-    n_feat = c.kinds.shape[0]
-    for o in range(b.out.shape[0]):
+def _theta_outputs(x, n, bases, kinds, codes, feats, weights, bias, work, phi, out, inlined):
+    """Fill ``phi`` and ``out`` with the features and the θ outputs at x (θ = x[:n])."""
+    registry.prepare(x, n, bases, work, inlined)
+    registry.features(x, n, kinds, codes, feats, work, phi, inlined)
+    n_feat = codes.shape[0]
+    for o in range(out.shape[0]):
         acc = 0.0
         for kk in range(n_feat):
-            acc += p.weights[o, kk] * b.phi[kk]
-        b.out[o] = acc + p.bias[o]
+            acc += weights[o, kk] * phi[kk]
+        out[o] = acc + bias[o]
 
 
 @njit(cache=True, nogil=True, error_model='numpy', inline='always')
@@ -236,45 +236,43 @@ def _mass(out, n, chol, eps, mat, lmat):
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _min_minor(x, n, c, p, b):
+def _min_minor(x, n, c, p, b, inlined):
     """Return the smallest leading principal minor of the normalised M at x."""
-    _theta_outputs(x, n, c, p, b)
-    _mass(b.out, n, c.chol, c.eps, b.mat, b.lmat)
+    literally(inlined)
+    out, mat, scratch, inv_sqrt_ms = b.out, b.mat, b.scratch, c.inv_sqrt_ms
+    _theta_outputs(x, n, c.bases, c.kinds, c.codes, p.features, p.weights, p.bias, b.work,
+                   b.phi, out, inlined)
+    _mass(out, n, c.chol, c.eps, mat, b.lmat)
     worst = np.inf
     for k in range(1, n + 1):
         for i in range(n):
             for j in range(n):
-                b.scratch[i, j] = b.mat[i, j] * c.inv_sqrt_ms[i] * c.inv_sqrt_ms[j]
-        d = _det(b.scratch, k)
+                scratch[i, j] = mat[i, j] * inv_sqrt_ms[i] * inv_sqrt_ms[j]
+        d = _det(scratch, k)
         if d < worst:
             worst = d
     return worst
 
 
 @njit(cache=True, nogil=True, error_model='numpy', inline='always')
-def _christoffel(xs, n, c, p, b):
+def _christoffel(xs, n, chol, bases, starts, codes, feats, weights, work, phi, lmat, dout, dl,
+                 dmat, vvec, y, z, inlined):
     """
-    Fill b.vvec with V = Ṁθ̇ - ½ ∂(θ̇ᵀMθ̇)/∂θ from the inertia outputs (b.phi, b.lmat set).
+    Fill vvec with V = Ṁθ̇ - ½ ∂(θ̇ᵀMθ̇)/∂θ from the inertia outputs (phi, lmat set).
 
     With w_k = (∂M/∂θ_k) θ̇, V_a = Σ_k θ̇_k w_k[a] - ½ Σ_j θ̇_j w_a[j]. For M = L Lᵀ + εI,
     ∂M/∂θ_k = (∂L/∂θ_k) Lᵀ + L (∂L/∂θ_k)ᵀ, so w_k = (∂L/∂θ_k) y + L (∂L/∂θ_k)ᵀ θ̇ with
-    y = Lᵀθ̇: triangular products, no n x n x n tensor. b.dl holds w (row k = w_k); b.rhs
-    and b.acc serve as the work vectors y and z (free until the solve); b.dmat is used only
-    without ``chol`` (M's outputs are M itself).
+    y = Lᵀθ̇: triangular products, no n x n x n tensor. dl holds w (row k = w_k), y and z
+    are work vectors; dmat is used only without ``chol`` (M's outputs are M itself).
     """
     n_in = n * (n + 1) // 2
-    n_feat = c.kinds.shape[0]
-    dout, dl, lmat, y, z = b.dout, b.dl, b.lmat, b.rhs, b.acc
-    registry.gradients(xs, n, c.kinds, c.codes, p.features, b.work, b.phi, b.dphi)
     # dout[k, o] = ∂out_o/∂θ_k = Σ_f weights[o, f] ∂φ_f/∂θ_k
     for kk in range(n):
         for o in range(n_in):
             dout[kk, o] = 0.0
-        for u in range(n_feat):
-            g = b.dphi[u, kk]
-            for o in range(n_in):
-                dout[kk, o] += p.weights[o, u] * g
-    if c.chol:
+    registry.output_gradients(xs, n, bases, starts, codes, feats, work, phi, weights, n_in,
+                              dout, inlined)
+    if chol:
         # outputs fill L row by row: L[i, m] = out[i (i + 1) / 2 + m], m <= i
         for m in range(n):
             acc = 0.0
@@ -294,7 +292,6 @@ def _christoffel(xs, n, c, p, b):
                     acc += dout[kk, base + m] * y[m] + lmat[a, m] * z[m]
                 dl[kk, a] = acc
     else:
-        dmat = b.dmat
         for kk in range(n):
             idx = 0
             for i in range(n):
@@ -311,7 +308,7 @@ def _christoffel(xs, n, c, p, b):
         v = 0.0
         for kk in range(n):
             v += xs[n + kk] * dl[kk, a] - 0.5 * xs[n + kk] * dl[a, kk]
-        b.vvec[a] = v
+        vvec[a] = v
 
 
 @njit(cache=True, nogil=True, error_model='numpy', inline='always')
@@ -332,69 +329,81 @@ def _learned_velocity(xs, n, out, vvec):
         vvec[a] = v
 
 
-@njit(cache=True, nogil=True, error_model='numpy', inline='always')
-def _rate(xs, u_flat, row, s, ui, c, p, b):
-    """
-    Fill ``b.k`` with ẋ = N_f(xs, u): θ̇ and θ̈ = M⁻¹ (τ - V - G - F).
-
-    The input is ``u = u_flat[row, s, ui]`` (m,): τ (case 1) or [θd, θ̇d] (cases 2 and 3).
-    """
-    n = xs.shape[0] // 2
-    # G follows the inertia outputs, and the learned B and C outputs when present
-    off_g = n * (n + 1) // 2 if c.christ else n * (n + 1) // 2 + n * n * (n - 1) // 2 + n * n
-    n_pu = p.p_centres.shape[1]
-    n_du = p.d_centres.shape[1]
-    _theta_outputs(xs, n, c, p, b)
-    _mass(b.out, n, c.chol, c.eps, b.mat, b.lmat)
-    if c.christ:
-        _christoffel(xs, n, c, p, b)
-    else:
-        _learned_velocity(xs, n, b.out, b.vvec)
-    for a in range(n):
-        qd = xs[n + a]
-        if c.case_id == 0:
-            tau = u_flat[row, s, ui, a]
-        else:
-            err = u_flat[row, s, ui, a] - xs[a]
-            derr = u_flat[row, s, ui, n + a] - qd
-            if c.case_id == 1:
-                tau = c.kp_known[a] * err + c.kd_known[a] * derr
-            else:
-                tau = p.kp[a] * err + p.kd[a] * derr
-                for kk in range(n_pu):
-                    diff = err - p.p_centres[a, kk]
-                    tau += p.p_weights[a, kk] * math.exp(-diff * diff * p.p_inv_width2[a, kk])
-                for kk in range(n_du):
-                    diff = derr - p.d_centres[a, kk]
-                    tau += p.d_weights[a, kk] * math.exp(-diff * diff * p.d_inv_width2[a, kk])
-        f = p.viscous[a] * qd + p.coulomb[a] * math.tanh(qd / c.coulomb_velocity)
-        b.rhs[a] = tau - b.vvec[a] - b.out[off_g + a] - f
-        b.k[a] = qd
-    _solve(b.mat, b.rhs, b.acc)
-    for a in range(n):
-        b.k[n + a] = b.acc[a]
-
-
 @njit(cache=True, nogil=True, error_model='numpy')
-def _advance(x, u_flat, row, h, substeps, c, p, b):
+def _advance(x, u_flat, row, h, substeps, c, p, b, inlined):
     """
     Advance x in place over one sampling interval: ``substeps`` RKG steps of N_f.
 
-    The input of stage ``stage`` of substep ``s`` is ``u_flat[row, s, gill_node(stage)]``
-    (the stage times t, t + h/2, t + h/2, t + h).
+    N_f is written out in the stage loop, on the records' members bound to local names
+    once per interval (numba counts a reference each time a loop reads an array out of a
+    record). The input of stage ``stage`` of substep ``s`` is
+    ``u_flat[row, s, gill_node(stage)]`` (the stage times t, t + h/2, t + h/2, t + h).
+    ``inlined`` (``c.inlined`` as a constant) compiles one version for networks of the
+    default basis alone, one for the others (:mod:`.basis.registry`).
     """
+    literally(inlined)
     n2 = x.shape[0]
+    n = n2 // 2
+    case_id, chol, christ, vc = c.case_id, c.chol, c.christ, c.coulomb_velocity
+    bases, starts, kinds, codes, eps = c.bases, c.starts, c.kinds, c.codes, c.eps
+    kp_known, kd_known = c.kp_known, c.kd_known
+    feats, weights, bias, viscous, coulomb = p.features, p.weights, p.bias, p.viscous, p.coulomb
+    pc, piw, pw, dc, diw, dw = (p.p_centres, p.p_inv_width2, p.p_weights, p.d_centres,
+                                p.d_inv_width2, p.d_weights)
+    kp, kd = p.kp, p.kd
+    phi, work, out, mat, lmat = b.phi, b.work, b.out, b.mat, b.lmat
+    rhs, acc, xs, k, q = b.rhs, b.acc, b.xs, b.k, b.q
+    dout, dl, dmat, vvec = b.dout, b.dl, b.dmat, b.vvec
+    # G follows the inertia outputs, and the learned B and C outputs when present
+    off_g = n * (n + 1) // 2 if christ else n * (n + 1) // 2 + n * n * (n - 1) // 2 + n * n
+    n_pu = pc.shape[1]
+    n_du = dc.shape[1]
     for s in range(substeps):
         for j in range(n2):
-            b.xs[j] = x[j]
+            xs[j] = x[j]
         for stage in range(4):
-            _rate(b.xs, u_flat, row, s, gill_node(stage), c, p, b)
-            gill_stage(stage, h, x, b.xs, b.k, b.q)
+            ui = gill_node(stage)
+            # ---- k = N_f(xs, u): θ outputs, M, V, then θ̈ = M⁻¹ (τ - V - G - F)
+            _theta_outputs(xs, n, bases, kinds, codes, feats, weights, bias, work, phi, out,
+                           inlined)
+            _mass(out, n, chol, eps, mat, lmat)
+            if christ:
+                # rhs and acc are free until the solve below: the work vectors y, z
+                _christoffel(xs, n, chol, bases, starts, codes, feats, weights, work, phi, lmat,
+                             dout, dl, dmat, vvec, rhs, acc, inlined)
+            else:
+                _learned_velocity(xs, n, out, vvec)
+            for a in range(n):
+                qd = xs[n + a]
+                if case_id == 0:
+                    tau = u_flat[row, s, ui, a]
+                else:
+                    err = u_flat[row, s, ui, a] - xs[a]
+                    derr = u_flat[row, s, ui, n + a] - qd
+                    if case_id == 1:
+                        tau = kp_known[a] * err + kd_known[a] * derr
+                    else:
+                        tau = kp[a] * err + kd[a] * derr
+                        for kk in range(n_pu):
+                            diff = err - pc[a, kk]
+                            tau += pw[a, kk] * math.exp(-diff * diff * piw[a, kk])
+                        for kk in range(n_du):
+                            diff = derr - dc[a, kk]
+                            tau += dw[a, kk] * math.exp(-diff * diff * diw[a, kk])
+                f = viscous[a] * qd + coulomb[a] * math.tanh(qd / vc)
+                rhs[a] = tau - vvec[a] - out[off_g + a] - f
+                k[a] = qd
+            _solve(mat, rhs, acc)
+            for a in range(n):
+                k[n + a] = acc[a]
+            # ---- the package's Runge-Kutta-Gill stage update
+            gill_stage(stage, h, x, xs, k, q)
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _individual_cost(seg, c, p, penalty_weight, n_predicted):
+def _individual_cost(seg, c, p, penalty_weight, n_predicted, inlined):
     """Return the cost J of one model ``p`` on the segments ``seg`` (see fitness.py)."""
+    literally(inlined)
     x_meas = seg.x_meas
     n2 = x_meas.shape[1]
     n = n2 // 2
@@ -409,12 +418,12 @@ def _individual_cost(seg, c, p, penalty_weight, n_predicted):
         for j in range(n2):
             x[j] = x_meas[start, j]
         if not c.chol:
-            worst = min(worst, _min_minor(x, n, c, p, b))
+            worst = min(worst, _min_minor(x, n, c, p, b, inlined))
         for i in range(n_samples - 1):
             if seg.shooting > 0 and i > 0 and i % seg.shooting == 0:
                 for j in range(n2):
                     x[j] = x_meas[start + i, j]
-            _advance(x, seg.u_flat, u_row + i, seg.h, seg.substeps, c, p, b)
+            _advance(x, seg.u_flat, u_row + i, seg.h, seg.substeps, c, p, b, inlined)
             e_pos = 0.0
             e_vel = 0.0
             for j in range(n2):
@@ -428,7 +437,7 @@ def _individual_cost(seg, c, p, penalty_weight, n_predicted):
                     e_vel += diff * diff
             total += math.sqrt(e_pos) + math.sqrt(e_vel)
             if not c.chol:
-                worst = min(worst, _min_minor(x, n, c, p, b))
+                worst = min(worst, _min_minor(x, n, c, p, b, inlined))
         u_row += n_samples - 1
     cost = total / n_predicted
     if not c.chol and worst < 0.0:
@@ -457,7 +466,10 @@ def rollout(x0, u_flat, h, substeps, c, p, bound_center, bound_scale):
     for j in range(n2):
         states[0, j] = x[j]
     for i in range(n_int):
-        _advance(x, u_flat, i, h, substeps, c, p, b)
+        if c.inlined:
+            _advance(x, u_flat, i, h, substeps, c, p, b, True)
+        else:
+            _advance(x, u_flat, i, h, substeps, c, p, b, False)
         for j in range(n2):
             if not (abs(x[j] - bound_center[j]) <= bound_scale[j]):
                 return states
@@ -482,8 +494,12 @@ def population_cost(seg, c, params, penalty_weight, n_predicted):
         # private copies: views would share their parent's reference count between threads
         own = Segments(seg.x_meas.copy(), seg.seg_start, seg.u_flat, seg.h, seg.substeps,
                        seg.shooting, seg.bound_center, seg.bound_scale)
-        costs[p] = _individual_cost(own, c, individual(params, p), penalty_weight,
-                                    n_predicted)
+        if c.inlined:
+            costs[p] = _individual_cost(own, c, individual(params, p), penalty_weight,
+                                        n_predicted, True)
+        else:
+            costs[p] = _individual_cost(own, c, individual(params, p), penalty_weight,
+                                        n_predicted, False)
     return costs
 
 
@@ -522,7 +538,11 @@ def population_rollouts(seg, c, params):
                     for j in range(n2):
                         x[j] = x_meas[start + i, j]
                 if alive:
-                    _advance(x, seg.u_flat, u_row + i, seg.h, seg.substeps, c, own, b)
+                    if c.inlined:
+                        _advance(x, seg.u_flat, u_row + i, seg.h, seg.substeps, c, own, b, True)
+                    else:
+                        _advance(x, seg.u_flat, u_row + i, seg.h, seg.substeps, c, own, b,
+                                 False)
                     for j in range(n2):
                         if not (abs(x[j] - seg.bound_center[j]) <= seg.bound_scale[j]):
                             alive = False
@@ -534,27 +554,32 @@ def population_rollouts(seg, c, params):
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _inverse_dynamics_terms(x, acc, c, p, out_mv, out_diag):
+def _inverse_dynamics_terms(x, acc, c, p, out_mv, out_diag, inlined):
     """M θ̈ + V + G of one model ``p`` at every sample into ``out_mv`` (S, n), diag M too."""
+    literally(inlined)
     samples, n = out_mv.shape
     n_in = n * (n + 1) // 2
     n_pairs = n * (n - 1) // 2
     g0 = n_in if c.christ else n_in + n * n_pairs + n * n
     b = buffers(c, p)
+    out, mat, vvec = b.out, b.mat, b.vvec
     for s in range(samples):
         xs = x[s]
-        _theta_outputs(xs, n, c, p, b)
-        _mass(b.out, n, c.chol, c.eps, b.mat, b.lmat)
+        _theta_outputs(xs, n, c.bases, c.kinds, c.codes, p.features, p.weights, p.bias,
+                       b.work, b.phi, out, inlined)
+        _mass(out, n, c.chol, c.eps, mat, b.lmat)
         if c.christ:
-            _christoffel(xs, n, c, p, b)
+            _christoffel(xs, n, c.chol, c.bases, c.starts, c.codes, p.features, p.weights,
+                         b.work, b.phi, b.lmat, b.dout, b.dl, b.dmat, vvec, b.rhs, b.acc,
+                         inlined)
         else:
-            _learned_velocity(xs, n, b.out, b.vvec)
+            _learned_velocity(xs, n, out, vvec)
         for i in range(n):
-            acc_i = b.vvec[i] + b.out[g0 + i]
+            acc_i = vvec[i] + out[g0 + i]
             for j in range(n):
-                acc_i += b.mat[i, j] * acc[s, j]
+                acc_i += mat[i, j] * acc[s, j]
             out_mv[s, i] = acc_i
-            out_diag[s, i] = b.mat[i, i]
+            out_diag[s, i] = mat[i, i]
 
 
 @njit(cache=True, nogil=True, parallel=True, error_model='numpy')
@@ -569,7 +594,12 @@ def inverse_dynamics_terms(x, acc, c, params, out_mv, out_diag):
     # inlined helpers writing into a record of buffers directly in the prange body, numba
     # 0.68's parallel lowering computed garbage
     for p in prange(out_mv.shape[0]):
-        _inverse_dynamics_terms(x, acc, c, individual(params, p), out_mv[p], out_diag[p])
+        if c.inlined:
+            _inverse_dynamics_terms(x, acc, c, individual(params, p), out_mv[p], out_diag[p],
+                                    True)
+        else:
+            _inverse_dynamics_terms(x, acc, c, individual(params, p), out_mv[p], out_diag[p],
+                                    False)
 
 
 _KERNELS = (_compiled_fingerprint, buffers, _min_minor, _advance, _individual_cost, rollout,
@@ -586,7 +616,7 @@ def ensure_current() -> bool:
     """
     if _compiled_fingerprint() == _FINGERPRINT:
         return False
-    for kernel in _KERNELS:
+    for kernel in registry.COMPILED + _KERNELS:
         kernel.recompile()
     return True
 

@@ -31,7 +31,7 @@ from .spec import NetworkSpec
 
 def _parts(spec):
     """Yield (basis, its slice of the features, its codes, its data width) in order."""
-    _, _, codes = registry.table(spec)
+    codes = registry.table(spec)[-1]
     start = 0
     for basis in spec.bases:
         size = basis.size(spec)

@@ -92,12 +92,16 @@ class NetworkConstants(NamedTuple):
         V from the Christoffel symbols of M (else the learned B and C outputs).
     bases : ndarray of int64, shape (B,)
         Kind codes of the bases (:mod:`.basis.registry`).
+    starts : ndarray of int64, shape (B + 1,)
+        Where each basis's features start; the last entry is F.
     kinds : ndarray of int64, shape (F,)
         Kind code of every feature.
     codes : ndarray of int64, shape (F, n)
         Fixed integer table of the features.
     work_rows, work_cols : int
         Shape of the bases' work table.
+    inlined : bool
+        Only the basis that the kernels inline (:func:`.basis.registry.inlined_only`).
     kp_known, kd_known : ndarray, shape (n,)
         Known PD gains (case 2; zeros otherwise).
     eps : ndarray, shape (n,)
@@ -113,10 +117,12 @@ class NetworkConstants(NamedTuple):
     chol: bool
     christ: bool
     bases: np.ndarray
+    starts: np.ndarray
     kinds: np.ndarray
     codes: np.ndarray
     work_rows: int
     work_cols: int
+    inlined: bool
     kp_known: np.ndarray
     kd_known: np.ndarray
     eps: np.ndarray
@@ -209,7 +215,7 @@ def constants(spec, scales, kp=None, kd=None) -> NetworkConstants:
 
     """
     n = spec.n_joints
-    bases, kinds, codes = registry.table(spec)
+    bases, starts, kinds, codes = registry.table(spec)
     rows, cols = registry.work_shape(spec)
 
     def gains(value):
@@ -219,8 +225,10 @@ def constants(spec, scales, kp=None, kd=None) -> NetworkConstants:
 
     return NetworkConstants(
         case_id=CASE_IDS[spec.case], chol=spec.inertia == 'cholesky',
-        christ=spec.velocity == 'christoffel', bases=bases, kinds=kinds, codes=codes,
-        work_rows=int(rows), work_cols=int(cols), kp_known=gains(kp), kd_known=gains(kd),
+        christ=spec.velocity == 'christoffel', bases=bases, starts=starts, kinds=kinds,
+        codes=codes,
+        work_rows=int(rows), work_cols=int(cols), inlined=registry.inlined_only(spec),
+        kp_known=gains(kp), kd_known=gains(kd),
         eps=np.ascontiguousarray(spec.inertia_epsilon(scales)),
         inv_sqrt_ms=np.ascontiguousarray(1.0 / np.sqrt(scales.inertia)),
         coulomb_velocity=float(spec.coulomb_velocity))

@@ -29,14 +29,15 @@ evaluates its features and their gradients in numpy (the reference). Its module 
 provides the compiled twins, three numba functions that the registry dispatches on the
 basis's ``kind`` code::
 
-    prepare(x, n, work)                         once per evaluation (e.g. cos θ_j, sin θ_j)
-    value(x, n, codes, data, f, work) -> float  φ_f
-    gradient(x, n, codes, data, f, phi_f, work, out)   out[f, k] = ∂φ_f/∂θ_k, k < n
+    prepare(x, n, work)                              once per evaluation (e.g. cos θ_j)
+    value(x, n, codes, data, f, work) -> float       φ_f
+    gradient(x, n, codes, data, f, k, phi_f, work) -> float    ∂φ_f/∂θ_k
 
 with ``x`` the state (θ in its first n entries), ``codes`` (F, n) the fixed integer table
 of all features, ``data`` (F, D) the decoded real parameters of one model and ``work``
 (kinds, W) a scratch table in which row ``kind`` is the basis's own. They index the tables
-themselves (no array views in the inner loops). A sum of bases
+themselves and return scalars (no array views, nothing stored in the inner loops: the
+kernels' speed depends on it). A sum of bases
 (``NetworkSpec.basis = 'poly+rbf'``) concatenates their features.
 """
 

@@ -40,12 +40,12 @@ KIND = 1
 DEGREE = 2
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True)
 def prepare(x, n, work):
     """Precompute nothing (every monomial is a short product)."""
 
 
-@njit(cache=True, nogil=True, inline='always')
+@njit(cache=True, nogil=True)
 def value(x, n, codes, data, f, work):
     """Return φ_f = Π_j z_j^e_fj at the state ``x`` (θ = x[:n])."""
     acc = 1.0
@@ -56,19 +56,17 @@ def value(x, n, codes, data, f, work):
     return acc
 
 
-@njit(cache=True, nogil=True, inline='always')
-def gradient(x, n, codes, data, f, phi_f, work, out):
-    """Write ∂φ_f/∂θ_k = e_k z_k^(e_k - 1) / spread_k Π_(j≠k) z_j^e_j into ``out[f, k]``."""
-    for k in range(n):
-        e = codes[f, k]
-        if e == 0:
-            out[f, k] = 0.0
-            continue
-        acc = e * ((x[k] - data[f, k]) * data[f, n + k]) ** (e - 1) * data[f, n + k]
-        for j in range(n):
-            if j != k and codes[f, j] > 0:
-                acc *= ((x[j] - data[f, j]) * data[f, n + j]) ** codes[f, j]
-        out[f, k] = acc
+@njit(cache=True, nogil=True)
+def gradient(x, n, codes, data, f, k, phi_f, work):
+    """Return ∂φ_f/∂θ_k = e_k z_k^(e_k - 1) / spread_k Π_(j≠k) z_j^e_j."""
+    e = codes[f, k]
+    if e == 0:
+        return 0.0
+    acc = e * ((x[k] - data[f, k]) * data[f, n + k]) ** (e - 1) * data[f, n + k]
+    for j in range(n):
+        if j != k and codes[f, j] > 0:
+            acc *= ((x[j] - data[f, j]) * data[f, n + j]) ** codes[f, j]
+    return acc
 
 
 class Polynomial(Basis):

@@ -49,10 +49,9 @@ def value(x, n, codes, data, f, work):
 
 
 @njit(cache=True, nogil=True, inline='always')
-def gradient(x, n, codes, data, f, phi_f, work, out):
-    """Write ∂φ_f/∂θ_k = -2 φ_f (θ_k - c_k) / s² into ``out[f, k]``, k < n."""
-    for k in range(n):
-        out[f, k] = -2.0 * phi_f * data[f, n] * (x[k] - data[f, k])
+def gradient(x, n, codes, data, f, k, phi_f, work):
+    """Return ∂φ_f/∂θ_k = -2 φ_f (θ_k - c_k) / s²."""
+    return -2.0 * phi_f * data[f, n] * (x[k] - data[f, k])
 
 
 class GaussianRBF(Basis):
