@@ -290,10 +290,11 @@ def finite_difference_velocity_terms(net, x, step=1e-6):
     return np.einsum('pij,pj->pi', m_dot, theta_dot) - 0.5 * grad, m_dot
 
 
+@pytest.mark.parametrize('basis', ['rbf', 'poly', 'poly+rbf'])
 @pytest.mark.parametrize('inertia', ['penalty', 'cholesky'])
 @pytest.mark.parametrize('n', [1, 2, 3])
-def test_christoffel_velocity_terms(inertia, n):
-    spec = NetworkSpec(n, inertia=inertia, velocity='christoffel', bias=True)
+def test_christoffel_velocity_terms(inertia, n, basis):
+    spec = NetworkSpec(n, inertia=inertia, velocity='christoffel', bias=True, basis=basis)
     net = random_network(spec, pop=12, seed=5, scale=0.5)
     rng = np.random.default_rng(6)
     x = rng.uniform(-1.0, 1.0, (12, 2 * n))
