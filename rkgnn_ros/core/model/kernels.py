@@ -42,8 +42,10 @@ import zlib
 from numba import literally, njit, prange
 import numpy as np
 
+from . import linalg
 from . import params as params_module
 from .basis import registry
+from .linalg import det, solve
 from .params import individual
 from ..integration import rkg
 from ..integration.rkg import gill_node, gill_stage
@@ -105,7 +107,7 @@ class Buffers(NamedTuple):
 def _dependencies_fingerprint() -> int:
     """Return a checksum of the files whose compiled code is linked into these kernels."""
     crc = registry.source_fingerprint()
-    for module in (rkg, params_module):
+    for module in (rkg, params_module, linalg):
         with open(module.__file__, 'rb') as f:
             crc = zlib.crc32(f.read(), crc)
     return int(crc)
@@ -131,69 +133,6 @@ def buffers(c, p):
                    np.empty(n), np.empty(2 * n), np.empty(2 * n), np.empty(2 * n),
                    np.empty((n, n * (n + 1) // 2)), np.empty((n, n)), np.empty((n, n, n)),
                    np.empty(n))
-
-
-@njit(cache=True, nogil=True, error_model='numpy', inline='always')
-def _solve(a, b, out):
-    """Solve a @ out = b by Gaussian elimination with partial pivoting (a, b overwritten)."""
-    n = b.shape[0]
-    for k in range(n):
-        piv = k
-        big = abs(a[k, k])
-        for r in range(k + 1, n):
-            if abs(a[r, k]) > big:
-                big = abs(a[r, k])
-                piv = r
-        if big == 0.0:
-            for r in range(n):
-                out[r] = np.nan
-            return
-        if piv != k:
-            for c in range(n):
-                tmp = a[k, c]
-                a[k, c] = a[piv, c]
-                a[piv, c] = tmp
-            tmp = b[k]
-            b[k] = b[piv]
-            b[piv] = tmp
-        for r in range(k + 1, n):
-            f = a[r, k] / a[k, k]
-            if f != 0.0:
-                for c in range(k, n):
-                    a[r, c] -= f * a[k, c]
-                b[r] -= f * b[k]
-    for r in range(n - 1, -1, -1):
-        acc = b[r]
-        for c in range(r + 1, n):
-            acc -= a[r, c] * out[c]
-        out[r] = acc / a[r, r]
-
-
-@njit(cache=True, nogil=True, error_model='numpy')
-def _det(a, k):
-    """Return the determinant of the leading k x k block of a (a is overwritten)."""
-    det = 1.0
-    for j in range(k):
-        piv = j
-        big = abs(a[j, j])
-        for r in range(j + 1, k):
-            if abs(a[r, j]) > big:
-                big = abs(a[r, j])
-                piv = r
-        if big == 0.0:
-            return 0.0
-        if piv != j:
-            det = -det
-            for c in range(k):
-                tmp = a[j, c]
-                a[j, c] = a[piv, c]
-                a[piv, c] = tmp
-        det *= a[j, j]
-        for r in range(j + 1, k):
-            f = a[r, j] / a[j, j]
-            for c in range(j, k):
-                a[r, c] -= f * a[j, c]
-    return det
 
 
 @njit(cache=True, nogil=True, error_model='numpy', inline='always')
@@ -248,7 +187,7 @@ def _min_minor(x, n, c, p, b, inlined):
         for i in range(n):
             for j in range(n):
                 scratch[i, j] = mat[i, j] * inv_sqrt_ms[i] * inv_sqrt_ms[j]
-        d = _det(scratch, k)
+        d = det(scratch, k)
         if d < worst:
             worst = d
     return worst
@@ -393,7 +332,7 @@ def _advance(x, u_flat, row, h, substeps, c, p, b, inlined):
                 f = viscous[a] * qd + coulomb[a] * math.tanh(qd / vc)
                 rhs[a] = tau - vvec[a] - out[off_g + a] - f
                 k[a] = qd
-            _solve(mat, rhs, acc)
+            solve(mat, rhs, acc)
             for a in range(n):
                 k[n + a] = acc[a]
             # ---- the package's Runge-Kutta-Gill stage update
