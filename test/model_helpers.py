@@ -12,10 +12,13 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Helpers shared by the tests of the model: unit scales and genome blocks by name."""
+"""Helpers shared by the tests of the model: scales, genome blocks, a small identified model."""
 
 import numpy as np
+from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.model.scales import Scales
+from rkgnn_ros.core.model.spec import NetworkSpec
+from rkgnn_ros.core.sim.trajectories import paper_reference
 
 
 def unit_scales(n, **overrides):
@@ -31,3 +34,37 @@ def set_block(spec, genome, name, values):
     """Write ``values`` (reshaped to the block's shape) into ``genome`` in place."""
     block = next(b for b in spec.blocks() if b.name == name)
     genome[block.start:block.stop] = np.asarray(values, dtype=float).reshape(block.shape).ravel()
+
+
+N = 3
+SCALES = Scales(theta_center=[-1.5, 0.0, 0.0], theta_spread=[0.3, 0.3, 0.3],
+                velocity=[1.0, 1.0, 1.0], acceleration=[5.0, 5.0, 5.0], torque=[3.0, 2.0, 1.0],
+                error=[0.1, 0.1, 0.1], error_rate=[0.5, 0.5, 0.5])
+KP = np.array([30.0, 20.0, 10.0])
+KD = np.array([3.0, 2.0, 1.0])
+REFERENCE = paper_reference(N)
+NAMES = ('shoulder', 'elbow', 'wrist')
+
+
+def make_model(case='pd_gains', inertia='cholesky', velocity='learned', seed=0, sigma=0.05,
+               **kwargs):
+    spec = NetworkSpec(N, case, inertia=inertia, velocity=velocity, bias=True,
+                       torque_linear=True)
+    genome = spec.initial_genome() + sigma * np.random.default_rng(seed).standard_normal(
+        spec.genome_size)
+    gains = {'kp': KP, 'kd': KD} if case == 'pd_gains' else {}
+    kwargs.setdefault('substeps', 3)
+    return RKGNNModel(spec, SCALES, genome, joint_names=NAMES, dt=0.01, **gains, **kwargs)
+
+
+def torque_signal(t):
+    return np.column_stack([np.sin(2 * np.pi * (0.7 + 0.3 * i) * t + i)
+                            for i in range(N)]) * SCALES.torque
+
+
+def simulate_model(model, t):
+    qd, qd_dot = REFERENCE.evaluate(t)
+    x0 = np.concatenate([qd[0], qd_dot[0]])
+    if model.case == 'torque':
+        return model.simulate(x0, t, tau=torque_signal(t))
+    return model.simulate(x0, t, reference=REFERENCE)

@@ -279,9 +279,7 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     """
     from dataclasses import replace
     from .refine import refine_equation_error, refine_lm
-    # default θ units per case, measured on the paper's arm at 120 s (held-out θ-NRMSE;
-    # case 1: 22 % with 5 units, 23 % with 8; case 2: 2.1 % / 3.5 %; case 3: 56 % / 22 %,
-    # where the torque network needs the finer θ model's equation fit)
+    # default θ units per case: chosen on held-out data of the paper's arm (README)
     default_units = {'torque': 5, 'pd_gains': 5, 'unknown': 8}
     if isinstance(datasets, Dataset):
         datasets = [datasets]
@@ -351,7 +349,7 @@ def precompile(n_joints=3) -> float:
     A node calls this before it starts spinning, so no compilation ever happens in its
     worker thread while callbacks and services wait. Tiny problems of every case and both
     inertia and velocity modes exercise the same type signatures as real data. Returns the
-    seconds it took (about a second once the cache is warm).
+    seconds it took.
     """
     from .refine import refine_equation_error
     t0 = time.perf_counter()

@@ -74,8 +74,7 @@ def blas_threads(count=1):
 
     The least-squares steps factorise small dense Jacobians between parallel kernel calls;
     multithreaded OpenBLAS on such matrices, on a machine that is busy anyway, spins and
-    can be slower than one thread by orders of magnitude (seen: 1.6 s instead of 20 ms per
-    SVD of a 1500 × 85 matrix on 2 loaded cores).
+    can be slower than one thread by orders of magnitude (README, numerical core).
     """
     controls = _openblas_controls()
     before = [get() for get, _ in controls]

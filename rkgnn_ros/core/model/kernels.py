@@ -26,8 +26,10 @@ N_f is written out inline in the stage loop (its helpers are ``inline='always'``
 the arrays they compute on): a call per evaluation, or a record member read per use, would
 cost more reference counting than the arithmetic, so the records are read once per sampling
 interval (:func:`_advance`). The θ features come from the basis registry's dispatch on kind
-codes, so adding a basis changes no kernel here; the integration step is the package's one
-Runge-Kutta-Gill stage update (:func:`..integration.rkg.gill_stage`).
+codes, so adding a basis changes no kernel here; every kernel compiles in two versions, for
+networks of the default basis alone (inlined) and for the others (``c.inlined``, passed on
+as a compile-time constant). The integration step is the package's one Runge-Kutta-Gill
+stage update (:func:`..integration.rkg.gill_stage`).
 
 Compiled functions are cached on disk (``cache=True``); the first call compiles (seconds).
 numba's cache notices changes of this file only, so :func:`ensure_current` (run at import)

@@ -159,13 +159,11 @@ def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
     normalised genome of :func:`genome_to_gains`; every generation is one call of
     :meth:`TrackingProblem.cost`. The defaults are the paper's: 60 individuals, 200
     generations. On the paper's arm, ``paper_reference(3)`` over 10 s at 100 Hz, this is
-    12,000 closed-loop simulations of 21,000 steps each (about 200 s of CPU time, so
-    100 s to 3 min of wall-clock time on two cores, depending on their load).
+    12,000 closed-loop simulations of 21,000 steps each.
 
     Eq. (10) has no torque term and the PD no torque limit, so on that arm and reference
     the error falls as the gains grow and the EA ends near the upper corner of the bounds
-    (seed 0: Kp = (99.97, 99.96, 99.81), Kd = (49.94, 49.94, 49.21), cost 0.1255 against
-    0.2854 for the paper's gains): the bounds, i.e. what the actuators allow, decide the
+    (the README gives the figures): the bounds, i.e. what the actuators allow, decide the
     gains.
 
     Parameters

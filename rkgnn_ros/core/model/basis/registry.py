@@ -21,11 +21,10 @@ code of each basis and of each feature), and these call the basis module's numba
 The kernels are compiled twice: for networks of the default basis alone (the paper's RBF
 units), whose functions are inlined into the inner loops, and for any other basis or sum of
 bases, reached through the small dispatch functions below, compiled apart (``_prepare``,
-``_value``, ``_gradient``). Code of other bases in the kernels' inner loops, even in a
-branch never taken, cost them a tenth of their speed (A/B against the kernels before the
-plug-in). Adding a basis is its own file, one entry in :data:`MODULES` and :data:`BASES`,
-and one branch in each of those three functions; the kernels, the fitness, the warm start
-and the nodes stay as they are.
+``_value``, ``_gradient``): code of other bases in the kernels' inner loops slows them
+even in a branch never taken (README, numerical core). Adding a basis is its own file, one
+entry in :data:`MODULES` and :data:`BASES`, and one branch in each of those three
+functions; the kernels, the fitness, the warm start and the nodes stay as they are.
 
 numba links the dispatch into every compiled kernel that calls it, and its on-disk cache
 only notices changes of the kernel's own file. :func:`source_fingerprint` is therefore a
