@@ -18,6 +18,9 @@ import numpy as np
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.model.scales import Scales
 from rkgnn_ros.core.model.spec import NetworkSpec
+from rkgnn_ros.core.sim.parameters import ArmParameters
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 
 
@@ -30,10 +33,15 @@ def unit_scales(n, **overrides):
     return Scales(**values)
 
 
+def block(spec, name):
+    """Return the genome block called ``name``."""
+    return next(b for b in spec.blocks() if b.name == name)
+
+
 def set_block(spec, genome, name, values):
     """Write ``values`` (reshaped to the block's shape) into ``genome`` in place."""
-    block = next(b for b in spec.blocks() if b.name == name)
-    genome[block.start:block.stop] = np.asarray(values, dtype=float).reshape(block.shape).ravel()
+    b = block(spec, name)
+    genome[b.start:b.stop] = np.asarray(values, dtype=float).reshape(b.shape).ravel()
 
 
 N = 3
@@ -44,6 +52,12 @@ KP = np.array([30.0, 20.0, 10.0])
 KD = np.array([3.0, 2.0, 1.0])
 REFERENCE = paper_reference(N)
 NAMES = ('shoulder', 'elbow', 'wrist')
+
+# a 2-link arm under PD control, for identification
+ARM2 = ArmParameters(masses=[4.0, 3.0], lengths=[0.3, 0.2], viscous=[0.3, 0.1],
+                     coulomb=[0.2, 0.1])
+KP2 = np.array([40.0, 30.0])
+KD2 = np.array([5.0, 3.0])
 
 
 def make_model(case='pd_gains', inertia='cholesky', velocity='learned', seed=0, sigma=0.05,
@@ -68,3 +82,9 @@ def simulate_model(model, t):
     if model.case == 'torque':
         return model.simulate(x0, t, tau=torque_signal(t))
     return model.simulate(x0, t, reference=REFERENCE)
+
+
+def arm2_run():
+    """Return 10 s at 100 Hz of the 2-link arm under PD control (1001 samples)."""
+    return simulate(PlanarArm(ARM2), PDController(KP2, KD2), paper_reference(2), 10.0,
+                    rate=100.0)

@@ -21,27 +21,16 @@ is known (about zero) and populations drawn around it have well-conditioned roll
 which the compiled kernel and the numpy reference must agree to rounding.
 """
 
+from model_helpers import block, KD, KP, N, REFERENCE, SCALES
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
 from rkgnn_ros.core.model.scales import Scales
 from rkgnn_ros.core.model.spec import NetworkSpec
-from rkgnn_ros.core.sim.trajectories import paper_reference
 
-N = 3
-SCALES = Scales(theta_center=[-1.5, 0.0, 0.0], theta_spread=[0.3, 0.3, 0.3],
-                velocity=[1.0, 1.0, 1.0], acceleration=[5.0, 5.0, 5.0], torque=[3.0, 2.0, 1.0],
-                error=[0.1, 0.1, 0.1], error_rate=[0.5, 0.5, 0.5])
-KP = np.array([30.0, 20.0, 10.0])
-KD = np.array([3.0, 2.0, 1.0])
-REFERENCE = paper_reference(N)
 CASES = ('torque', 'pd_gains', 'unknown')
 INERTIA = ('penalty', 'cholesky')
-
-
-def block(spec, name):
-    return next(b for b in spec.blocks() if b.name == name)
 
 
 def true_genome(spec, seed=1):

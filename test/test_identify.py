@@ -20,6 +20,7 @@ Plain pytest, no middleware. Every stochastic step is seeded.
 
 import math
 
+from model_helpers import arm2_run, KD2, KP2
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
@@ -33,18 +34,10 @@ from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 
-# the 2-link arm of the identification test
-ARM2 = ArmParameters(masses=[4.0, 3.0], lengths=[0.3, 0.2], viscous=[0.3, 0.1],
-                     coulomb=[0.2, 0.1])
-KP2 = np.array([40.0, 30.0])
-KD2 = np.array([5.0, 3.0])
-
 
 @pytest.fixture(scope='module')
 def arm2_data():
-    """10 s at 100 Hz of a 2-link arm under PD control (1001 samples)."""
-    return simulate(PlanarArm(ARM2), PDController(KP2, KD2), paper_reference(2), 10.0,
-                    rate=100.0)
+    return arm2_run()
 
 
 def test_fit_identifies_a_two_link_arm(arm2_data):

@@ -14,7 +14,8 @@
 
 """The identified model: rollouts (compiled, against numpy RKG), terms, gains, validation."""
 
-from model_helpers import KD, KP, make_model, N, REFERENCE, SCALES, simulate_model, torque_signal
+from model_helpers import (arm2_run, KD, KD2, KP, KP2, make_model, N, REFERENCE, SCALES,
+                           simulate_model, torque_signal)
 import numpy as np
 import pytest
 from rkgnn_ros.core.integration.rkg import rkg_integrate
@@ -22,23 +23,11 @@ from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.model.network import BatchedNetwork
 from rkgnn_ros.core.model.scales import Scales
 from rkgnn_ros.core.model.spec import NetworkSpec
-from rkgnn_ros.core.sim.parameters import ArmParameters
-from rkgnn_ros.core.sim.plant import PDController, PlanarArm
-from rkgnn_ros.core.sim.simulate import simulate
-from rkgnn_ros.core.sim.trajectories import paper_reference
-
-# the 2-link arm of the identification test
-ARM2 = ArmParameters(masses=[4.0, 3.0], lengths=[0.3, 0.2], viscous=[0.3, 0.1],
-                     coulomb=[0.2, 0.1])
-KP2 = np.array([40.0, 30.0])
-KD2 = np.array([5.0, 3.0])
 
 
 @pytest.fixture(scope='module')
 def arm2_data():
-    """10 s at 100 Hz of a 2-link arm under PD control (1001 samples)."""
-    return simulate(PlanarArm(ARM2), PDController(KP2, KD2), paper_reference(2), 10.0,
-                    rate=100.0)
+    return arm2_run()
 
 
 def numpy_rollout(model, t, substeps):

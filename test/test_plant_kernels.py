@@ -15,26 +15,13 @@
 """The compiled single-state forward dynamics equals the plant's numpy forward dynamics."""
 
 import numpy as np
+from plant_helpers import random_arm, random_states
 import pytest
-from rkgnn_ros.core.sim.parameters import ArmParameters, MASS_MODELS
-from rkgnn_ros.core.sim.plant import PlanarArm
+from rkgnn_ros.core.sim.parameters import MASS_MODELS
 from rkgnn_ros.core.sim.plant_kernels import (forward_dynamics_into, forward_dynamics_kernel,
                                               KernelConstants)
 
 SIZES = (1, 2, 3, 5)
-
-
-def random_arm(n, mass_model, rng, friction=True, gravity=9.81):
-    return PlanarArm(ArmParameters(
-        masses=rng.uniform(0.5, 6.0, n), lengths=rng.uniform(0.1, 0.5, n),
-        mass_model=mass_model, gravity=gravity,
-        viscous=rng.uniform(0.0, 0.5, n) if friction else None,
-        coulomb=rng.uniform(0.0, 0.3, n) if friction else None))
-
-
-def random_states(n, rng, count=40):
-    return (rng.uniform(-np.pi, np.pi, (count, n)), rng.normal(0.0, 2.0, (count, n)),
-            rng.normal(0.0, 5.0, (count, n)))
 
 
 @pytest.fixture

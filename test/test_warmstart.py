@@ -14,29 +14,17 @@
 
 """The equation-error warm start: θ̈ estimate, the least-squares design, the case-3 gauge."""
 
+from model_helpers import block, KD, KP, N, SCALES
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.warmstart import (_design, estimate_acceleration, least_squares_genome,
                                               LINEAR_BLOCKS)
 from rkgnn_ros.core.model.network import BatchedNetwork
-from rkgnn_ros.core.model.scales import Scales
 from rkgnn_ros.core.model.spec import NetworkSpec
-from rkgnn_ros.core.sim.trajectories import paper_reference
 
-N = 3
-SCALES = Scales(theta_center=[-1.5, 0.0, 0.0], theta_spread=[0.3, 0.3, 0.3],
-                velocity=[1.0, 1.0, 1.0], acceleration=[5.0, 5.0, 5.0], torque=[3.0, 2.0, 1.0],
-                error=[0.1, 0.1, 0.1], error_rate=[0.5, 0.5, 0.5])
-KP = np.array([30.0, 20.0, 10.0])
-KD = np.array([3.0, 2.0, 1.0])
-REFERENCE = paper_reference(N)
 CASES = ('torque', 'pd_gains', 'unknown')
 INERTIA = ('penalty', 'cholesky')
-
-
-def block(spec, name):
-    return next(b for b in spec.blocks() if b.name == name)
 
 
 def polynomial_segments(rng, count=6, duration=1.0, rate=50.0):
