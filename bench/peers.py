@@ -22,7 +22,8 @@ Twice: without noise, and with encoder noise (θ 1e-4 rad, θ̇ 1e-3 rad/s) on t
 and the held-out data. On the noisy data the paper's EA and our fixed-budget fit are not
 run (time; the JSON marks them skipped); our default pipeline (``rkgnn_best_2min``) is.
 ``--noisy-only --methods ...`` runs only the noisy data for the named methods and merges
-them into an existing JSON.
+them into an existing JSON; ``--clean-only --methods ...`` does the same with the noiseless
+data.
 
 Metrics: ``heldout_nrmse_10s``, the θ-NRMSE (RMSE / std of the measured θ, mean over
 joints) of a 10 s open-loop rollout from each held-out run's first measured state, averaged
@@ -32,7 +33,8 @@ between samples); cases 2-3 the reference.
 
 Methods (``null`` where a method cannot do a case):
 - ``true_model``: the simulator itself (the floor);
-- ``rkgnn_paper_ea``: the paper's structure and EA, 200 generations x 100 (noiseless only);
+- ``rkgnn_paper_ea``: the paper's structure and EA, 200 generations x 100, started as
+  ``make paper`` starts it (the start genome in the first generation; noiseless only);
 - ``rkgnn_best``: our structure, equation-error start and CMA-ES, within the same 20 000
   evaluations (an equation-error residual evaluation counted as one);
 - ``rkgnn_best_2min``: ``identify.fit_best`` with 120 s of wall time (noiseless only);
@@ -192,12 +194,17 @@ def rkgnn_predictor(model, case, refs):
 
 
 def rkgnn_paper_ea(case, fit, kp, kd, generations, seed):
+    """Fit the paper's structure with its EA (the start genome in the first generation)."""
     spec = NetworkSpec.paper(N, CASES[case])
     evo = Evolution(spec, fit, 'paper', {'population_size': 100}, seed, kp, kd,
                     torque_interpolation='hold')
+    start_cost = float(evo.problem.cost(evo.optimizer.x0[None])[0])
     for _ in range(generations):
         evo.step()
-    return evo.best_model(fit.joint_names), evo.optimizer.evaluations
+    costs = {'start_cost': start_cost if math.isfinite(start_cost) else None,
+             'final_cost': (float(evo.optimizer.best_cost)
+                            if math.isfinite(evo.optimizer.best_cost) else None)}
+    return evo.best_model(fit.joint_names), evo.optimizer.evaluations, costs
 
 
 def rkgnn_best(case, fit, kp, kd, budget, seed):
@@ -392,9 +399,10 @@ def run(noisy, args, log, table, on_case=None):
             record('rkgnn_paper_ea', None, skipped='noiseless only (time)')
         else:
             t0 = time.perf_counter()
-            model, evals = rkgnn_paper_ea(case, fit, *gains, args.generations, args.seed)
+            model, evals, costs = rkgnn_paper_ea(case, fit, *gains, args.generations,
+                                                 args.seed)
             record('rkgnn_paper_ea', rkgnn_predictor(model, case, refs),
-                   time.perf_counter() - t0, evaluations=evals)
+                   time.perf_counter() - t0, evaluations=evals, **costs)
         if 'rkgnn_best' not in args.methods:
             pass
         elif noisy:
@@ -448,6 +456,9 @@ def main(argv=None):
     parser.add_argument('--noisy-only', action='store_true',
                         help='run the noisy data only and merge the methods run into the '
                         'existing --out (its other entries are kept)')
+    parser.add_argument('--clean-only', action='store_true',
+                        help='run the noiseless data only and merge the methods run into the '
+                        'existing --out (its other entries are kept)')
     args = parser.parse_args(argv)
     args.cases = [c.strip() for c in args.cases.split(',')]
     args.methods = ['true_model'] + [m.strip() for m in args.methods.split(',')
@@ -468,12 +479,15 @@ def main(argv=None):
 
     def write():
         """Write what is measured so far (a cut-off run keeps its finished cases)."""
-        if args.noisy_only:  # merge into the existing results
+        if args.noisy_only or args.clean_only:  # merge into the existing results
             with open(args.out, encoding='utf-8') as f:
                 result = json.load(f)
             for case, row in noisy.items():
                 result.setdefault('noisy', {}).setdefault(case, {}).update(row)
-            result['meta']['noisy_only_run'] = dict(meta(), methods=args.methods)
+            for case, row in clean.items():
+                result.setdefault(case, {}).update(row)
+            run_key = 'noisy_only_run' if args.noisy_only else 'clean_only_run'
+            result['meta'][run_key] = dict(meta(), methods=args.methods)
         else:
             result = {case: {m: clean[case][m] for m in METHODS if m in clean[case]}
                       for case in clean}
@@ -499,11 +513,15 @@ def main(argv=None):
                          and len(args.methods) == len(METHODS)),
         }
 
-    if args.noisy_only and not os.path.exists(args.out):
-        parser.error(f'--noisy-only merges into {args.out}, which does not exist')
+    if args.noisy_only and args.clean_only:
+        parser.error('--noisy-only and --clean-only exclude each other')
+    merge = '--noisy-only' if args.noisy_only else '--clean-only' if args.clean_only else None
+    if merge and not os.path.exists(args.out):
+        parser.error(f'{merge} merges into {args.out}, which does not exist')
     if not args.noisy_only:
         run(False, args, log, clean, on_case=write)
-    run(True, args, log, noisy, on_case=write)
+    if not args.clean_only:
+        run(True, args, log, noisy, on_case=write)
     log(f'wrote {args.out}')
     return 0
 

@@ -58,12 +58,14 @@ def peers_section(d):
              f"Evaluation budget {d['meta']['evaluation_budget']}, wall-time budget "
              f"{d['meta']['wall_budget_s']:.0f} s, {d['meta']['wall_s']:.0f} s in all "
              f"(load {d['meta']['load_start'][0]:.1f} at start).", '']
-    extra = d['meta'].get('noisy_only_run')
-    if extra:
-        methods = ', '.join(m for m in extra['methods'] if m != 'true_model')
-        lines[-1:-1] = [f'The noisy figures of {methods} come from a later `--noisy-only` run '
-                        f"of the same script on the same data ({extra['wall_s']:.0f} s, "
-                        f"{extra['date']})."]
+    for key, data in (('clean_only_run', 'noiseless'), ('noisy_only_run', 'noisy')):
+        extra = d['meta'].get(key)
+        if extra:
+            methods = ', '.join(m for m in extra['methods'] if m != 'true_model')
+            flag = '--' + key[:-len('_run')].replace('_', '-')
+            lines[-1:-1] = [f'The {data} figures of {methods} come from a later `{flag}` run '
+                            f"of the same script on the same data ({extra['wall_s']:.0f} s, "
+                            f"{extra['date']}, load {extra['load_start'][0]:.1f} at start)."]
     for title, block, key in (('10 s open loop, no noise', d, 'heldout_nrmse_10s'),
                               ('2 s ahead, no noise', d, 'ahead_nrmse_2s'),
                               ('10 s open loop, encoder noise', d.get('noisy', {}),
@@ -81,6 +83,92 @@ def peers_section(d):
               'torque) or was not run on noisy data (time); `diverged`: its rollout '
               'overflowed.', '']
     return lines
+
+
+def _cost(value):
+    return 'diverged' if value is None else f'{value:.4g}'
+
+
+def _held(entry):
+    return 'diverged' if entry['heldout_nrmse'] is None else _pct(entry['heldout_nrmse'])
+
+
+def paper_section(d):
+    """Return the lines of the paper's structure and EA beside our pipeline (paper.json)."""
+    meta = d['meta']
+    load = (f", load {meta['load_start'][0]:.1f} at start and {meta['load_end'][0]:.1f} at "
+            'the end' if 'load_end' in meta else '')
+    lines = ['## Paper reproduction (`tools/paper.py`, `make paper`)', '',
+             f"{meta['date']}{load}. J on the 10 s fitting run (start: the genome the search "
+             'starts from), and the 10 s open-loop θ-NRMSE on the held-out reference. '
+             f"Ours: `fit_best` with {meta['best_budget_s']:.0f} s of wall time (its figures "
+             "depend on the machine's speed). Details and figures: `paper.md`.", '',
+             '| case | paper EA start J | paper EA final J | paper EA held-out | '
+             'ours start J | ours final J | ours held-out |', '|---|---|---|---|---|---|---|']
+    for case in ('1', '2', '3'):
+        if case in d:
+            p, b = d[case]['paper_ea'], d[case]['best']
+            lines.append(f"| {case} | {_cost(p.get('start_cost'))} | {_cost(p['final_cost'])} "
+                         f"| {_held(p)} | {_cost(b.get('start_cost'))} | "
+                         f"{_cost(b['final_cost'])} | {_held(b)} |")
+    return lines + ['']
+
+
+def spread_section(d):
+    """Return the lines of the paper EA's final J per initial spread (paper_ea_spread.json)."""
+    cases = [c for c in ('1', '2', '3') if c in d]
+    spreads = list(d[cases[0]]) if cases else []
+    lines = ["## The paper EA's initial spread (`tools/paper.py --spread-study`)", '',
+             f"J after {d['meta']['generations']} generations of 100, the start genome in the "
+             'first generation and the rest around it at the spread, which is also where the '
+             'mutation spread starts (per seed; `paper_ea_spread.json`, '
+             f"`{d['meta']['command']}`, load {d['meta']['load_start'][0]:.1f} at start).", '',
+             '| spread | ' + ' | '.join(f'case {c}' for c in cases) + ' |',
+             '|---|' + '---|' * len(cases)]
+    for spread in spreads:
+        lines.append(f'| {spread} | ' + ' | '.join(
+            ' / '.join(_cost(r['final_cost']) for r in d[c][spread]) for c in cases) + ' |')
+    return lines + ['']
+
+
+def _servo_order(row):
+    """Sort key: continuous first, then faster servos, then looser torque limits."""
+    rate = row['servo_rate_hz']
+    limit = row['torque_limit_nm']
+    return (-(float('inf') if rate is None else rate),
+            -(float('inf') if limit is None else sum(limit)))
+
+
+def pd_tuning_section(d):
+    """Return the lines of the PD tuning study (pd_tuning.json)."""
+    lines = ['## PD tuning, eq. (10) (`tools/paper.py --pd-study`)', '',
+             f"The paper EA, {d['meta']['population_size']} individuals × "
+             f"{d['meta']['generations']} generations; {d['meta']['servo']}. The paper's "
+             'gains: Kp = diag(32.84, 42.05, 42.31), Kd = diag(42.44, 0.19, 4.86).', '',
+             '| servo | torque limit [N m] | Kp found | Kd found | J found | '
+             "J of the paper's gains |", '|---|---|---|---|---|---|']
+    for r in sorted(d['rows'], key=_servo_order):
+        servo = 'continuous' if r['servo_rate_hz'] is None else f"{r['servo_rate_hz']:g} Hz"
+        limit = 'none' if r['torque_limit_nm'] is None else str(r['torque_limit_nm'])
+        lines.append(f"| {servo} | {limit} | {[round(v, 2) for v in r['kp_found']]} | "
+                     f"{[round(v, 2) for v in r['kd_found']]} | {_cost(r['cost_found'])} | "
+                     f"{_cost(r['cost_paper_gains'])} |")
+    scans = d.get('scans')
+    if scans:
+        names = [g['gain'] for g in scans[0]['gains']]
+        lines += ['', 'Each gain swept over its bounds (41 values) with the others at the '
+                  "paper's: where J is lowest (the paper's value in the header).", '',
+                  '| servo | torque limit [N m] | ' + ' | '.join(
+                      f"{g['gain']} ({g['paper']:g})" for g in scans[0]['gains'])
+                  + " | J of the paper's gains |", '|---|---|' + '---|' * (len(names) + 1)]
+        for scan in sorted(scans, key=_servo_order):
+            servo = ('continuous' if scan['servo_rate_hz'] is None
+                     else f"{scan['servo_rate_hz']:g} Hz")
+            limit = 'none' if scan['torque_limit_nm'] is None else str(scan['torque_limit_nm'])
+            lines.append(f'| {servo} | {limit} | ' + ' | '.join(
+                f"{g['argmin']:g}" if g['cost_at_argmin'] is not None else 'all diverge'
+                for g in scan['gains']) + f" | {_cost(scan['cost_paper_gains'])} |")
+    return lines + ['']
 
 
 def _mean_rate(soak):
@@ -172,7 +260,13 @@ def main():
                 f"{kill['old_or_new']} the old or a new model.", '']
     paper = _load('paper')
     if paper:
-        out += ['## Paper reproduction (`tools/paper.py`)', '', 'See `paper.md`.', '']
+        out += paper_section(paper)
+    spread = _load('paper_ea_spread')
+    if spread:
+        out += spread_section(spread)
+    tuning = _load('pd_tuning')
+    if tuning:
+        out += pd_tuning_section(tuning)
     text = '\n'.join(out)
     with open(os.path.join(RESULTS, 'README.md'), 'w', encoding='utf-8') as f:
         f.write(text)

@@ -45,11 +45,13 @@ order, and the first failing one gives the reason:
 7. Effort, when ``need_effort``: the same rule with ``'missing_effort'``.
 
 Any other failure (an object that is not a JointState at all) is ``'malformed'``.
+
+The CDR wire form of the two messages the 1 kHz paths handle (a JointState read from raw
+bytes, a prediction written as bytes) is in :mod:`rkgnn_ros.cdr`.
 """
 
 from functools import lru_cache
 import math
-import struct
 from typing import NamedTuple, Optional, Sequence, Tuple, Union
 
 from builtin_interfaces.msg import Duration, Time
@@ -57,6 +59,8 @@ import numpy as np
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from .cdr import joint_trajectory_cdr, parse_joint_state_cdr, split_seconds
 
 __all__ = [
     'REJECTION_REASONS', 'Rejection', 'JointSample', 'TrajectorySample',
@@ -80,9 +84,6 @@ REJECTION_REASONS = (
     'non_increasing_time',  # trajectory time_from_start negative or not increasing
     'malformed',         # not the expected message at all
 )
-
-_CDR_LE = b'\x00\x01\x00\x00'  # CDR encapsulation: plain CDR, little endian
-_NANO = 1_000_000_000
 
 
 class Rejection(NamedTuple):
@@ -157,31 +158,17 @@ def duration_to_seconds(duration) -> float:
     return stamp_to_seconds(duration)
 
 
-def _split_seconds(seconds: float, what: str) -> Tuple[int, int]:
-    """Split finite seconds into (sec, nanosec) with ``0 <= nanosec < 1e9``."""
-    seconds = float(seconds)
-    if not math.isfinite(seconds):
-        raise ValueError(f'{what} must be finite, got {seconds}')
-    sec = math.floor(seconds)
-    nanosec = int(round((seconds - sec) * _NANO))
-    if nanosec >= _NANO:
-        sec, nanosec = sec + 1, nanosec - _NANO
-    if not -2 ** 31 <= sec < 2 ** 31:
-        raise ValueError(f'{what} {seconds} s does not fit a 32-bit seconds field')
-    return int(sec), nanosec
-
-
 def seconds_to_stamp(seconds: float) -> Time:
     """Return float seconds (finite, >= 0) as a ``builtin_interfaces`` Time."""
     if not seconds >= 0.0:
         raise ValueError(f'a stamp must be >= 0, got {seconds}')
-    sec, nanosec = _split_seconds(seconds, 'stamp')
+    sec, nanosec = split_seconds(seconds, 'stamp')
     return Time(sec=sec, nanosec=nanosec)
 
 
 def seconds_to_duration(seconds: float) -> Duration:
     """Return finite float seconds as a ``builtin_interfaces`` Duration."""
-    sec, nanosec = _split_seconds(seconds, 'duration')
+    sec, nanosec = split_seconds(seconds, 'duration')
     return Duration(sec=sec, nanosec=nanosec)
 
 
@@ -299,84 +286,6 @@ def joint_state_cdr_to_arrays(
                              tuple(joints), need_velocity, need_effort)
     except Exception as error:  # last resort: parsing must never raise
         return Rejection('malformed', f'cannot read JointState: {error!r}')
-
-
-_CDR_HEADER = {1: struct.Struct('<iII'), 0: struct.Struct('>iII')}
-_CDR_U32 = {1: struct.Struct('<I'), 0: struct.Struct('>I')}
-_CDR_F8 = {1: np.dtype('<f8'), 0: np.dtype('>f8')}
-
-
-def parse_joint_state_cdr(raw: bytes):
-    """
-    Read a JointState from its CDR bytes (XCDR1, either byte order).
-
-    Returns ``(sec, nanosec, names tuple, position, velocity, effort)`` (float64 arrays,
-    read-only views of ``raw``), or None when ``raw`` is not plain CDR or does not hold
-    a JointState (truncated, a count beyond the end, a string without its terminating NUL
-    or not UTF-8). Bytes after the message are ignored, as rclpy's deserializer does
-    (``serialize_message`` itself leaves up to 8 spare bytes at the end).
-
-    Layout (offsets count from the end of the 4-byte encapsulation header, every
-    primitive aligned to its size): header.stamp (int32 sec, uint32 nanosec),
-    header.frame_id (string: uint32 length with the NUL, the bytes, NUL), name (uint32
-    count, that many strings), then position, velocity, effort (uint32 count, float64
-    elements).
-    """
-    try:
-        return _parse_joint_state_cdr(bytes(raw))
-    except (UnicodeDecodeError, struct.error, ValueError):
-        return None
-
-
-def _parse_joint_state_cdr(raw: bytes):
-    size = len(raw)
-    if size < 16 or raw[0] != 0 or raw[1] not in (0, 1):
-        return None
-    order = raw[1]
-    sec, nanosec, length = _CDR_HEADER[order].unpack_from(raw, 4)
-    at = 16 + length
-    if length == 0 or at > size or raw[at - 1] != 0:
-        return None
-    raw[16:at - 1].decode('utf-8')  # header.frame_id: not used, but must be text
-    u32 = _CDR_U32[order].unpack_from
-    at += -(at - 4) % 4
-    if at + 4 > size:
-        return None
-    (count,) = u32(raw, at)
-    at += 4
-    if count > (size - at) // 5:  # each name takes at least 5 bytes
-        return None
-    names = []
-    for _ in range(count):
-        at += -(at - 4) % 4
-        if at + 4 > size:
-            return None
-        (length,) = u32(raw, at)
-        end = at + 4 + length
-        if length == 0 or end > size or raw[end - 1] != 0:
-            return None
-        names.append(raw[at + 4:end - 1].decode('utf-8'))
-        at = end
-    dtype = _CDR_F8[order]
-    arrays = []
-    for _ in range(3):
-        at += -(at - 4) % 4
-        if at + 4 > size:
-            return None
-        (count,) = u32(raw, at)
-        at += 4
-        if count:
-            at += -(at - 4) % 8
-            if at + 8 * count > size:
-                return None
-            arrays.append(np.frombuffer(raw, dtype=dtype, count=count, offset=at))
-            at += 8 * count
-        else:
-            arrays.append(_EMPTY)
-    return (sec, nanosec, tuple(names)) + tuple(arrays)
-
-
-_EMPTY = np.zeros(0)
 
 
 def _joint_sample(names, position, velocity, effort, sec, nanosec, joints, need_velocity,
@@ -594,8 +503,9 @@ def serialize_joint_trajectory(stamp, names: Sequence[str], times, positions,
     ``rclpy.serialization.serialize_message`` produces, without its trailing zero padding)
     for ``Publisher.publish(bytes)``: building 201 ``JointTrajectoryPoint`` objects costs
     about 2 ms of Python per prediction, this a few numpy operations. The byte layout of a
-    given (names, times, with velocities) is built once and kept (:func:`_trajectory_layout`);
-    each call copies it and scatters the stamp, positions and velocities into it. Same
+    given (names, times, with velocities) is built once and kept
+    (:func:`rkgnn_ros.cdr.joint_trajectory_cdr`); each call copies it and scatters the
+    stamp, positions and velocities into it. Same
     arguments and errors as :func:`make_joint_trajectory`; tests hold the two equal.
     """
     names = tuple(str(name) for name in names)
@@ -612,84 +522,8 @@ def serialize_joint_trajectory(stamp, names: Sequence[str], times, positions,
     if k and not (times[0] >= 0.0 and np.all(np.diff(times) > 0.0)):
         raise ValueError('times must be >= 0 and strictly increasing')
     header = _stamp(stamp)
-    template, stamp_at, position_bytes, velocity_bytes = _trajectory_layout(
-        names, times.tobytes(), velocities is not None)
-    out = template.copy()
-    out[stamp_at:stamp_at + 8] = np.frombuffer(
-        struct.pack('<iI', header.sec, header.nanosec), dtype=np.uint8)
-    if k and n:
-        out[position_bytes] = _le_bytes(positions)
-        if velocities is not None:
-            out[velocity_bytes] = _le_bytes(velocities)
-    return out.tobytes()
-
-
-def _le_bytes(values: np.ndarray) -> np.ndarray:
-    """Return the little-endian float64 bytes of ``values``, row-major, flat (uint8)."""
-    return np.ascontiguousarray(values, dtype='<f8').reshape(-1).view(np.uint8)
-
-
-@lru_cache(maxsize=8)
-def _trajectory_layout(names: Tuple[str, ...], times_bytes: bytes, with_velocities: bool):
-    """
-    Return the CDR bytes of a JointTrajectory with zero stamp and values, and their places.
-
-    Returns (template uint8 array, offset of the stamp, indices of the position bytes,
-    indices of the velocity bytes), the indices in the order of ``_le_bytes`` of a
-    (k, n) array. CDR aligns every primitive to its size counted from the end of the
-    4-byte encapsulation header; a sequence is a uint32 count and its elements.
-    """
-    times = np.frombuffer(times_bytes, dtype=float)
-    n = len(names)
-    out = bytearray(_CDR_LE)
-
-    def align(size):
-        out.extend(bytes(-(len(out) - len(_CDR_LE)) % size))
-
-    def string(text):
-        data = text.encode('utf-8')
-        align(4)
-        out.extend(struct.pack('<I', len(data) + 1) + data + b'\x00')
-
-    def doubles(count):  # a float64 sequence of ``count`` zeros: return where its data sit
-        align(4)
-        out.extend(struct.pack('<I', count))
-        if not count:
-            return None
-        align(8)
-        at = len(out)
-        out.extend(bytes(8 * count))
-        return at
-
-    align(4)
-    stamp_at = len(out)
-    out.extend(bytes(8))
-    string('')  # frame_id
-    align(4)
-    out.extend(struct.pack('<I', n))
-    for name in names:
-        string(name)
-    align(4)
-    out.extend(struct.pack('<I', times.size))
-    position_at, velocity_at = [], []
-    for t in times.tolist():
-        position_at.append(doubles(n))
-        velocity_at.append(doubles(n if with_velocities else 0))
-        doubles(0)  # accelerations
-        doubles(0)  # effort
-        sec, nanosec = _split_seconds(t, 'duration')
-        align(4)
-        out.extend(struct.pack('<iI', sec, nanosec))
-    span = np.arange(8 * n)
-
-    def indices(starts):
-        if not n or not starts or starts[0] is None:
-            return np.zeros(0, dtype=np.intp)
-        return (np.asarray(starts, dtype=np.intp)[:, None] + span).reshape(-1)
-
-    template = np.frombuffer(bytes(out), dtype=np.uint8)
-    template.flags.writeable = False
-    return template, stamp_at, indices(position_at), indices(velocity_at)
+    return joint_trajectory_cdr(header.sec, header.nanosec, names, times, positions,
+                                velocities)
 
 
 def make_float64_multiarray(values, labels: Sequence[str]) -> Float64MultiArray:

@@ -13,18 +13,24 @@
 # limitations under the License.
 
 """
-The ``sim_arm`` node: the planar arm under PD control, simulated in real time.
+The ``sim_arm`` node: the planar arm under its servo, simulated in real time.
 
 The plant of :mod:`rkgnn_ros.core.sim.plant` (``PlanarArm``) tracks a reference of
-:mod:`rkgnn_ros.core.sim.trajectories` under the PD servo τ = Kp (θd - θ) + Kd (θ̇d - θ̇), on the
-node's clock (``use_sim_time`` is honoured like in any node).
+:mod:`rkgnn_ros.core.sim.trajectories` under the servo of :mod:`rkgnn_ros.core.sim.servo`:
+by default the paper's PD τ = Kp (θd - θ) + Kd (θ̇d - θ̇); with ``ki`` a PID (with
+back-calculation anti-windup, ``windup_time``), with ``gravity_compensation`` plus the
+arm's own gravity torque at θ or θd, with ``tau_limit`` saturating drives. It runs on the
+node's clock (``use_sim_time`` is honoured like in any node). What ``joint_states``
+carries is what a driver publishes (:mod:`rkgnn_ros.core.sim.sensors`): ``sensors.*``.
 
 Topics (published)
 ------------------
 ``joint_states`` (sensor_msgs/JointState, reliable, volatile, depth 10)
-    θ in ``position``, θ̇ in ``velocity`` (both with the optional measurement noise), the
-    applied torque τ in ``effort`` (the PD torque at that instant, or the held torque of a
-    digital controller; never noisy).
+    θ in ``position`` (with the optional encoder noise), θ̇ in ``velocity`` as
+    ``sensors.velocity`` says (sensed with noise, differenced, low-pass filtered, or an
+    empty field), the applied torque τ in ``effort`` (the servo's torque at that instant
+    after saturation, or the held torque of a digital servo; never noisy; an empty field
+    when ``sensors.effort`` is false).
 ``joint_commands`` (sensor_msgs/JointState, reliable, volatile, depth 10)
     θd in ``position``, θ̇d in ``velocity``, NaN in ``effort``; the same stamps as
     ``joint_states``.
@@ -52,17 +58,19 @@ Integration
 Between samples the continuous plant is advanced by fixed Runge-Kutta-Gill steps
 (:func:`.core.integration.rkg.rkg_step`, the package's 4-stage 4th-order Runge-Kutta; it has
 the stability polynomial of classical RK4) of at most ``integration_step`` seconds: each
-interval is split into equal steps. With ``control_rate`` = 0 the PD is continuous (the
-reference is evaluated at every stage time); with ``control_rate`` > 0 a digital PD
+interval is split into equal steps. The state is [θ, θ̇, I], I the servo's integral term.
+With ``control_rate`` = 0 the servo is continuous (the reference is evaluated at every
+stage time, I is integrated with the plant); with ``control_rate`` > 0 a digital servo
 computes the torque from the true state at τ = j / ``control_rate`` and holds it (zero-order
-hold), and the steps end exactly at every controller tick. ``integration_step`` is checked
-at start against the closed-loop stiffness at the start state
-(:meth:`PlanarArm.stable_step`); an unstable step is refused.
+hold), its integral advancing once per tick, and the steps end exactly at every tick.
+``integration_step`` is checked at start against the closed-loop stiffness at the start
+state (:meth:`PlanarArm.stable_step`); an unstable step is refused.
 
 All parameters are read-only (set them at start; they define the simulated system)
 except ``noise.theta_std`` and ``noise.theta_dot_std``, which can be changed at any time.
 """
 
+from functools import partial
 import math
 import sys
 import traceback
@@ -70,8 +78,7 @@ from typing import List, NamedTuple, Optional, Tuple
 
 from numba import njit
 import numpy as np
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
+from rcl_interfaces.msg import SetParametersResult
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -86,10 +93,14 @@ from .conversions import make_joint_state, make_joint_trajectory
 from .core.integration.rkg import gill_node, gill_stage, rkg_step
 from .core.integration.rkg import STABILITY_LIMIT as RK4_REAL_STABILITY_LIMIT
 from .core.sim.parameters import ArmParameters, MASS_MODELS
-from .core.sim.plant import PDController, PlanarArm
+from .core.sim.plant import PlanarArm
 from .core.sim.plant_kernels import forward_dynamics_kernel
+from .core.sim.sensors import SensorModel, VELOCITY_SOURCES
+from .core.sim.servo import (DEFAULT_WINDUP_TIME, GRAVITY_MODES, Servo,
+                             servo_integral_rate_into, servo_torque_into)
 from .core.sim.stability import max_stable_rkg_step
 from .core.sim.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
+from .parameters import Change, ParameterSpec
 
 NODE_NAME = 'sim_arm'
 
@@ -120,31 +131,38 @@ class SimulationDiverged(RuntimeError):
 
 
 @njit(cache=True, nogil=True)
-def _pd_rate(x, ref, j, tau_held, kp, kd, d, gh, fv, fc, vc, out):
+def _pd_rate(x, ref, j, tau_held, servo, d, gh, fv, fc, vc, out):
     """
-    Write ẋ = [θ̇, θ̈] of the PD closed loop at ``x`` (2n,) into ``out`` (2n,).
+    Write ẋ = [θ̇, θ̈, İ] of the servo's closed loop at ``x`` (3n,) into ``out`` (3n,).
 
-    With ``ref`` of shape (K, 2, n) (K > 0) the torque is the continuous PD torque towards
-    θd = ref[j, 0], θ̇d = ref[j, 1]; with K = 0 it is ``tau_held`` (n,). θ̈ comes from the
-    plant's compiled single-state kernel (the arithmetic of ``PlanarArm.forward_dynamics``);
-    ``d``, ``gh`` are the arm's constants and ``fv``, ``fc``, ``vc`` its viscous and Coulomb
+    The state is [θ, θ̇, I], I the servo's integral term (N m). With ``ref`` of shape
+    (K, 2, n) (K > 0) the torque is the continuous servo torque towards θd = ref[j, 0],
+    θ̇d = ref[j, 1] (:func:`.core.sim.servo.servo_torque_into`, ``servo`` its
+    :class:`~.core.sim.servo.ServoConstants`); with K = 0 it is ``tau_held`` (n,) and I
+    does not move (a digital servo advances it at its ticks). θ̈ comes from the plant's
+    compiled single-state kernel (the arithmetic of ``PlanarArm.forward_dynamics``); ``d``,
+    ``gh`` are the arm's constants and ``fv``, ``fc``, ``vc`` its viscous and Coulomb
     friction and Coulomb smoothing velocity.
     """
-    n = x.shape[0] // 2
+    n = x.shape[0] // 3
     theta = x[:n]
-    theta_dot = x[n:]
+    theta_dot = x[n:2 * n]
     if ref.shape[0] > 0:
-        tau = kp * (ref[j, 0] - theta) + kd * (ref[j, 1] - theta_dot)
+        raw = np.empty(n)
+        tau = np.empty(n)
+        servo_torque_into(servo, theta, theta_dot, ref[j, 0], ref[j, 1], x[2 * n:], raw, tau)
+        servo_integral_rate_into(servo, theta, ref[j, 0], raw, tau, out[2 * n:])
     else:
         tau = tau_held
+        out[2 * n:] = 0.0
     out[:n] = theta_dot
-    out[n:] = forward_dynamics_kernel(theta, theta_dot, tau, d, gh, fv, fc, vc)
+    out[n:2 * n] = forward_dynamics_kernel(theta, theta_dot, tau, d, gh, fv, fc, vc)
 
 
 @njit(cache=True, nogil=True)
-def _rkg_pd_steps(x, h, steps, ref, tau_held, kp, kd, d, gh, fv, fc, vc):
+def _rkg_pd_steps(x, h, steps, ref, tau_held, servo, d, gh, fv, fc, vc):
     """
-    Return ``x`` (2n,) advanced by ``steps`` Runge-Kutta-Gill steps of width ``h``.
+    Return ``x`` (3n,) advanced by ``steps`` Runge-Kutta-Gill steps of width ``h``.
 
     The stage loop of :func:`.core.integration.rkg.rkg_step` with its compiled stage update
     (:func:`.core.integration.rkg.gill_stage`) applied to :func:`_pd_rate`: ``ref``
@@ -159,14 +177,14 @@ def _rkg_pd_steps(x, h, steps, ref, tau_held, kp, kd, d, gh, fv, fc, vc):
     for i in range(steps):
         y[:] = x
         for stage in range(4):
-            _pd_rate(y, ref, 2 * i + gill_node(stage), tau_held, kp, kd, d, gh, fv, fc, vc, f)
+            _pd_rate(y, ref, 2 * i + gill_node(stage), tau_held, servo, d, gh, fv, fc, vc, f)
             gill_stage(stage, h, x, y, f, q)
     return x
 
 
 class ArmSimulator:
     """
-    Fixed-step simulation of an arm under a diagonal PD servo tracking a reference.
+    Fixed-step simulation of an arm under its servo tracking a reference.
 
     Simulation time ``t`` starts at 0, the reference's time origin, with the arm on the
     reference. :meth:`advance` integrates to a later time; :meth:`sample` reports the state,
@@ -188,19 +206,26 @@ class ArmSimulator:
     max_speed : float
         A joint speed above this (rad/s), or a non-finite state, raises
         :class:`SimulationDiverged`.
+    ki, tau_limit, gravity_compensation, windup_time
+        The rest of the servo (:class:`~.core.sim.servo.Servo`): integral gains (the
+        integral term is ``x[2n:]``, starting at 0), torque limits (None: none), Ĝ from
+        the arm's own model on the 'measured' or 'desired' position ('none': without),
+        back-calculation time constant.
 
     """
 
     def __init__(self, arm: PlanarArm, kp, kd, reference: Reference, max_step: float,
                  control_rate: Optional[float] = None, max_speed: float = 100.0,
-                 compiled: bool = True):
+                 compiled: bool = True, *, ki=0.0, tau_limit=None,
+                 gravity_compensation: str = 'none',
+                 windup_time: float = DEFAULT_WINDUP_TIME):
         self.arm = arm
         self.n = n = arm.n_joints
-        self.controller = PDController(np.asarray(kp, dtype=float), np.asarray(kd, dtype=float))
-        if self.controller.n_joints != n:
-            raise ValueError(f'the gains have {self.controller.n_joints} joints, the arm {n}')
-        self._kp = np.diag(self.controller.kp).copy()
-        self._kd = np.diag(self.controller.kd).copy()
+        self.servo = Servo(np.asarray(kp, dtype=float), np.asarray(kd, dtype=float), ki=ki,
+                           tau_limit=tau_limit, gravity=gravity_compensation, arm=arm,
+                           windup_time=windup_time)
+        if self.servo.n_joints != n:
+            raise ValueError(f'the gains have {self.servo.n_joints} joints, the arm {n}')
         if reference.n_joints != n:
             raise ValueError(f'reference has {reference.n_joints} joints, the arm {n}')
         self.reference = reference
@@ -208,12 +233,12 @@ class ArmSimulator:
         self.max_speed = float(max_speed)
         self.control_period = 1.0 / control_rate if control_rate else None
         self.compiled = bool(compiled)
-        # the constants of the plant's compiled kernel (PlanarArm.kernel_constants)
-        self._constants = (self._kp, self._kd) + tuple(arm.kernel_constants())
+        # the servo's record and the plant's compiled-kernel constants
+        self._constants = (self.servo.constants(),) + tuple(arm.kernel_constants())
         self._no_ref = np.empty((0, 2, n))
         self._no_tau = np.zeros(n)
         theta_d, theta_d_dot = reference.evaluate(0.0)
-        self.x = np.concatenate([theta_d, theta_d_dot])      # (2n,) [θ, θ̇]
+        self.x = np.concatenate([theta_d, theta_d_dot, np.zeros(n)])   # (3n,) [θ, θ̇, I]
         self.t = 0.0
         self._tick = 0                                        # index of the next tick
         self._held_tau = None
@@ -231,10 +256,10 @@ class ArmSimulator:
         controller tick the newly computed one).
         """
         n = self.n
-        theta, theta_dot = self.x[:n].copy(), self.x[n:].copy()
+        theta, theta_dot = self.x[:n].copy(), self.x[n:2 * n].copy()
         theta_d, theta_d_dot = self.reference.evaluate(float(self.t))
         if self.control_period is None:
-            tau = self.controller.torque(theta, theta_dot, theta_d, theta_d_dot)
+            tau = self.servo.torque(theta, theta_dot, theta_d, theta_d_dot, self.x[2 * n:])
         else:
             tau = self._held_tau.copy()
         return theta, theta_dot, tau, theta_d, theta_d_dot
@@ -268,21 +293,22 @@ class ArmSimulator:
         return max(1, int(math.ceil(span / self.max_step - 1e-9)))
 
     def _f_pd(self, x, u):
-        """Return ẋ (2n,) under the continuous PD; ``u`` (2, n) holds θd and θ̇d."""
+        """Return ẋ (3n,) under the continuous servo; ``u`` (2, n) holds θd and θ̇d."""
         n = self.n
-        theta, theta_dot = x[:n], x[n:]
-        tau = self._kp * (u[0] - theta) + self._kd * (u[1] - theta_dot)
-        out = np.empty(2 * n)
+        theta, theta_dot = x[:n], x[n:2 * n]
+        raw, tau = self.servo.torques(theta, theta_dot, u[0], u[1], x[2 * n:])
+        out = np.empty(3 * n)
         out[:n] = theta_dot
-        out[n:] = self.arm.forward_dynamics(theta, theta_dot, tau)
+        out[n:2 * n] = self.arm.forward_dynamics(theta, theta_dot, tau)
+        out[2 * n:] = self.servo.integral_rate(theta, u[0], raw, tau)
         return out
 
     def _f_held(self, x, tau):
-        """Return ẋ (2n,) under a given torque ``tau`` (n,)."""
+        """Return ẋ (3n,) under a given torque ``tau`` (n,); the integral does not move."""
         n = self.n
-        out = np.empty(2 * n)
-        out[:n] = x[n:]
-        out[n:] = self.arm.forward_dynamics(x[:n], x[n:], tau)
+        out = np.zeros(3 * n)
+        out[:n] = x[n:2 * n]
+        out[n:2 * n] = self.arm.forward_dynamics(x[:n], x[n:2 * n], tau)
         return out
 
     def _integrate_continuous(self, t_a: float, t_b: float):
@@ -341,19 +367,26 @@ class ArmSimulator:
                                '(PlanarArm.forward_dynamics); use compiled=False')
 
     def _update_digital(self):
-        """At a controller tick, compute and hold the torque from the true state."""
+        """
+        At a controller tick, compute and hold the torque from the true state.
+
+        The servo's integral term advances by one forward-Euler step of its period.
+        """
         if self.control_period is None:
             return
         tick_time = self._tick * self.control_period
         if tick_time <= self.t + _TIME_TOL:
             n = self.n
+            theta, theta_dot, integral = self.x[:n], self.x[n:2 * n], self.x[2 * n:]
             theta_d, theta_d_dot = self.reference.evaluate(float(tick_time))
-            self._held_tau = self.controller.torque(self.x[:n], self.x[n:], theta_d,
-                                                    theta_d_dot)
+            raw, self._held_tau = self.servo.torques(theta, theta_dot, theta_d, theta_d_dot,
+                                                     integral)
+            rate = self.servo.integral_rate(theta, theta_d, raw, self._held_tau)
+            self.x = np.concatenate([self.x[:2 * n], integral + self.control_period * rate])
             self._tick += 1
 
     def _check(self):
-        speed = np.abs(self.x[self.n:])
+        speed = np.abs(self.x[self.n:2 * self.n])
         if not (np.all(np.isfinite(self.x)) and np.max(speed) <= self.max_speed):
             raise SimulationDiverged(
                 f'the simulation diverged at t = {self.t:.6g} s (state {self.x}, max_speed '
@@ -364,15 +397,8 @@ class ArmSimulator:
 # -- parameters ---------------------------------------------------------------------------
 
 
-class _Spec(NamedTuple):
-    name: str
-    default: object
-    description: str
-    low: Optional[float] = None
-    high: Optional[float] = None
-    constraints: str = ''
-    read_only: bool = True
-
+#: A row of the table below: set at start unless it says ``change=Change.LIVE``.
+_Spec = partial(ParameterSpec, change=Change.START)
 
 _MAX_INT = 2 ** 31 - 1
 
@@ -400,6 +426,19 @@ PARAMETERS = (
           constraints='n values, each >= 0'),
     _Spec('kd', [42.44, 0.19, 4.86], 'Derivative gains, diagonal (N m s/rad).',
           constraints='n values, each >= 0'),
+    _Spec('ki', [0.0],
+          'Integral gains, diagonal (N m/(rad s)); 0 = no integral term (a PD servo).',
+          constraints='n values or one for every joint, each >= 0'),
+    _Spec('gravity_compensation', 'none',
+          "Gravity torque the servo adds from the arm's own model: 'none', 'measured' "
+          "(at the measured position) or 'desired' (at the commanded position).",
+          constraints="'none', 'measured' or 'desired'"),
+    _Spec('tau_limit', [0.0],
+          'Torque limits of the drives (N m); the applied, published torque is clipped to '
+          '+-limit; 0 = no limit.', constraints='n values or one for every joint, each >= 0'),
+    _Spec('windup_time', DEFAULT_WINDUP_TIME,
+          'Back-calculation anti-windup time constant of the integral term (s).',
+          1e-4, 1e4),
     _Spec('reference.type', 'paper',
           "Desired trajectory: 'paper' (fixed sums of sines about the hanging pose), "
           "'sines' (random sums of sines, reference.seed), 'chirp' (linear chirp).",
@@ -420,10 +459,22 @@ PARAMETERS = (
     _Spec('reference.chirp_duration', 60.0, "Sweep time of 'chirp' (s).", 0.01, 1e9),
     _Spec('noise.theta_std', 0.0,
           'Standard deviation of the white noise on the published positions (rad); '
-          'may be changed at run time.', 0.0, 1.0, read_only=False),
+          'may be changed at run time.', 0.0, 1.0, change=Change.LIVE),
     _Spec('noise.theta_dot_std', 0.0,
-          'Standard deviation of the white noise on the published velocities (rad/s); '
-          'may be changed at run time.', 0.0, 100.0, read_only=False),
+          'Standard deviation of the white noise on the published velocities (rad/s) when '
+          "sensors.velocity is 'sensor'; may be changed at run time.", 0.0, 100.0,
+          change=Change.LIVE),
+    _Spec('sensors.velocity', 'sensor',
+          "What the driver publishes as velocity: 'sensor' (true velocity plus "
+          "noise.theta_dot_std), 'difference' (backward difference of the published "
+          "positions), 'filtered' (that difference through a first-order low-pass at "
+          "sensors.velocity_cutoff) or 'none' (an empty velocity field).",
+          constraints="'sensor', 'difference', 'filtered' or 'none'"),
+    _Spec('sensors.velocity_cutoff', 20.0,
+          "Cut-off of the low-pass of sensors.velocity 'filtered' (Hz).", 0.01, 1e4),
+    _Spec('sensors.effort', True,
+          'Publish the applied torque as effort; false: an empty effort field (a driver '
+          'without torque sensing).'),
     _Spec('seed', 0, 'Seed of the measurement noise generator.', 0, _MAX_INT),
     _Spec('publish_rate', 100.0, 'Rate of joint_states and joint_commands (Hz).',
           1.0, 10000.0),
@@ -450,26 +501,7 @@ PARAMETERS = (
           0.0, 1e9),
 )
 
-_PARAMETER_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-                    float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
-
-
-def _descriptor(spec: _Spec) -> ParameterDescriptor:
-    if isinstance(spec.default, list):
-        kind = (ParameterType.PARAMETER_STRING_ARRAY if isinstance(spec.default[0], str)
-                else ParameterType.PARAMETER_DOUBLE_ARRAY)
-    else:
-        kind = _PARAMETER_TYPES[type(spec.default)]
-    descriptor = ParameterDescriptor(
-        name=spec.name, type=kind, description=spec.description,
-        additional_constraints=spec.constraints, read_only=spec.read_only)
-    if spec.low is not None and kind == ParameterType.PARAMETER_DOUBLE:
-        descriptor.floating_point_range = [FloatingPointRange(
-            from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-    elif spec.low is not None and kind == ParameterType.PARAMETER_INTEGER:
-        descriptor.integer_range = [IntegerRange(
-            from_value=int(spec.low), to_value=int(spec.high), step=1)]
-    return descriptor
+_BY_NAME = {spec.name: spec for spec in PARAMETERS}
 
 
 class SimConfig(NamedTuple):
@@ -479,6 +511,11 @@ class SimConfig(NamedTuple):
     arm: PlanarArm
     kp: np.ndarray
     kd: np.ndarray
+    ki: np.ndarray
+    gravity_compensation: str
+    tau_limit: Optional[np.ndarray]
+    windup_time: float
+    sensors: SensorModel
     reference: Reference
     reference_type: str
     seed: int
@@ -495,11 +532,15 @@ class SimConfig(NamedTuple):
     duration: float
 
 
-def _joint_vector(values: dict, name: str, n: int, *, positive: bool) -> np.ndarray:
+def _joint_vector(values: dict, name: str, n: int, *, positive: bool,
+                  broadcast: bool = False) -> np.ndarray:
     arr = np.asarray(values[name], dtype=float)
+    if broadcast and arr.shape == (1,):
+        arr = np.full(n, arr[0])
     if arr.shape != (n,):
         raise ConfigurationError(
-            f'{name} has {arr.size} values but joint_names has {n} joints; give one per joint')
+            f'{name} has {arr.size} values but joint_names has {n} joints; give one per joint'
+            + (' or one for every joint' if broadcast else ''))
     if not np.all(np.isfinite(arr)):
         raise ConfigurationError(f'{name} must be finite, got {arr.tolist()}')
     bad = arr <= 0.0 if positive else arr < 0.0
@@ -555,6 +596,25 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
     coulomb = _joint_vector(values, 'coulomb', n, positive=False)
     kp = _joint_vector(values, 'kp', n, positive=False)
     kd = _joint_vector(values, 'kd', n, positive=False)
+    ki = _joint_vector(values, 'ki', n, positive=False, broadcast=True)
+    tau_limit = _joint_vector(values, 'tau_limit', n, positive=False, broadcast=True)
+    if values['gravity_compensation'] not in GRAVITY_MODES:
+        raise ConfigurationError(
+            f'gravity_compensation must be one of {list(GRAVITY_MODES)}, got '
+            f'{values["gravity_compensation"]!r}')
+    if values['sensors.velocity'] not in VELOCITY_SOURCES:
+        raise ConfigurationError(
+            f'sensors.velocity must be one of {list(VELOCITY_SOURCES)}, got '
+            f'{values["sensors.velocity"]!r}')
+    if values['sensors.velocity'] != 'sensor' and values['noise.theta_dot_std'] > 0.0:
+        raise ConfigurationError(
+            f'noise.theta_dot_std must be 0 with sensors.velocity '
+            f'{values["sensors.velocity"]!r}: only a sensed velocity has noise of its own')
+    sensors = SensorModel(theta_std=values['noise.theta_std'],
+                          theta_dot_std=values['noise.theta_dot_std'],
+                          velocity=values['sensors.velocity'],
+                          velocity_cutoff=values['sensors.velocity_cutoff'],
+                          effort=values['sensors.effort'])
     if values['mass_model'] not in MASS_MODELS:
         raise ConfigurationError(
             f'mass_model must be one of {list(MASS_MODELS)}, got {values["mass_model"]!r}')
@@ -604,7 +664,10 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
             f'{0.5 * stiffness:.0f} Hz for the fastest eigenvalue of the closed loop: the '
             'digital PD may chatter or diverge')
     config = SimConfig(
-        joint_names=names, arm=arm, kp=kp, kd=kd, reference=reference,
+        joint_names=names, arm=arm, kp=kp, kd=kd, ki=ki,
+        gravity_compensation=values['gravity_compensation'],
+        tau_limit=np.where(tau_limit > 0.0, tau_limit, np.inf) if np.any(tau_limit) else None,
+        windup_time=float(values['windup_time']), sensors=sensors, reference=reference,
         reference_type=values['reference.type'], seed=int(values['seed']),
         theta_std=float(values['noise.theta_std']),
         theta_dot_std=float(values['noise.theta_dot_std']),
@@ -647,11 +710,13 @@ class SimArm(Node):
         config = self.config
         self.sim = ArmSimulator(config.arm, config.kp, config.kd, config.reference,
                                 config.integration_step, config.control_rate or None,
-                                config.max_speed)
-        self._rng = np.random.default_rng(config.seed)
-        self._noise = np.array([config.theta_std, config.theta_dot_std])
+                                config.max_speed, ki=config.ki, tau_limit=config.tau_limit,
+                                gravity_compensation=config.gravity_compensation,
+                                windup_time=config.windup_time)
         self._names = list(config.joint_names)
         self._rate = config.publish_rate
+        self._sensors = config.sensors.stream(1.0 / self._rate,
+                                              np.random.default_rng(config.seed))
         self._ref_every = max(1, int(math.floor(config.publish_rate / config.reference_rate
                                                 + 1e-9)))
         steps = int(math.ceil(config.reference_horizon / config.reference_dt - 1e-9))
@@ -680,13 +745,16 @@ class SimArm(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self._timer = self.create_timer(1.0 / self._rate, self._on_timer)
-        control = (f'digital PD at {config.control_rate:g} Hz' if config.control_rate
-                   else 'continuous PD')
+        servo = self.sim.servo.describe()
+        control = (f'digital {servo} at {config.control_rate:g} Hz' if config.control_rate
+                   else f'continuous {servo}')
+        sensors = config.sensors
+        published = f'velocity {sensors.velocity!r}' + ('' if sensors.effort else ', no effort')
         self.get_logger().info(
             f'{len(self._names)} joints {self._names}, {config.arm.params.mass_model} masses, '
             f'{control}, reference {config.reference_type!r}, publishing at '
-            f'{self._rate:g} Hz, integration_step {config.integration_step:g} s (stable below '
-            f'{config.stable_step:.3g} s at the start state)')
+            f'{self._rate:g} Hz ({published}), integration_step {config.integration_step:g} s '
+            f'(stable below {config.stable_step:.3g} s at the start state)')
 
     # -- parameters -----------------------------------------------------------------------
 
@@ -694,24 +762,28 @@ class SimArm(Node):
         values = {}
         for spec in PARAMETERS:
             try:
-                values[spec.name] = self.declare_parameter(
-                    spec.name, spec.default, _descriptor(spec)).value
+                values[spec.name] = spec.declare(self)
             except ParameterException as error:
                 reason = error.args[0] if error.args else repr(error)
                 raise ConfigurationError(f'parameter {spec.name!r}: {reason}') from None
         return values
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
-        """Accept run-time changes of the noise levels only if finite and >= 0; never raise."""
+        """Check run-time changes of the live parameters by their table rows; never raise."""
         try:
             for param in parameters:
-                if param.name in ('noise.theta_std', 'noise.theta_dot_std'):
-                    value = param.value
-                    if not (isinstance(value, float) and math.isfinite(value)
-                            and value >= 0.0):
-                        return SetParametersResult(
-                            successful=False,
-                            reason=f'{param.name} must be a finite float >= 0, got {value!r}')
+                spec = _BY_NAME.get(param.name)
+                if spec is not None and spec.change == Change.LIVE:
+                    reason = spec.check(param.value)
+                    if reason:
+                        return SetParametersResult(successful=False, reason=reason)
+                velocity = self.config.sensors.velocity
+                if param.name == 'noise.theta_dot_std' and param.value > 0.0 and \
+                        velocity != 'sensor':
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f'noise.theta_dot_std must be 0 with sensors.velocity '
+                               f'{velocity!r}: only a sensed velocity has noise of its own')
             return SetParametersResult(successful=True)
         except Exception as error:  # a callback must never raise
             return SetParametersResult(successful=False, reason=f'rejected: {error!r}')
@@ -720,9 +792,9 @@ class SimArm(Node):
         """Hand new noise levels to the next published sample."""
         for param in parameters:
             if param.name == 'noise.theta_std':
-                self._noise[0] = float(param.value)
+                self._sensors.set_noise(theta_std=float(param.value))
             elif param.name == 'noise.theta_dot_std':
-                self._noise[1] = float(param.value)
+                self._sensors.set_noise(theta_dot_std=float(param.value))
 
     # -- timing ---------------------------------------------------------------------------
 
@@ -757,6 +829,8 @@ class SimArm(Node):
         except SimulationDiverged as error:
             self._fail(str(error))
         except Exception:  # nothing may escape a callback
+            if not self.context.ok():
+                return  # shut down (SIGINT) while publishing: the requested end, no failure
             self._fail(f'unexpected error in the simulation step:\n{traceback.format_exc()}')
 
     def _fail(self, message: str):
@@ -818,10 +892,13 @@ class SimArm(Node):
         self._index = index
         stamp = Time(nanoseconds=self._stamp_ns(index)).to_msg()
         theta, theta_dot, tau, theta_d, theta_d_dot = self.sim.sample()
-        noise = self._rng.standard_normal((2, theta.size))     # drawn always: one stream
-        theta = theta + self._noise[0] * noise[0]
-        theta_dot = theta_dot + self._noise[1] * noise[1]
-        self._state_pub.publish(make_joint_state(stamp, self._names, theta, theta_dot, tau))
+        theta, theta_dot, tau = self._sensors.measure(theta, theta_dot, tau)
+        state = make_joint_state(stamp, self._names, theta, theta_dot, tau)
+        if self.config.sensors.velocity == 'none':
+            state.velocity = []                # as a driver without velocity publishes it
+        if not self.config.sensors.effort:
+            state.effort = []
+        self._state_pub.publish(state)
         self._command_pub.publish(
             make_joint_state(stamp, self._names, theta_d, theta_d_dot, None))
         self.counters['samples'] += 1

@@ -69,29 +69,23 @@ Pairing (only when ``need_desired``)
     (older than the first command, or inside a command gap) is excluded from every
     snapshot and counted once as ``'no_command'``. Nothing is overwritten:
     unlike message_filters' ApproximateTimeSynchronizer, no pair replaces another.
-    In a snapshot the grid times are paired this way (θd, θ̇d interpolated at the grid
-    times), and only covered grid times make up segments.
-Resampling
-    θ, θ̇, τ are interpolated linearly between the state samples at each grid time (τ is
-    then held by the model over ``[t[k], t[k+1])`` as ``Dataset`` states). Only the newest
-    ``window`` seconds (before the newest state) are used; segments shorter than
-    ``min_samples`` grid points are left out.
-Reference (optional)
-    :meth:`StreamBuffer.add_reference` keeps the newest planned trajectory;
-    :meth:`StreamBuffer.reference_at` interpolates it linearly, and outside its span holds
-    the first / last position with zero velocity (the controller holds a point at rest).
+Reading
+    Readers get copies, never the buffer: :meth:`StreamBuffer.capture` (resampled into
+    segments and paired on the grid as :mod:`rkgnn_ros.stream_capture` describes) and
+    :meth:`StreamBuffer.reference`, the newest planned trajectory.
 """
 
 from dataclasses import dataclass
 import math
 import threading
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
-from rkgnn_ros.core.data import Dataset
+from rkgnn_ros.stream_capture import Capture, covered_by, PlannedReference, Snapshot
 
-__all__ = ['DROP_REASONS', 'AddResult', 'Snapshot', 'StreamBuffer']
+__all__ = ['DROP_REASONS', 'AddResult', 'Capture', 'PlannedReference', 'Snapshot',
+           'StreamBuffer']
 
 #: Counter keys of the buffer (callers add their own, e.g. conversions', by count_drop).
 #: All are drops decided when a sample is added, except: 'clock_jump' and
@@ -125,27 +119,6 @@ class AddResult:
 
 
 _ACCEPTED = AddResult(True)
-_EPS = 1e-9  # s: slack for tolerance comparisons of stamps rounded in float64
-
-
-class Snapshot(list):
-    """
-    A list of :class:`Dataset` segments, oldest first, with their shared time base.
-
-    Attributes
-    ----------
-    time_origin : float
-        Absolute time (s) of ``Dataset.t == 0``.
-    epoch : int
-        Incremented at every clear (clock jump or :meth:`StreamBuffer.clear`): datasets of
-        different epochs do not share a timeline.
-
-    """
-
-    def __init__(self, segments=(), time_origin: float = 0.0, epoch: int = 0):
-        super().__init__(segments)
-        self.time_origin = time_origin
-        self.epoch = epoch
 
 
 class _Series:
@@ -209,46 +182,6 @@ class _Series:
         self._t[at] = t
         self._v[at] = row
         self._hi += 1
-
-
-def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray,
-                 gap: float = math.inf) -> np.ndarray:
-    """
-    Interpolate rows ``fp`` (M, W) given at sorted ``xp`` (M,) to ``x`` (K,): (K, W).
-
-    Linear inside intervals at most ``gap`` long; the nearest sample inside longer ones;
-    the end values held outside ``[xp[0], xp[-1]]``.
-    """
-    if xp.size == 1:
-        return np.repeat(fp[:1], x.size, axis=0)
-    lo = np.clip(np.searchsorted(xp, x, side='right') - 1, 0, xp.size - 2)
-    span = xp[lo + 1] - xp[lo]  # > 0: stored stamps are strictly increasing
-    w = np.clip((x - xp[lo]) / span, 0.0, 1.0)
-    out = fp[lo] * (1.0 - w)[:, None] + fp[lo + 1] * w[:, None]
-    gapped = span > gap + _EPS
-    if gapped.any():
-        nearest = np.where(w < 0.5, lo, lo + 1)
-        out[gapped] = fp[nearest[gapped]]
-    return out
-
-
-def _covered(x: np.ndarray, xp: np.ndarray, gap: float, tol: float) -> np.ndarray:
-    """Return which times ``x`` the sorted command stamps ``xp`` cover (see pairing)."""
-    m = xp.size
-    if m == 0:
-        return np.zeros(x.shape, dtype=bool)
-    idx = np.searchsorted(xp, x, side='right')  # xp[idx-1] <= x < xp[idx]
-    lo = np.clip(idx - 1, 0, m - 1)
-    hi = np.clip(idx, 0, m - 1)
-    inside = (idx > 0) & (idx < m) & (xp[hi] - xp[lo] <= gap + _EPS)
-    near = np.minimum(np.abs(x - xp[lo]), np.abs(xp[hi] - x)) <= tol + _EPS
-    return inside | near
-
-
-def _runs(mask: np.ndarray) -> List[Tuple[int, int]]:
-    """Return ``[start, stop)`` index pairs of the True runs in a boolean array."""
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
 
 
 class StreamBuffer:
@@ -487,55 +420,24 @@ class StreamBuffer:
         ``velocities`` (K, n) θ̇d, or None to estimate them from the positions
         (``np.gradient``; zero for a single point). Replaces the previous reference.
         """
-        try:
-            t0 = float(t0)
-            times = np.array(times, dtype=float).reshape(-1)
-            positions = np.array(positions, dtype=float)
-            if velocities is not None:
-                velocities = np.array(velocities, dtype=float)
-        except Exception:
-            return self._drop('reference', 'bad_shape')
-        k = times.size
-        if k == 0 or positions.shape != (k, self._n) or (
-                velocities is not None and velocities.shape != (k, self._n)):
-            return self._drop('reference', 'bad_shape')
-        values = [positions] if velocities is None else [positions, velocities]
-        if not (math.isfinite(t0) and np.isfinite(times).all()):
-            return self._drop('reference', 'bad_stamp')
-        if not all(np.isfinite(v).all() for v in values):
-            return self._drop('reference', 'non_finite')
-        if any(np.abs(v).max() > self.max_abs_value for v in values):
-            return self._drop('reference', 'out_of_range')
-        if k > 1 and not np.all(np.diff(times) > 0.0):
-            return self._drop('reference', 'non_increasing_time')
-        if velocities is None:
-            velocities = np.gradient(positions, times, axis=0) if k > 1 else \
-                np.zeros_like(positions)
-            if not np.isfinite(velocities).all():
-                return self._drop('reference', 'non_finite')
+        reference, reason = PlannedReference.checked(t0, times, positions, velocities,
+                                                     self._n, self.max_abs_value)
+        if reference is None:
+            return self._drop('reference', reason)
         with self._lock:
-            self._reference = (t0, times, positions, velocities)
+            self._reference = reference
             self._accepted['reference'] += 1
         return _ACCEPTED
 
-    def reference_at(self, t) -> Optional[Tuple[np.ndarray, np.ndarray]]:
-        """
-        Return the reference (θd, θ̇d), each (M, n), at absolute times ``t`` (M,).
-
-        Linear inside the reference; before its first point the first position and after
-        its last point the last position is held, with zero velocity. None when there is
-        no reference.
-        """
+    def reference(self) -> Optional[PlannedReference]:
+        """Return the newest planned trajectory, immutable; None if none came since a clear."""
         with self._lock:
-            reference = self._reference
-        if reference is None:
-            return None
-        t0, times, positions, velocities = reference
-        s = np.atleast_1d(np.asarray(t, dtype=float)) - t0
-        theta_d = _interp_rows(s, times, positions)
-        theta_d_dot = _interp_rows(s, times, velocities)
-        theta_d_dot[(s < times[0]) | (s > times[-1])] = 0.0
-        return theta_d, theta_d_dot
+            return self._reference
+
+    def reference_at(self, t) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+        """Return :meth:`PlannedReference.at` of the newest reference (None: none)."""
+        reference = self.reference()
+        return None if reference is None else reference.at(t)
 
     # ------------------------------------------------------------------ reading
 
@@ -633,107 +535,42 @@ class StreamBuffer:
         a = int(np.searchsorted(stamps, self._settled, side='right'))
         b = int(np.searchsorted(stamps, limit, side='right'))
         if b > a:
-            covered = _covered(stamps[a:b], commands.t, self.gap_threshold,
-                               self.pair_tolerance)
+            covered = covered_by(stamps[a:b], commands.t, self.gap_threshold,
+                                 self.pair_tolerance)
             self._drops['state']['no_command'] += int((~covered).sum())
             self._settled = float(stamps[b - 1])
+
+    def capture(self) -> Capture:
+        """Return a consistent copy of the streams (see :class:`Capture`)."""
+        with self._lock:
+            self._settle_locked()
+            states, commands = self._series['state'], self._series['command']
+            return Capture(self, (states.t.copy(), states.values.copy()),
+                           (commands.t.copy(), commands.values.copy()), self._origin,
+                           self._epoch)
 
     def snapshot(self, min_samples: int = 2, pair_commands: bool = False) -> Snapshot:
         """
         Return the newest ``window`` seconds as uniformly resampled segments.
 
-        A consistent copy taken under the lock and resampled outside it: callbacks keep
-        adding meanwhile, and changing the returned arrays never touches the buffer.
-        Segments have at least ``max(2, min_samples)`` points at ``model_step``. With
-        ``pair_commands`` the segments carry θd, θ̇d (paired as with ``need_desired``, so
-        only covered grid times make up segments) even when ``need_desired`` is False.
+        A consistent copy taken under the lock and resampled outside it
+        (:meth:`Capture.segments`): callbacks keep adding meanwhile, and changing the
+        returned arrays never touches the buffer. A segment that cannot be built is counted
+        as ``'resample_failed'``.
         """
-        pair = self.need_desired or bool(pair_commands)
-        with self._lock:
-            self._settle_locked()
-            states = self._series['state']
-            t_states = states.t.copy()
-            v_states = states.values.copy()
-            commands = self._series['command']
-            if pair:
-                t_commands = commands.t.copy()
-                v_commands = commands.values.copy()
-            else:
-                t_commands = v_commands = None
-            origin, epoch = self._origin, self._epoch
-        segments, failures = self._resample(
-            t_states, v_states, t_commands, v_commands, max(2, int(min_samples)), pair)
-        if failures:
+        capture = self.capture()
+        snapshot = capture.segments(min_samples, pair_commands)
+        self.count_failures(capture)
+        return snapshot
+
+    def count_failures(self, capture: Capture) -> None:
+        """Count the segments a capture of this buffer could not build (should be none)."""
+        if capture.failures:
             with self._lock:
-                self._drops['state']['resample_failed'] += failures
-        return Snapshot(segments, 0.0 if origin is None else origin, epoch)
+                self._drops['state']['resample_failed'] += capture.failures
 
     def controller_samples(self) -> Optional[Dict[str, np.ndarray]]:
-        """
-        Return the buffered states of the window paired with commands, for a controller fit.
-
-        Only with ``need_tau`` (case 'torque', where the applied torque is measured): the
-        state samples of the newest ``window`` seconds that the command stream covers (see
-        pairing), with θd, θ̇d interpolated at their stamps, whether or not ``need_desired``.
-        Keys ``theta``, ``theta_dot``, ``tau``, ``theta_d``, ``theta_d_dot``, each (K, n);
-        None when τ is not stored or no state is covered.
-        """
+        """Return :meth:`Capture.controller_samples` of the streams as they are now."""
         if not self.need_tau:
             return None
-        with self._lock:
-            states, commands = self._series['state'], self._series['command']
-            if not len(states) or not len(commands):
-                return None
-            ts = states.t.copy()
-            vs = states.values.copy()
-            tc = commands.t.copy()
-            vc = commands.values.copy()
-        keep = (ts >= ts[-1] - self.window) & _covered(ts, tc, self.gap_threshold,
-                                                       self.pair_tolerance)
-        if not keep.any():
-            return None
-        n = self._n
-        ts, vs = ts[keep], vs[keep]
-        desired = _interp_rows(ts, tc, vc, self.gap_threshold)
-        return {'theta': vs[:, :n], 'theta_dot': vs[:, n:2 * n], 'tau': vs[:, 2 * n:],
-                'theta_d': desired[:, :n], 'theta_d_dot': desired[:, n:]}
-
-    def _resample(self, ts, vs, tc, vc, min_samples, pair):
-        n, h = self._n, self.model_step
-        if ts.size < 2:
-            return [], 0
-        t_start = ts[-1] - self.window
-        first = max(int(np.searchsorted(ts, t_start, side='right')) - 1, 0)
-        ts, vs = ts[first:], vs[first:]
-        segments: List[Dataset] = []
-        failures = 0
-        breaks = np.flatnonzero(np.diff(ts) > self.gap_threshold + _EPS) + 1
-        for a, b in zip(np.concatenate(([0], breaks)), np.concatenate((breaks, [ts.size]))):
-            if b - a < 2:
-                continue
-            k0 = math.ceil(max(ts[a], t_start) / h - 1e-9)
-            k1 = math.floor(ts[b - 1] / h + 1e-9)
-            if k1 - k0 + 1 < min_samples:
-                continue
-            grid = np.arange(k0, k1 + 1) * h
-            if pair:
-                runs = _runs(_covered(grid, tc, self.gap_threshold, self.pair_tolerance))
-            else:
-                runs = [(0, grid.size)]
-            for r0, r1 in runs:
-                if r1 - r0 < min_samples:
-                    continue
-                t = grid[r0:r1]
-                state = _interp_rows(t, ts[a:b], vs[a:b])
-                fields = {'theta': state[:, :n], 'theta_dot': state[:, n:2 * n]}
-                if self.need_tau:
-                    fields['tau'] = state[:, 2 * n:]
-                if pair:
-                    desired = _interp_rows(t, tc, vc, self.gap_threshold)
-                    fields['theta_d'] = desired[:, :n]
-                    fields['theta_d_dot'] = desired[:, n:]
-                try:
-                    segments.append(Dataset(t=t, joint_names=self.joints, **fields))
-                except ValueError:  # defensive: validation above should make this unreachable
-                    failures += 1
-        return segments, failures
+        return self.capture().controller_samples()

@@ -13,7 +13,12 @@
 # limitations under the License.
 """Helpers for tests whose executor spins in a background thread."""
 
+from contextlib import contextmanager
 import threading
+import time
+
+from rcl_interfaces.msg import Log
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 
 def run_in_executor(executor, fn, timeout=10.0):
@@ -49,3 +54,65 @@ def retire_node(executor, node, timeout=10.0):
         executor.remove_node(node)
         node.destroy_node()
     run_in_executor(executor, retire, timeout)
+
+
+def wait_for(predicate, timeout, interval=0.02):
+    """Poll ``predicate`` until it is truthy or ``timeout`` s pass; return its last value."""
+    end = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value or time.monotonic() > end:
+            return value
+        time.sleep(interval)
+
+
+class Rosout:
+    """
+    The log lines of nodes, as any user sees them: ``/rosout`` (transient local).
+
+    ``lines(logger, *words, level=...)`` returns the texts a logger published that
+    contain every word (``level``: 'info', 'warning' or 'error'; None for all).
+    """
+
+    LEVELS = {'info': Log.INFO, 'warning': Log.WARN, 'error': Log.ERROR}
+
+    def __init__(self, node):
+        self._lock = threading.Lock()
+        self._logs = []
+        node.create_subscription(Log, '/rosout', self._add, QoSProfile(
+            depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+
+    def _add(self, msg):
+        with self._lock:
+            self._logs.append((msg.name, msg.level, msg.msg))
+
+    def lines(self, logger, *words, level=None):
+        wanted = self.LEVELS.get(level)
+        with self._lock:
+            logs = list(self._logs)
+        return [text for name, lvl, text in logs if name == logger
+                and (wanted is None or lvl == wanted) and all(w in text for w in words)]
+
+
+def stamp_ns(msg) -> int:
+    """Return a message's header stamp in nanoseconds."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+@contextmanager
+def spinning_context(domain_id):
+    """Yield (context, executor) on a private context, the executor spinning in a thread."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    executor = SingleThreadedExecutor(context=context)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield context, executor
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        rclpy.try_shutdown(context=context)
+        thread.join(timeout=5.0)

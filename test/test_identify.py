@@ -25,7 +25,8 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
-from rkgnn_ros.core.fitting.identify import default_substeps, Evolution, fit, normalize_case, nrmse
+from rkgnn_ros.core.fitting.identify import (default_substeps, Evolution, fit, fit_best,
+                                             normalize_case, nrmse)
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.model.scales import Scales
 from rkgnn_ros.core.model.spec import NetworkSpec
@@ -52,7 +53,8 @@ def test_fit_identifies_a_two_link_arm(arm2_data):
     costs = [s['best_cost'] for s in result.history]
     assert all(b <= a for a, b in zip(costs, costs[1:]))
     first = next(c for c in costs if math.isfinite(c))
-    assert result.final_cost == costs[-1] < 0.8 * first  # seeds 0-7: 0.33-0.72 (seed 0: 0.66)
+    # the first generation contains the start genome; seeds 0-7 end at 0.32-0.82 of its best
+    assert result.final_cost == costs[-1] < 0.85 * first  # seed 0: 0.82
     model = result.model
     assert model.joint_names == data.joint_names
     pred = model.predict(data)
@@ -156,6 +158,29 @@ def test_evolution_with_least_squares_start(short_data):
 
 
 # ----- helpers
+
+def test_fit_best_stages_improve_the_result_or_hand_it_on(short_data):
+    data = short_data[0]
+    # a budget that is never reached: the stages stop on their evaluation limits
+    res = fit_best(data, 'pd_gains', time_budget=1e6, kp=KP2, kd=KD2, seed=0, shootings=(5, 0),
+                   lm_nfev=3, equation_nfev=20, theta_units=2, max_generations=8)
+    hist = res.history
+    phases = [h['phase'] for h in hist]
+    assert phases[0] == 'start' and phases[1] == 'equation'
+    assert phases[2:] == ['lm', 'lm'] + ['cmaes'] * 8
+    best = hist[0]['cost']
+    for h in hist[1:]:
+        # a stage's genome becomes the result only if it lowers J; else the result stays
+        assert h['kept'] == (h['cost'] < best)
+        best = min(best, h['cost'])
+        assert h['best_cost'] == best       # CMA-ES reports the pipeline's best, not its own
+    assert res.final_cost == best == res.model.info['cost'] <= hist[0]['cost']
+    problem = FitnessProblem(res.model.spec, data, scales=res.model.scales,
+                             substeps=res.model.substeps, kp=KP2, kd=KD2)
+    assert problem.cost(res.model.genome[None])[0] == pytest.approx(res.final_cost, rel=1e-12)
+    evaluations = [h['evaluations'] for h in hist]
+    assert evaluations == sorted(evaluations) and res.evaluations == evaluations[-1]
+
 
 def test_nrmse():
     measured = np.column_stack([np.sin(np.linspace(0, 6, 50)), np.linspace(-1, 1, 50)])

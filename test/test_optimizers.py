@@ -524,6 +524,75 @@ def test_cmaes_restart_around_x0():
 
 
 @pytest.mark.parametrize('name', OPTIMIZERS)
+@pytest.mark.parametrize('give_cost', [False, True])
+def test_restart_reports_the_genome_cost_until_it_finds_better(name, give_cost):
+    floor = {'sigma_min': 1e-4} if name == 'paper' else {}
+    opt = make_optimizer(name, 20, rng=4, population_size=12, **floor)
+    run(opt, sphere, 3)                      # its own best is far from the optimum
+    genome = SHIFT20 + 0.01                  # sphere(genome) = 0.002, far below that best
+    g_cost = float(sphere(genome[None])[0])
+    assert opt.best_cost > 10 * g_cost
+    opt.restart(genome, sigma=3.0, cost=g_cost if give_cost else None)
+    if give_cost:                            # known cost: reported before any generation
+        assert opt.best_cost == g_cost
+        np.testing.assert_array_equal(opt.best_x, genome)
+    X = opt.ask()
+    assert np.any(np.all(X == genome, axis=1))   # the genome itself is evaluated
+    opt.tell(X, sphere(X))
+    # a spread of 3 puts every other candidate near cost 20 * 9: none is better
+    assert opt.best_cost == g_cost
+    np.testing.assert_array_equal(opt.best_x, genome)
+    opt.restart(sigma=0.002)                 # around the best, small enough to improve on it
+    costs = []
+    for _ in range(30):
+        X = opt.ask()
+        opt.tell(X, sphere(X))
+        costs.append(opt.best_cost)
+    assert all(c <= g_cost for c in costs) and costs == sorted(costs, reverse=True)
+    assert costs[-1] < g_cost
+
+
+@pytest.mark.parametrize('name', OPTIMIZERS)
+def test_restart_around_a_worse_genome_keeps_the_better_best(name):
+    opt = make_optimizer(name, 20, rng=5, population_size=12)
+    run(opt, sphere, 3)
+    best_x, best_cost = opt.best_x.copy(), opt.best_cost
+    worse = SHIFT20 + 10.0
+    opt.restart(worse, sigma=0.1, cost=float(sphere(worse[None])[0]))
+    assert opt.best_cost == best_cost
+    np.testing.assert_array_equal(opt.best_x, best_x)
+    X = opt.ask()
+    np.testing.assert_allclose(X.mean(axis=0), worse, atol=1.0)   # searches there
+    opt.tell(X, sphere(X))
+    assert opt.best_cost == best_cost
+
+
+def test_restart_cost_needs_the_genome():
+    with pytest.raises(ValueError, match='cost is the cost of x0'):
+        PaperEA(3, rng=0).restart(cost=1.0)
+
+
+@pytest.mark.parametrize('name', OPTIMIZERS)
+def test_first_generation_contains_x0(name):
+    x0 = np.linspace(-1.0, 1.0, 20)
+    opt = make_optimizer(name, 20, x0=x0, rng=6)
+    X = opt.ask()
+    assert np.all(X[0] == x0)
+    assert not np.any(np.all(X[1:] == x0, axis=1))
+    opt.tell(X, sphere(X))
+    assert opt.best_cost <= sphere(x0[None])[0]
+
+
+def test_cmaes_resize_does_not_re_evaluate_the_mean():
+    opt = CMAES(8, rng=0, population_size=6)
+    run(opt, bowl, 3)
+    opt.set_population_size(10)
+    X = opt.ask()
+    assert X.shape == (10, 8)
+    assert not np.any(np.all(X == opt.mean, axis=1))
+
+
+@pytest.mark.parametrize('name', OPTIMIZERS)
 def test_rescore_replaces_best_cost(name):
     opt = make_optimizer(name, 4, rng=0, population_size=6)
     run(opt, bowl, 3)
@@ -587,8 +656,11 @@ def test_history_entries_and_bound():
 def test_x0_centres_the_initial_population():
     x0 = np.linspace(5.0, 6.0, 30)
     X = PaperEA(30, x0=x0, rng=0, population_size=400, init_scale=0.5).ask()
+    np.testing.assert_array_equal(X[0], x0)
     np.testing.assert_allclose(X.mean(axis=0), x0, atol=0.1)
-    assert (X - x0).std() == pytest.approx(0.5, rel=0.05)
+    assert (X[1:] - x0).std() == pytest.approx(0.5, rel=0.05)
+    X = PaperEA(30, x0=x0, rng=0, population_size=400, sigma=0.2).ask()
+    assert (X[1:] - x0).std() == pytest.approx(0.2, rel=0.05)   # init_scale None: sigma
     with pytest.raises(ValueError, match='x0 contains NaN'):
         PaperEA(2, x0=[0.0, math.nan])
 

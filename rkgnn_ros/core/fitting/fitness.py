@@ -159,7 +159,7 @@ class FitnessProblem:
         Returns
         -------
         states : ndarray, shape (P, N, 2n)
-            Predicted states (rows at shooting restarts equal the measurements).
+            Predicted states (rows at shooting restarts hold the predictions, not measurements).
         diverged : ndarray of bool, shape (P,)
 
         """

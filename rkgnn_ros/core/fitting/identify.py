@@ -41,9 +41,9 @@ CASE_ALIASES = {'1': 'torque', 'torque': 'torque', '2': 'pd_gains', 'pd_gains': 
                 '3': 'unknown', 'unknown': 'unknown'}
 CASE_NUMBERS = {'torque': 1, 'pd_gains': 2, 'unknown': 3}
 
-# Largest RKG step by default: 4 substeps at 100 Hz. The paper's PD closed loop has
-# eigenvalues down to about -380 1/s (point masses), so h |λ| <= 0.95, well inside RKG's
-# stability limit of 2.785.
+# Largest RKG step by default: 4 substeps at 100 Hz. The paper's PD closed loop (point
+# masses, friction) has eigenvalues down to about -545 1/s along the paper's reference and
+# -576 1/s over all configurations, so h |λ| <= 1.44, inside RKG's stability limit of 2.785.
 DEFAULT_MAX_STEP = 0.0025
 
 
@@ -256,7 +256,7 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
              kd=None, seed=0, shootings=(20, 0), lm_fraction=0.7, lm_nfev=30,
              polish_sigma=0.05, callback: Optional[Callable[[dict], None]] = None,
              theta_units=None, equation_nfev=500, equation_fraction=0.3,
-             **evolution_kw) -> FitResult:
+             max_generations: Optional[int] = None, **evolution_kw) -> FitResult:
     """
     Identify with our best pipeline inside a wall-time budget.
 
@@ -269,13 +269,22 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     2. Levenberg-Marquardt on the rollout residuals, over a continuation of multiple-shooting
        windows (``shootings``), until ``lm_fraction`` of the budget
        (:func:`rkgnn_ros.core.fitting.refine.refine_lm`);
-    3. CMA-ES around that genome on the paper's cost J of the full rollout for the rest of
-       the budget (it tolerates the diverged candidates that stop a gradient method).
+    3. CMA-ES around the best genome on the paper's cost J of the full rollout for the rest
+       of the budget (it tolerates the diverged candidates that stop a gradient method), or
+       ``max_generations`` generations if that comes first.
+
+    The result is the best genome by J so far: a stage's genome replaces it only if its J is
+    lower, so every stage improves the result or hands it on unchanged (CMA-ES restarts
+    around it, evaluates it in its first generation and is told its cost).
 
     The structure defaults to :meth:`NetworkSpec.recommended` with ``theta_units`` RBF units
     over θ (the equation-error stage places more units than a search from scratch can; by
-    default 5 in cases 1 and 2, 8 in case 3). History entries carry a ``phase``
-    ('equation', 'lm' or 'cmaes').
+    default 5 in cases 1 and 2, 8 in case 3). History: one entry per stage result and per
+    CMA-ES generation, each with ``phase`` ('start', 'equation', 'lm' per shooting window,
+    'cmaes'), ``cost`` (J of the stage's genome; CMA-ES: the generation's lowest), ``kept``
+    (it became the result), ``best_cost`` (the pipeline's best J so far, never increasing),
+    ``evaluations`` (rollouts so far; the equation-error stage needs none) and ``wall_s``;
+    CMA-ES entries also carry :meth:`Evolution.step`'s statistics.
     """
     from dataclasses import replace
     from .refine import refine_equation_error, refine_lm
@@ -306,39 +315,63 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
         if callback is not None:
             callback(entry)
 
-    start = evo.optimizer.best_x if evo.optimizer.best_x is not None else spec.initial_genome()
+    evaluations = 0
+
+    def full_cost(genome):
+        nonlocal evaluations
+        evaluations += 1
+        return float(evo.problem.cost(genome[None])[0])
+
+    # the pipeline's result: the best genome by J so far; a stage replaces it only if better
+    best = {'genome': evo.optimizer.x0.copy()}
+    best['cost'] = full_cost(best['genome'])
+
+    def stage_result(phase, genome, cost, **extra):
+        kept = bool(cost < best['cost'])
+        if kept:
+            best.update(genome=np.array(genome, dtype=float), cost=cost)
+        on_stage(dict(extra, phase=phase, cost=cost, kept=kept, best_cost=best['cost'],
+                      evaluations=evaluations))
+
+    on_stage({'phase': 'start', 'cost': best['cost'], 'kept': True,
+              'best_cost': best['cost'], 'evaluations': evaluations})
     if equation_nfev:
         eq_genome, eq_cost = refine_equation_error(
-            spec, datasets, evo.scales, start, kp, kd, max_nfev=int(equation_nfev),
+            spec, datasets, evo.scales, best['genome'], kp, kd, max_nfev=int(equation_nfev),
             deadline=t0 + equation_fraction * time_budget)
-        # keep the equation-error genome only if its full rollout does not diverge
-        if np.isfinite(evo.problem.cost(eq_genome[None])[0]):
-            start = eq_genome
-        on_stage({'phase': 'equation', 'cost': eq_cost, 'evaluations': 0})
-    genome, lm_hist = refine_lm(problem_for, start, shootings, lm_nfev,
-                                deadline=t0 + lm_fraction * time_budget, callback=on_stage)
-    lm_evals = lm_hist[-1]['evaluations'] if lm_hist else 0
-    lm_cost = float(evo.problem.cost(genome[None])[0])
-    evo.optimizer.restart(genome, polish_sigma)
-    best_g, best_cost = genome, lm_cost
-    while time.perf_counter() - t0 < time_budget:
+        stage_result('equation', eq_genome, full_cost(eq_genome), equation_cost=eq_cost)
+    # LM continues from its own stage results (the continuation over shooting windows) and
+    # starts from the best so far; the pipeline keeps a stage's genome only if J improved
+    genome = best['genome']
+    for shooting in shootings:
+        genome, lm_hist = refine_lm(problem_for, genome, (shooting,), lm_nfev,
+                                    deadline=t0 + lm_fraction * time_budget)
+        evaluations += lm_hist[-1]['evaluations'] if lm_hist else 0
+        stage_result('lm', genome, full_cost(genome), shooting=int(shooting),
+                     residual_cost=lm_hist[-1]['cost'] if lm_hist else float('nan'))
+        if time.perf_counter() > t0 + lm_fraction * time_budget:
+            break
+    # CMA-ES around the best, which it evaluates in its first generation and reports as
+    # its best until it finds a better one
+    evo.optimizer.restart(best['genome'], polish_sigma, cost=best['cost'])
+    before = evaluations
+    while (time.perf_counter() - t0 < time_budget
+           and (max_generations is None or evo.optimizer.generation < max_generations)):
         stats = evo.step()
-        stats.update(phase='cmaes', wall_s=time.perf_counter() - t0,
-                     evaluations=stats['evaluations'] + lm_evals)
-        history.append(stats)
-        if callback is not None:
-            callback(stats)
-        if evo.optimizer.best_cost < best_cost:
-            best_g, best_cost = evo.optimizer.best_x.copy(), float(evo.optimizer.best_cost)
-    info = {'cost': best_cost, 'pipeline': 'equation+lm+cmaes' if equation_nfev
+        evaluations = before + stats['evaluations']
+        kept = stats['best_cost'] < best['cost']
+        if kept:
+            best.update(genome=evo.optimizer.best_x.copy(), cost=float(stats['best_cost']))
+        on_stage(dict(stats, phase='cmaes', cost=evo.optimizer.history[-1]['min_cost'],
+                      kept=kept, evaluations=evaluations))
+    info = {'cost': best['cost'], 'pipeline': 'equation+lm+cmaes' if equation_nfev
             else 'lm+cmaes'}
-    model = RKGNNModel(spec, evo.scales, best_g, datasets[0].joint_names, kp, kd,
+    model = RKGNNModel(spec, evo.scales, best['genome'], datasets[0].joint_names, kp, kd,
                        dt=evo.problem.dt, substeps=evo.substeps,
                        torque_interpolation=evo.torque_interpolation, info=info)
-    evaluations = lm_evals + evo.optimizer.evaluations
     return FitResult(model=model, history=history, evaluations=evaluations,
                      generations=evo.optimizer.generation,
-                     wall_s=time.perf_counter() - t0, final_cost=best_cost)
+                     wall_s=time.perf_counter() - t0, final_cost=best['cost'])
 
 
 def precompile(n_joints=3) -> float:

@@ -13,11 +13,16 @@
 # limitations under the License.
 
 """
-Accurate simulation of the arm under PD control or replayed torques, sampled into a Dataset.
+Accurate simulation of the arm under its servo or replayed torques, sampled into a Dataset.
 
 The ground truth for identification: the plant is integrated by scipy's adaptive solvers
 (the ``OdeSolver`` classes behind ``solve_ivp``, stepped here directly so that torque
 discontinuities are never stepped over), and only the recorded measurements carry noise.
+The servo is the paper's PD or any :class:`~.servo.Servo` (gravity compensation, PID with
+its integral as n more states of the loop, torque limits); what is recorded goes through
+a :class:`NoiseModel` or a driver's :class:`~.sensors.SensorModel`. A servo can take an
+additive feed-forward torque τ_ff(t) (a :class:`~.servo.FeedforwardTrack`, as a servo with
+an effort interface applies it), evaluated at the servo's own time.
 """
 
 from dataclasses import dataclass
@@ -27,6 +32,8 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, OdeSolver, Radau, RK23, RK45
 
 from .plant import PlanarArm
+from .sensors import SensorModel
+from .servo import Servo
 from ..data import Dataset
 
 METHODS = {'RK23': RK23, 'RK45': RK45, 'DOP853': DOP853, 'Radau': Radau, 'BDF': BDF,
@@ -123,9 +130,8 @@ def _solver_class(method) -> type:
                          f'got {method!r}') from None
 
 
-def _check_state(x: np.ndarray, t: float, max_speed: float):
-    n = x.size // 2
-    if not np.all(np.isfinite(x)) or np.max(np.abs(x[n:])) > max_speed:
+def _check_state(x: np.ndarray, t: float, max_speed: float, n: int):
+    if not np.all(np.isfinite(x)) or np.max(np.abs(x[n:2 * n])) > max_speed:
         raise SimulationError(
             f'simulation diverged at t = {t:.6g} s (state {x}, max_speed {max_speed} rad/s); '
             'the loop is unstable (for a digital controller: is control_rate high enough '
@@ -134,12 +140,12 @@ def _check_state(x: np.ndarray, t: float, max_speed: float):
 
 def _integrate(fun: Callable, t_a: float, x_a: np.ndarray, t_b: float, t_inner: np.ndarray,
                solver_cls: type, rtol: float, atol: float, first_step: Optional[float],
-               max_speed: float):
+               max_speed: float, n: int):
     """
-    Integrate ẋ = fun(t, x) from t_a to t_b.
+    Integrate ẋ = fun(t, x) from t_a to t_b (x starts with [θ, θ̇] of n joints each).
 
-    Returns x(t_b), the states at ``t_inner`` (shape (M, 2n), t_a < t_inner < t_b, from the
-    solver's dense output) and the last step size (to start the next segment with).
+    Returns x(t_b), the states at ``t_inner`` (shape (M, x.size), t_a < t_inner < t_b, from
+    the solver's dense output) and the last step size (to start the next segment with).
     """
     if first_step is not None:
         first_step = min(first_step, t_b - t_a)
@@ -150,7 +156,7 @@ def _integrate(fun: Callable, t_a: float, x_a: np.ndarray, t_b: float, t_inner: 
         message = solver.step()
         if solver.status == 'failed':
             raise SimulationError(f'solver failed at t = {solver.t:.6g} s: {message}')
-        _check_state(solver.y, solver.t, max_speed)
+        _check_state(solver.y, solver.t, max_speed, n)
         if done < t_inner.size and t_inner[done] <= solver.t:
             stop = int(np.searchsorted(t_inner, solver.t, side='right'))
             inner[done:stop] = solver.dense_output()(t_inner[done:stop]).T
@@ -187,7 +193,7 @@ def _piecewise(arm: PlanarArm, x0: np.ndarray, breaks: np.ndarray, t: np.ndarray
             def fun(s, y, tau=tau):
                 return arm.dynamics(y, tau)
         x, inner, step = _integrate(fun, breaks[j], x, breaks[j + 1], t[k0:k1], solver_cls,
-                                    rtol, atol, step, max_speed)
+                                    rtol, atol, step, max_speed, arm.n_joints)
         states[k0:k1] = inner
     states[first[-1]:] = x
     return states
@@ -216,16 +222,29 @@ def _initial_state(arm: PlanarArm, x0) -> np.ndarray:
     return x0
 
 
+def _no_feedforward(t):
+    """Return None: no feed-forward torque at any time."""
+    return None
+
+
 def _generator(rng) -> np.random.Generator:
     return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 
 
 def _record(t, states, tau, theta_d, theta_d_dot, noise, rng, joint_names) -> Dataset:
-    n = states.shape[1] // 2
-    theta, theta_dot = states[:, :n], states[:, n:]
-    if noise is not None:
+    n = tau.shape[1] if tau is not None else states.shape[1] // 2
+    theta, theta_dot = states[:, :n], states[:, n:2 * n]
+    if isinstance(noise, SensorModel):
+        theta, theta_dot, tau = noise.apply(theta, theta_dot, tau, float(t[1] - t[0]),
+                                            _generator(rng))
+        if not noise.effort:
+            tau = None
+        if noise.velocity == 'none':
+            theta_dot = np.zeros_like(theta)     # a Dataset needs one: see SensorModel
+    elif noise is not None:
         if not isinstance(noise, NoiseModel):
-            raise TypeError(f'noise must be a NoiseModel or None, got {type(noise).__name__}')
+            raise TypeError(f'noise must be a NoiseModel, a SensorModel or None, got '
+                            f'{type(noise).__name__}')
         theta, theta_dot, tau = noise.apply(theta, theta_dot, tau, float(t[1] - t[0]),
                                             _generator(rng))
     return Dataset(t=t, theta=theta, theta_dot=theta_dot, tau=tau, theta_d=theta_d,
@@ -233,21 +252,24 @@ def _record(t, states, tau, theta_d, theta_d_dot, noise, rng, joint_names) -> Da
 
 
 def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float = 100.0,
-             x0=None, noise: Optional[NoiseModel] = None,
+             x0=None, noise: Union[None, NoiseModel, SensorModel] = None,
              rng: Union[None, int, np.random.Generator] = None,
              control_rate: Optional[float] = None, method=None, rtol: float = 1e-9,
              atol: float = 1e-10, t0: float = 0.0,
              joint_names: Optional[Sequence[str]] = None,
-             max_speed: float = MAX_SPEED) -> Dataset:
+             max_speed: float = MAX_SPEED, feedforward=None) -> Dataset:
     """
-    Simulate the arm under a PD controller tracking a reference and sample it.
+    Simulate the arm under its servo tracking a reference and sample it.
 
     Parameters
     ----------
     arm : PlanarArm
         The plant.
-    controller : PDController
+    controller : PDController or Servo
         Anything with ``n_joints`` and ``torque(theta, theta_dot, theta_d, theta_d_dot)``.
+        A :class:`~.servo.Servo` with an integral term adds its integral I to the loop's
+        states (it starts at 0): continuous, it is integrated with [θ, θ̇]; digital, it
+        advances by forward Euler at every tick.
     reference : Reference
         Desired trajectory, ``evaluate(t) -> (theta_d, theta_d_dot)``.
     duration : float
@@ -256,8 +278,12 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         Sampling rate of the recorded data (Hz).
     x0 : array_like, shape (2n,), optional
         Initial true state [θ, θ̇]; default on the reference, [θd(t0), θ̇d(t0)].
-    noise : NoiseModel, optional
+    noise : NoiseModel or SensorModel, optional
         Noise on the recorded θ, θ̇, τ; the plant and the controller see the true state.
+        A :class:`~.sensors.SensorModel` records what a driver publishes (causal
+        differenced or filtered velocities); with ``effort=False`` the dataset has no
+        ``tau``, and with ``velocity='none'`` its ``theta_dot`` is zeros (a Dataset needs
+        one: estimate it from θ, :mod:`rkgnn_ros.core.differentiate`).
     rng : numpy.random.Generator or int, optional
         Randomness of the noise; a fixed seed or generator reproduces the data.
     control_rate : float, optional
@@ -283,13 +309,19 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         Names for the dataset's columns.
     max_speed : float
         A true joint speed above this (rad/s) is taken as divergence.
+    feedforward : FeedforwardTrack, optional
+        An additive feed-forward torque for a :class:`~.servo.Servo`: anything with
+        ``evaluate(t) -> τ_ff`` (shape (n,) for a float, (T, n) for an array of times). It
+        is added before saturation at the servo's time: continuously, or at each tick of a
+        digital servo (then held with the rest of the torque).
 
     Returns
     -------
     Dataset
         ``t``, measured ``theta`` and ``theta_dot``, ``tau`` (the torque applied at each
-        sample instant: the continuous PD torque, or the held digital torque, which at a
-        tick is the newly computed one), ``theta_d``, ``theta_d_dot``.
+        sample instant, feed-forward included: the continuous servo torque, or the held
+        digital torque, which at a tick is the newly computed one; saturated if the servo
+        is), ``theta_d``, ``theta_d_dot``.
 
     Raises
     ------
@@ -304,6 +336,16 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         raise ValueError(f'controller has {controller.n_joints} joints, the arm {n}')
     if reference.n_joints != n:
         raise ValueError(f'reference has {reference.n_joints} joints, the arm {n}')
+    if feedforward is not None:
+        if not isinstance(controller, Servo):
+            raise TypeError('a feed-forward needs a Servo (a PDController has no effort '
+                            'input; Servo(kp, kd) is the same PD)')
+        ff_n = np.shape(feedforward.evaluate(float(t0)))
+        if ff_n != (n,):
+            raise ValueError(f'the feed-forward gives shape {ff_n}, the arm has {n} joints')
+        ff_at = feedforward.evaluate
+    else:
+        ff_at = _no_feedforward
     if method is None:
         method = 'LSODA' if control_rate is None else 'RK45'
     solver_cls = _solver_class(method)
@@ -312,15 +354,38 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
     x0 = (np.concatenate([theta_d[0], theta_d_dot[0]]) if x0 is None
           else _initial_state(arm, x0))
 
+    integral = isinstance(controller, Servo) and controller.has_integral
     if control_rate is None:
-        def fun(s, x):
-            ref, ref_dot = reference.evaluate(s)
-            return arm.dynamics(x, controller.torque(x[:n], x[n:], ref, ref_dot))
+        if integral:
+            # the servo's integral term is n more states of the loop: x = [θ, θ̇, I]
+            def fun(s, x):
+                ref, ref_dot = reference.evaluate(s)
+                raw, tau = controller.torques(x[:n], x[n:2 * n], ref, ref_dot, x[2 * n:],
+                                              ff_at(s))
+                return np.concatenate([arm.dynamics(x[:2 * n], tau),
+                                       controller.integral_rate(x[:n], ref, raw, tau)])
 
-        x_end, inner, _ = _integrate(fun, t[0], x0, t[-1], t[1:-1], solver_cls, rtol, atol,
-                                     None, max_speed)
-        states = np.vstack([x0, inner, x_end])
-        tau = controller.torque(states[:, :n], states[:, n:], theta_d, theta_d_dot)
+            x_start = np.concatenate([x0, np.zeros(n)])
+        else:
+            def fun(s, x):
+                ref, ref_dot = reference.evaluate(s)
+                if feedforward is None:
+                    return arm.dynamics(x, controller.torque(x[:n], x[n:], ref, ref_dot))
+                return arm.dynamics(x, controller.torque(x[:n], x[n:], ref, ref_dot, None,
+                                                         ff_at(s)))
+
+            x_start = x0
+        x_end, inner, _ = _integrate(fun, t[0], x_start, t[-1], t[1:-1], solver_cls, rtol,
+                                     atol, None, max_speed, n)
+        states = np.vstack([x_start, inner, x_end])
+        if integral:
+            tau = controller.torque(states[:, :n], states[:, n:2 * n], theta_d, theta_d_dot,
+                                    states[:, 2 * n:], ff_at(t))
+        elif feedforward is not None:
+            tau = controller.torque(states[:, :n], states[:, n:], theta_d, theta_d_dot, None,
+                                    ff_at(t))
+        else:
+            tau = controller.torque(states[:, :n], states[:, n:], theta_d, theta_d_dot)
     else:
         if not (np.isfinite(control_rate) and control_rate > 0.0):
             raise ValueError(f'control_rate must be positive, got {control_rate}')
@@ -330,10 +395,21 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         breaks = ticks.copy() if abs(ticks[-1] - t[-1]) <= tol else np.append(ticks, t[-1])
         breaks[-1] = t[-1]
         tick_tau = np.empty((n_ticks, n))
+        # a digital PID advances its integral once per tick (forward Euler, as servos do)
+        tick_integral = np.zeros((n_ticks + 1, n))
 
         def segment_torque(j, x):
             ref, ref_dot = reference.evaluate(ticks[j])
-            tick_tau[j] = controller.torque(x[:n], x[n:], ref, ref_dot)
+            if integral:
+                raw, tick_tau[j] = controller.torques(x[:n], x[n:], ref, ref_dot,
+                                                      tick_integral[j], ff_at(ticks[j]))
+                rate_j = controller.integral_rate(x[:n], ref, raw, tick_tau[j])
+                tick_integral[j + 1] = tick_integral[j] + rate_j / control_rate
+            elif feedforward is not None:
+                tick_tau[j] = controller.torque(x[:n], x[n:], ref, ref_dot, None,
+                                                ff_at(ticks[j]))
+            else:
+                tick_tau[j] = controller.torque(x[:n], x[n:], ref, ref_dot)
             return tick_tau[j].copy()
 
         states = _piecewise(arm, x0, breaks, t, segment_torque, solver_cls, rtol, atol,

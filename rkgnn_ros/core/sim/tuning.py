@@ -151,7 +151,7 @@ def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
                   seed: Union[int, np.random.Generator, None] = 0, bounds=DEFAULT_BOUNDS,
                   callback: Optional[Callable[[dict], Optional[bool]]] = None, *,
                   rate: float = 100.0, step: Optional[float] = None,
-                  ea_settings: Optional[dict] = None) -> TuningResult:
+                  ea_settings: Optional[dict] = None, problem=None) -> TuningResult:
     """
     Tune diagonal PD gains with the paper's EA, minimising the tracking error of eq. (10).
 
@@ -162,9 +162,9 @@ def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
     12,000 closed-loop simulations of 21,000 steps each.
 
     Eq. (10) has no torque term and the PD no torque limit, so on that arm and reference
-    the error falls as the gains grow and the EA ends near the upper corner of the bounds
-    (the README gives the figures): the bounds, i.e. what the actuators allow, decide the
-    gains.
+    the error falls as the gains grow and the EA ends near the upper corner of the bounds:
+    the bounds, i.e. what the actuators allow, decide the gains (figures, and the same for
+    a digital servo, in ``bench/results/pd_tuning.json``).
 
     Parameters
     ----------
@@ -192,6 +192,10 @@ def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
         Largest integration step; default :func:`tuning_step` for ``bounds``.
     ea_settings : dict, optional
         Overrides of :data:`EA_SETTINGS`.
+    problem : object, optional
+        The cost to minimise instead of the continuous PD's :class:`TrackingProblem` (which
+        ``rate`` and ``step`` then do not build): anything with ``cost(gains) -> (P,)`` and
+        a step ``h``, e.g. :class:`rkgnn_ros.core.sim.tuning_study.SampledTrackingProblem`.
 
     Returns
     -------
@@ -203,9 +207,9 @@ def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
     generations = _check_count('generations', generations, 1)
     n = arm.n_joints
     bounds_arrays(bounds, n)                            # validate before the setup work
-    if step is None:
-        step = tuning_step(arm, reference, duration, bounds)
-    problem = TrackingProblem(arm, reference, duration, rate, step)
+    if problem is None:
+        step = tuning_step(arm, reference, duration, bounds) if step is None else step
+        problem = TrackingProblem(arm, reference, duration, rate, step)
     settings = {**EA_SETTINGS, **(ea_settings or {}), 'population_size': population_size}
     ea = PaperEA(2 * n, x0=np.full(2 * n, 0.5), rng=seed, history_maxlen=None, **settings)
     for _ in range(generations):

@@ -1,0 +1,221 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The CDR wire form of the two messages the 1 kHz paths handle, read and written directly.
+
+At 1 kHz, building and reading message objects costs more Python than the rest of a
+message's handling: a JointState is read straight from the bytes a raw subscription
+delivers (:func:`parse_joint_state_cdr`), and a prediction's JointTrajectory is written
+straight into the bytes ``Publisher.publish`` takes (:func:`joint_trajectory_cdr`).
+:mod:`rkgnn_ros.conversions` applies the message rules on top; tests hold both directions
+equal to rclpy's own serialization. No ROS import: the layout is the OMG CDR encoding
+(XCDR1) that every ROS 2 middleware uses for these types.
+"""
+
+from functools import lru_cache
+import math
+import struct
+from typing import Sequence, Tuple
+
+import numpy as np
+
+__all__ = ['joint_trajectory_cdr', 'parse_joint_state_cdr', 'split_seconds']
+
+_CDR_LE = b'\x00\x01\x00\x00'  # CDR encapsulation: plain CDR, little endian
+_NANO = 1_000_000_000
+
+
+def split_seconds(seconds: float, what: str) -> Tuple[int, int]:
+    """Split finite seconds into (sec, nanosec) with ``0 <= nanosec < 1e9``."""
+    seconds = float(seconds)
+    if not math.isfinite(seconds):
+        raise ValueError(f'{what} must be finite, got {seconds}')
+    sec = math.floor(seconds)
+    nanosec = int(round((seconds - sec) * _NANO))
+    if nanosec >= _NANO:
+        sec, nanosec = sec + 1, nanosec - _NANO
+    if not -2 ** 31 <= sec < 2 ** 31:
+        raise ValueError(f'{what} {seconds} s does not fit a 32-bit seconds field')
+    return int(sec), nanosec
+
+
+_CDR_HEADER = {1: struct.Struct('<iII'), 0: struct.Struct('>iII')}
+_CDR_U32 = {1: struct.Struct('<I'), 0: struct.Struct('>I')}
+_CDR_F8 = {1: np.dtype('<f8'), 0: np.dtype('>f8')}
+
+
+def parse_joint_state_cdr(raw: bytes):
+    """
+    Read a JointState from its CDR bytes (XCDR1, either byte order).
+
+    Returns ``(sec, nanosec, names tuple, position, velocity, effort)`` (float64 arrays,
+    read-only views of ``raw``), or None when ``raw`` is not plain CDR or does not hold
+    a JointState (truncated, a count beyond the end, a string without its terminating NUL
+    or not UTF-8). Bytes after the message are ignored, as rclpy's deserializer does
+    (``serialize_message`` itself leaves up to 8 spare bytes at the end).
+
+    Layout (offsets count from the end of the 4-byte encapsulation header, every
+    primitive aligned to its size): header.stamp (int32 sec, uint32 nanosec),
+    header.frame_id (string: uint32 length with the NUL, the bytes, NUL), name (uint32
+    count, that many strings), then position, velocity, effort (uint32 count, float64
+    elements).
+    """
+    try:
+        return _parse_joint_state_cdr(bytes(raw))
+    except (UnicodeDecodeError, struct.error, ValueError):
+        return None
+
+
+def _parse_joint_state_cdr(raw: bytes):
+    size = len(raw)
+    if size < 16 or raw[0] != 0 or raw[1] not in (0, 1):
+        return None
+    order = raw[1]
+    sec, nanosec, length = _CDR_HEADER[order].unpack_from(raw, 4)
+    at = 16 + length
+    if length == 0 or at > size or raw[at - 1] != 0:
+        return None
+    raw[16:at - 1].decode('utf-8')  # header.frame_id: not used, but must be text
+    u32 = _CDR_U32[order].unpack_from
+    at += -(at - 4) % 4
+    if at + 4 > size:
+        return None
+    (count,) = u32(raw, at)
+    at += 4
+    if count > (size - at) // 5:  # each name takes at least 5 bytes
+        return None
+    names = []
+    for _ in range(count):
+        at += -(at - 4) % 4
+        if at + 4 > size:
+            return None
+        (length,) = u32(raw, at)
+        end = at + 4 + length
+        if length == 0 or end > size or raw[end - 1] != 0:
+            return None
+        names.append(raw[at + 4:end - 1].decode('utf-8'))
+        at = end
+    dtype = _CDR_F8[order]
+    arrays = []
+    for _ in range(3):
+        at += -(at - 4) % 4
+        if at + 4 > size:
+            return None
+        (count,) = u32(raw, at)
+        at += 4
+        if count:
+            at += -(at - 4) % 8
+            if at + 8 * count > size:
+                return None
+            arrays.append(np.frombuffer(raw, dtype=dtype, count=count, offset=at))
+            at += 8 * count
+        else:
+            arrays.append(_EMPTY)
+    return (sec, nanosec, tuple(names)) + tuple(arrays)
+
+
+_EMPTY = np.zeros(0)
+
+
+def joint_trajectory_cdr(sec: int, nanosec: int, names: Sequence[str], times: np.ndarray,
+                         positions: np.ndarray, velocities=None) -> bytes:
+    """
+    Return the CDR bytes of a JointTrajectory (little endian), from checked arrays.
+
+    ``times`` (K,) are the points' ``time_from_start`` (s), ``positions`` and
+    ``velocities`` (None: empty) have shape (K, n) for the n ``names``; the header stamp
+    is ``(sec, nanosec)`` and ``frame_id`` empty. The layout of given (names, times,
+    velocities or not) is built once and kept; each call copies it and scatters the stamp
+    and the values into it.
+    """
+    names = tuple(names)
+    template, stamp_at, position_bytes, velocity_bytes = _trajectory_layout(
+        names, np.asarray(times, dtype=float).tobytes(), velocities is not None)
+    out = template.copy()
+    out[stamp_at:stamp_at + 8] = np.frombuffer(struct.pack('<iI', sec, nanosec),
+                                               dtype=np.uint8)
+    if position_bytes.size:
+        out[position_bytes] = _le_bytes(positions)
+        if velocities is not None:
+            out[velocity_bytes] = _le_bytes(velocities)
+    return out.tobytes()
+
+
+def _le_bytes(values: np.ndarray) -> np.ndarray:
+    """Return the little-endian float64 bytes of ``values``, row-major, flat (uint8)."""
+    return np.ascontiguousarray(values, dtype='<f8').reshape(-1).view(np.uint8)
+
+
+@lru_cache(maxsize=8)
+def _trajectory_layout(names: Tuple[str, ...], times_bytes: bytes, with_velocities: bool):
+    """
+    Return the CDR bytes of a JointTrajectory with zero stamp and values, and their places.
+
+    Returns (template uint8 array, offset of the stamp, indices of the position bytes,
+    indices of the velocity bytes), the indices in the order of ``_le_bytes`` of a
+    (k, n) array. CDR aligns every primitive to its size counted from the end of the
+    4-byte encapsulation header; a sequence is a uint32 count and its elements.
+    """
+    times = np.frombuffer(times_bytes, dtype=float)
+    n = len(names)
+    out = bytearray(_CDR_LE)
+
+    def align(size):
+        out.extend(bytes(-(len(out) - len(_CDR_LE)) % size))
+
+    def string(text):
+        data = text.encode('utf-8')
+        align(4)
+        out.extend(struct.pack('<I', len(data) + 1) + data + b'\x00')
+
+    def doubles(count):  # a float64 sequence of ``count`` zeros: return where its data sit
+        align(4)
+        out.extend(struct.pack('<I', count))
+        if not count:
+            return None
+        align(8)
+        at = len(out)
+        out.extend(bytes(8 * count))
+        return at
+
+    align(4)
+    stamp_at = len(out)
+    out.extend(bytes(8))
+    string('')  # frame_id
+    align(4)
+    out.extend(struct.pack('<I', n))
+    for name in names:
+        string(name)
+    align(4)
+    out.extend(struct.pack('<I', times.size))
+    position_at, velocity_at = [], []
+    for t in times.tolist():
+        position_at.append(doubles(n))
+        velocity_at.append(doubles(n if with_velocities else 0))
+        doubles(0)  # accelerations
+        doubles(0)  # effort
+        sec, nanosec = split_seconds(t, 'duration')
+        align(4)
+        out.extend(struct.pack('<iI', sec, nanosec))
+    span = np.arange(8 * n)
+
+    def indices(starts):
+        if not n or not starts or starts[0] is None:
+            return np.zeros(0, dtype=np.intp)
+        return (np.asarray(starts, dtype=np.intp)[:, None] + span).reshape(-1)
+
+    template = np.frombuffer(bytes(out), dtype=np.uint8)
+    template.flags.writeable = False
+    return template, stamp_at, indices(position_at), indices(velocity_at)

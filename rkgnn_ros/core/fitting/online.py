@@ -1,0 +1,586 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The online identification policy: when to search, warm-start, re-fit, validate and publish.
+
+:class:`OnlineIdentification` decides what an identifier does between two generations,
+and nothing else: no thread, lock, publisher or middleware handle, so its decisions are
+tested with a fake clock and no ROS. In: one :class:`Observation` per
+:meth:`~OnlineIdentification.step` (settings, joints, when each stream last delivered, the
+pause and reset requests, and a capture of the buffered streams when
+:meth:`~OnlineIdentification.data_due` asks for one). Out: events (:mod:`.online_records`)
+for whoever owns the outputs, and the state shown to users through ``on_status``.
+
+The rules (the identifier node's documentation states them for users):
+
+- A search is built when ``min_window`` seconds of training data are buffered, warm-started
+  from a loaded model if it fits the settings, else by the equation-error fit (no rollout
+  needed, a few seconds at most); its rollout must not diverge or the default genome stays.
+- The data are refreshed at most every :data:`DATA_REFRESH_S` (``Evolution.set_data``: the
+  optimizer is kept); when the window has grown by :data:`REWARM_GROWTH` since the last
+  equation-error fit, the fit runs again and replaces the best genome only if it is better.
+- The newest ``validation_fraction`` of the data is held out (:func:`split_validation`);
+  a changed best is validated every :data:`VALIDATION_EVERY` generations and before every
+  publication (θ-NRMSE of the open-loop prediction from each segment's first state).
+- The best model is published when it changed, at most every ``model_publish_period``.
+- Case 'torque': the arm controller's PD law is fitted from effort and commands at each
+  refresh; while it explains the torque the search runs in closed loop (a case-2 search
+  with the fitted gains) and the published case-1 model carries the law; the search
+  restarts when the law appears, stops explaining the torque or moves by more than
+  :data:`LAW_GAIN_RTOL`.
+- A stream silent for ``stale_timeout`` pauses the search (one warning), a reset or a change
+  of the settings' ``version`` restarts it, ``max_generations`` ends it.
+"""
+
+from collections import deque
+from dataclasses import replace
+import math
+import time
+from typing import Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+
+from .controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
+from .identify import Evolution
+from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
+                             ModelUpdate, Observation, OnlineSettings, Status, StepResult,
+                             StreamCapture)
+from .optimizers import make_optimizer
+from .refine import refine_equation_error
+from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
+from ..data import Dataset
+from ..model.model import RKGNNModel
+
+__all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCapture', 'Status',
+           'ClosedLoop', 'ModelUpdate', 'LoopUpdate', 'GenerationStats', 'LogLine',
+           'StepResult', 'model_update', 'split_validation']
+
+DATA_REFRESH_S = 1.0        # at most one set_data per second
+WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
+MIN_LAW_SAMPLES = 50        # case 'torque': paired samples before a controller law is fitted
+MAX_LAW_FIT_RATIO = 0.1     # ... and its RMS residual must stay below this share of RMS τ
+LAW_GAIN_RTOL = 0.1         # a refit moving the gains more than this restarts the search
+VALIDATION_EVERY = 5        # generations between two validations of a changed best
+EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
+WARM_START_S = 5.0          # computation budget of one equation-error fit (real seconds)
+WARM_START_NFEV = 300
+WARM_START_SIGMA = 0.05     # search spread around the warm start (genome units)
+REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
+MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search restarts
+LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
+
+
+def _close_loop(model: RKGNNModel, law: PDLaw, closed=None) -> Optional[ClosedLoop]:
+    """Return ``model`` closed with ``law`` (``closed``: already built), None if it cannot be."""
+    if law.kp.size != model.n_joints:
+        return None
+    closed = closed_loop_model(model, law) if closed is None else closed
+    return ClosedLoop(model, closed, law.shift())
+
+
+def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: int):
+    """Return ``(genome, rollout cost, seconds)`` of the equation-error fit from the best."""
+    t0 = time.perf_counter()  # a computation budget: real time, whatever the clock
+    genome, _ = refine_equation_error(evo.spec, train, evo.scales, evo.optimizer.best_x, kp,
+                                      kd, max_nfev=nfev, deadline=t0 + budget_s)
+    cost = float(evo.problem.cost(genome[None])[0])
+    return genome, cost, time.perf_counter() - t0
+
+
+def _restart_around(optimizer, genome, cost: float) -> None:
+    """Make ``genome`` the best and restart the optimizer around it."""
+    optimizer.seed_best(genome, cost)
+    optimizer.restart(genome, max(WARM_START_SIGMA, optimizer.settings.get('sigma_min', 0.0)))
+
+
+def _hand_over_settings(evo: Evolution, running: str, settings: OnlineSettings,
+                        upcoming: int) -> Optional[str]:
+    """
+    Give the search the optimizer the settings ask for (between two generations).
+
+    A new algorithm replaces the optimizer, warm-started from the best genome; changed
+    settings go to the running one. Returns the log line saying so (None: no change).
+    """
+    algorithm, wanted = settings.optimizer, dict(settings.optimizer_settings)
+    optimizer = evo.optimizer
+    if algorithm != running:
+        new = make_optimizer(algorithm, optimizer.dim, x0=optimizer.best_x, rng=evo.rng,
+                             **wanted)
+        if math.isfinite(optimizer.best_cost):
+            new.rescore(optimizer.best_cost)
+        evo.optimizer = new
+        return (f'generation {upcoming} runs es.algorithm {algorithm!r} (population '
+                f'{new.population_size}), warm-started from the best genome')
+    current = optimizer.settings
+    diff = {k: v for k, v in wanted.items() if current.get(k) != v}
+    if not diff:
+        return None
+    optimizer.update_settings(**diff)
+    shown = ', '.join(f'es.{k}={v}' for k, v in sorted(diff.items()))
+    return (f'generation {upcoming} takes the new settings {shown} '
+            f'(population {optimizer.population_size})')
+
+
+def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[float]]]:
+    """Return ``(stream, age)`` of the first stream not fresh (age None: never), else None."""
+    streams = ['state'] if obs.settings.case == 'torque' else ['state', 'command']
+    for key in streams:
+        last = obs.received.get(key)
+        if last is None:
+            return key, None
+        if now - last > obs.settings.stale_timeout:
+            return key, now - last
+    return None
+
+
+def _law_log_line(new: Optional[PDLaw], old: Optional[PDLaw],
+                  fresh: PDLaw) -> Optional[LogLine]:
+    """Return the line saying that the law the search uses changed (None: it did not)."""
+    if new is not None and not new.close_to(old, LAW_GAIN_RTOL):
+        return LogLine('info',
+                       'controller law fitted from effort and joint_commands: the search and '
+                       'the predictions run in closed loop along the reference with Kp '
+                       f'{np.round(new.kp, 3).tolist()}, Kd {np.round(new.kd, 3).tolist()} '
+                       f'(residual {np.round(100 * new.fit_ratio, 2).tolist()} % of the '
+                       'torque)')
+    if new is None and old is not None:
+        return LogLine('warning',
+                       'joint_commands no longer explain the measured torque as a PD law '
+                       f'(residual {np.round(100 * fresh.fit_ratio, 1).tolist()} %): the '
+                       'search runs on the measured torque and predictions hold the latest '
+                       'torque')
+    return None
+
+
+def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
+    """Return whether a loaded ``model`` can start a search for ``spec`` in ``case``."""
+    return (model is not None and model.joint_names == tuple(joints)
+            and replace(model.spec, case=spec.case) == spec
+            and (model.case == spec.case or model.case == case))
+
+
+def _search_structure(settings: OnlineSettings, law: Optional[PDLaw], joints):
+    """
+    Return ``(spec, kp, kd)`` of a new search.
+
+    Case 'torque' with a usable fitted law searches in closed loop: a case-2 search with the
+    fitted gains. Case 'pd_gains' takes the known gains, one per joint.
+    """
+    n = len(joints)
+    spec = settings.spec(n)
+    if spec.case == 'torque' and law is not None:
+        return replace(spec, case='pd_gains'), law.kp, law.kd
+    if spec.case == 'pd_gains':
+        kp, kd = np.array(settings.kp), np.array(settings.kd)
+        if kp.size != n or kd.size != n:
+            raise ValueError(f"case 'pd_gains': kp has {kp.size} and kd {kd.size} values for "
+                             f'the {n} joints {list(joints)}')
+        return spec, kp, kd
+    return spec, None, None
+
+
+class OnlineIdentification:
+    """
+    The identification policy, advanced by :meth:`step` between generations.
+
+    Parameters
+    ----------
+    clock : callable
+        Returns the time in seconds (monotonic); every rule but the warm start's
+        computation budget uses it, so tests pass a fake clock.
+    published : RKGNNModel, optional
+        A model already published (loaded from a file): it starts the first search when it
+        fits the settings.
+    on_status : callable, optional
+        Called with each new :class:`Status`.
+    warm_start_seconds, warm_start_nfev : float, int
+        Budget of one equation-error fit (real seconds, function evaluations).
+
+    """
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic,
+                 published: Optional[RKGNNModel] = None,
+                 on_status: Optional[Callable[[Status], None]] = None,
+                 warm_start_seconds: float = WARM_START_S,
+                 warm_start_nfev: int = WARM_START_NFEV):
+        self._clock = clock
+        self._on_status = on_status or (lambda status: None)
+        self._warm_start_seconds = float(warm_start_seconds)
+        self._warm_start_nfev = int(warm_start_nfev)
+        self._status = Status()
+        self._events: List[object] = []
+        self._log_times: Dict[str, float] = {}
+        # what is published
+        self._model = published
+        self._published_genome = None if published is None else published.genome.copy()
+        self._last_model_pub = -math.inf if published is None else clock()
+        self._start_model = published
+        # case 'torque': the law fitted from torque and commands, and the published model
+        # closed with it
+        self._law: Optional[PDLaw] = None
+        self._loop: Optional[ClosedLoop] = None
+        # the search
+        self._evo: Optional[Evolution] = None
+        self._evo_version = -1
+        self._evo_law: Optional[PDLaw] = None  # the law a closed-loop search runs with
+        self._warm_seconds = math.inf  # seconds of data at the last equation-error fit
+        self._algorithm = ''
+        self._generation = 0
+        self._evaluations = 0
+        self._gen_times: deque = deque(maxlen=20)
+        self._validation: List[Dataset] = []
+        self._data_version = 0
+        self._last_refresh = -math.inf
+        self._val_nrmse = math.nan
+        self._val_key = None
+        self._last_val_generation = -VALIDATION_EVERY
+        self._last_stats = -math.inf
+        self._stale_warned = False
+        self._had_finite = False
+
+    @property
+    def generation(self) -> int:
+        """Return the generations run by the current search."""
+        return self._generation
+
+    def data_due(self, obs: Observation) -> bool:
+        """Return whether the next :meth:`step` with ``obs`` refreshes the data (wants it)."""
+        searching = self._searching(obs)
+        if obs.paused or obs.joints is None or self._finished(obs.settings, searching):
+            return False
+        now = self._clock()
+        if _stale_stream(obs, now) is not None:
+            return False
+        since = now - self._last_refresh if searching or self._evo is None else math.inf
+        return since >= DATA_REFRESH_S or (not searching and since >= WAITING_REFRESH_S)
+
+    def step(self, obs: Observation) -> StepResult:
+        """
+        Run one generation if the observation allows it; return what happened.
+
+        Before the generation the search is restarted (reset, restarting settings),
+        paused (pause, stale streams), built or given new data (refresh due and
+        ``obs.data`` given), and handed new optimizer settings.
+        """
+        ran = self._step(obs)
+        return StepResult(ran, self._take_events())
+
+    def report_error(self, error: BaseException, in_a_row: int) -> List[object]:
+        """
+        Record that a step raised ``error`` (the ``in_a_row``-th failure in a row).
+
+        The state becomes 'error'; after :data:`MAX_CONSECUTIVE_ERRORS` in a row the search
+        restarts. Returns the events (log lines) this causes.
+        """
+        if in_a_row >= MAX_CONSECUTIVE_ERRORS:
+            self._drop_search(f'{in_a_row} errors in a row')
+        self._set_status('error', f'{type(error).__name__}: {error}')
+        return self._take_events()
+
+    def _step(self, obs: Observation) -> bool:
+        settings = obs.settings
+        if obs.reset:
+            self._drop_search('~/reset')
+            self._start_model = None
+        if self._evo is not None and self._evo_version != settings.version:
+            self._drop_search('structural parameters changed')
+        if self._evo is not None:
+            self._maybe_publish_model(settings, obs.joints)
+        if obs.paused:
+            self._set_status('paused', f'paused at generation {self._generation}')
+            return False
+        if self._finished(settings, self._evo is not None):
+            self._set_status('finished',
+                             f'es.max_generations ({settings.max_generations}) reached')
+            return False
+        if obs.joints is None:
+            self._set_status('waiting for data', 'no joint_states yet (joints unknown)')
+            return False
+        if not self._streams_fresh(obs):
+            return False
+        since = self._clock() - self._last_refresh
+        due = since >= DATA_REFRESH_S or (self._evo is None and since >= WAITING_REFRESH_S)
+        if due and obs.data is not None:
+            if not self._refresh_data(settings, obs.data, obs.joints):
+                return False
+        elif self._evo is None:  # waiting for enough data: look again in a moment
+            return False
+        line = _hand_over_settings(self._evo, self._algorithm, settings, self._generation + 1)
+        self._algorithm = settings.optimizer
+        if line:
+            self._log('info', line)
+        stats = self._evo.step()
+        self._after_generation(settings, stats, obs.joints)
+        return True
+
+    def _searching(self, obs: Observation) -> bool:
+        """Return whether a search will be running after the restarts of ``obs``."""
+        return (self._evo is not None and not obs.reset
+                and self._evo_version == obs.settings.version)
+
+    def _finished(self, settings: OnlineSettings, searching: bool) -> bool:
+        limit = settings.max_generations
+        return bool(searching and limit and self._generation >= limit)
+
+    def _streams_fresh(self, obs: Observation) -> bool:
+        stale = _stale_stream(obs, self._clock())
+        if stale is None:
+            if self._stale_warned:
+                self._stale_warned = False
+                self._log('info', 'data is flowing again: the search resumes')
+            return True
+        key, age = stale
+        topic = 'joint_states' if key == 'state' else 'joint_commands'
+        if age is None:
+            self._set_status('waiting for data', f'no {topic} accepted yet')
+            return False
+        if not self._stale_warned:
+            self._stale_warned = True
+            self._log('warning', f'{topic}: no data for {age:.1f} s: the search pauses until '
+                                 'data returns')
+        self._set_status('stale', f'{topic} silent for {age:.1f} s')
+        return False
+
+    def _refresh_data(self, settings: OnlineSettings, capture, joints) -> bool:
+        """Take the captured data; build the search or hand it the new data."""
+        self._last_refresh = self._clock()
+        law = self._update_law(capture) if settings.case == 'torque' else None
+        segments = list(capture.segments(MIN_SEGMENT_SAMPLES, law is not None))
+        if law is not None:  # fold the law's constant torque into θd (see controller)
+            segments = [replace(seg, theta_d=seg.theta_d + law.shift()) for seg in segments]
+        train, validation, seconds = split_validation(
+            segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)
+        if seconds < settings.min_window or not train:
+            self._set_status('waiting for data',
+                             f'{seconds:.1f} s of {settings.min_window} s buffered')
+            return False
+        if self._evo is None:
+            self._build_search(settings, train, joints, seconds)
+            self._warm_seconds = seconds
+        else:
+            self._evo.set_data(train)
+            if seconds >= REWARM_GROWTH * self._warm_seconds:
+                self._warm_seconds = seconds
+                self._rewarm(train, seconds)
+            if self._had_finite and not math.isfinite(self._evo.optimizer.best_cost):
+                self._log_throttled(
+                    'diverges', 'warning',
+                    'the best model diverges on the new data window: the last good model '
+                    'stays published until a finite one is found')
+        self._validation = validation
+        self._data_version += 1
+        return True
+
+    def _update_law(self, capture) -> Optional[PDLaw]:
+        """
+        Case 'torque': refit the controller law; return the law the search runs with.
+
+        Too few paired samples (no commands, or just after a reset) change nothing.
+        """
+        pairs = capture.controller_samples()
+        fresh = None if pairs is None else fit_pd_law(**pairs, min_samples=MIN_LAW_SAMPLES)
+        searching = self._evo is not None
+        running = self._evo_law if searching else None
+        if fresh is None:
+            return running
+        new = fresh if fresh.usable(MAX_LAW_FIT_RATIO) else None
+        if searching:
+            if running is not None and new is not None and running.close_to(new,
+                                                                            LAW_GAIN_RTOL):
+                return running
+            if running is None and new is None:
+                return None
+            self._drop_search('the controller law changed')
+        line = _law_log_line(new, self._law, fresh)
+        if line is not None:
+            self._events.append(line)
+        self._law = new
+        model = self._model
+        if model is not None:
+            self._loop = (_close_loop(model, new)
+                          if new is not None and model.case == 'torque' else None)
+            self._events.append(LoopUpdate(model, self._loop))
+        return new
+
+    def _build_search(self, settings: OnlineSettings, train, joints, seconds: float) -> None:
+        law = self._law
+        spec, kp, kd = _search_structure(settings, law, joints)
+        algorithm = settings.optimizer
+        x0 = scales = None
+        origin = 'the default genome'
+        if _fits(self._start_model, joints, spec, settings.case):
+            x0, scales, origin = self._start_model.genome, self._start_model.scales, \
+                'the loaded model'
+        self._evo_law = law if spec.case != settings.case else None
+        self._evo = Evolution(spec, train, optimizer=algorithm,
+                              settings=dict(settings.optimizer_settings), seed=settings.seed,
+                              kp=kp, kd=kd, substeps=settings.substeps or None, scales=scales,
+                              x0=x0)
+        if x0 is None:
+            origin = self._warm_start(train, kp, kd, origin)
+        self._start_model = None
+        self._evo_version = settings.version
+        self._algorithm = algorithm
+        self._generation = 0
+        self._evaluations = 0
+        self._had_finite = False
+        self._log('info',
+                  f'search started from {origin}: case {spec.case}, joints {list(joints)}, '
+                  f'{spec.genome_size} genome elements, {algorithm} with population '
+                  f'{self._evo.optimizer.population_size}, {self._evo.substeps} substeps, '
+                  f'{seconds:.1f} s of data')
+
+    def _warm_start(self, train, kp, kd, origin: str) -> str:
+        """
+        Place the start genome by the equation-error fit (the offline pipeline's first stage).
+
+        Fitting M θ̈ + V + G + F = τ on the buffered samples needs no rollout: within its
+        budget it puts gravity, inertia and friction where the data put them, which a
+        search from the default genome takes many generations to find. Kept only when its
+        rollout on the training data does not diverge; the optimizer restarts around it.
+        """
+        self._set_status('evolving', 'warm start: equation-error fit')
+        genome, cost, seconds = _equation_error_fit(self._evo, train, kp, kd,
+                                                    self._warm_start_seconds,
+                                                    self._warm_start_nfev)
+        if not math.isfinite(cost):
+            return origin
+        _restart_around(self._evo.optimizer, genome, cost)
+        return f'the equation-error fit ({seconds:.1f} s, J {cost:.4g})'
+
+    def _rewarm(self, train, seconds: float) -> None:
+        """
+        Run the equation-error fit again from the best genome, on the grown window.
+
+        Its genome replaces the best (and the optimizer restarts around it) only if its
+        rollout cost on the new data is lower.
+        """
+        evo = self._evo
+        before = float(evo.optimizer.best_cost)
+        genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd,
+                                                 self._warm_start_seconds,
+                                                 self._warm_start_nfev)
+        kept = math.isfinite(cost) and not cost >= before
+        if kept:
+            _restart_around(evo.optimizer, genome, cost)
+        self._log('info',
+                  f'equation-error fit again on {seconds:.1f} s of data ({took:.1f} s): J '
+                  f'{cost:.4g} vs the best {before:.4g}, '
+                  + ('restarting around it' if kept else 'kept the best'))
+
+    def _drop_search(self, why: str) -> None:
+        if self._evo is not None:
+            self._log('info', f'restarting the search after generation {self._generation}: '
+                              f'{why}')
+        self._evo = None
+        self._generation = 0
+        self._evaluations = 0
+        self._gen_times.clear()
+        self._val_nrmse = math.nan
+        self._val_key = None
+        self._last_refresh = -math.inf
+        self._status = Status()
+        self._set_status('waiting for data', f'search restarts: {why}')
+
+    def _best_model(self, joints) -> RKGNNModel:
+        return self._evo.best_model(joints, {
+            'generation': self._generation, 'evaluations': self._evaluations,
+            'algorithm': self._algorithm})
+
+    def _after_generation(self, settings: OnlineSettings, stats: dict, joints) -> None:
+        self._generation += 1
+        self._evaluations += int(stats['population'])
+        now = self._clock()
+        self._gen_times.append(now)
+        span = self._gen_times[-1] - self._gen_times[0]
+        rate = (len(self._gen_times) - 1) / span if span > 0 else 0.0
+        optimizer = self._evo.optimizer
+        if math.isfinite(optimizer.best_cost):
+            self._had_finite = True
+        key = (self._data_version, optimizer.best_x.tobytes())
+        if (self._validation and key != self._val_key and math.isfinite(optimizer.best_cost)
+                and self._generation - self._last_val_generation >= VALIDATION_EVERY):
+            self._val_nrmse = validation_nrmse(self._best_model(joints), self._validation)
+            self._val_key = key
+            self._last_val_generation = self._generation
+        self._maybe_publish_model(settings, joints)
+        if now - self._last_stats >= EVOLUTION_MIN_PERIOD:
+            self._last_stats = now
+            self._events.append(GenerationStats(
+                self._generation, stats['best_cost'], stats['mean_cost'], stats['spread'],
+                self._evaluations, self._val_nrmse, stats['population']))
+        self._set_status('evolving', f'generation {self._generation}',
+                         generation=self._generation, best_cost=stats['best_cost'],
+                         validation_nrmse=self._val_nrmse, generations_per_s=rate,
+                         population_size=int(stats['population']))
+
+    def _maybe_publish_model(self, settings: OnlineSettings, joints) -> None:
+        """Publish the best model if it changed, at most every model_publish_period."""
+        optimizer = self._evo.optimizer
+        if not math.isfinite(optimizer.best_cost) or joints is None:
+            return
+        if self._published_genome is not None and np.array_equal(optimizer.best_x,
+                                                                 self._published_genome):
+            return
+        if self._clock() - self._last_model_pub < settings.model_publish_period:
+            return
+        model = self._best_model(joints)
+        key = (self._data_version, optimizer.best_x.tobytes())
+        if key != self._val_key:
+            self._val_nrmse = validation_nrmse(model, self._validation)
+            self._val_key = key
+            self._last_val_generation = self._generation
+        model.info['validation_nrmse'] = (self._val_nrmse if math.isfinite(self._val_nrmse)
+                                          else math.nan)
+        if not math.isfinite(self._val_nrmse) and self._validation:
+            self._log_throttled(
+                'validation', 'warning',
+                'the new best model diverges on the validation segment; publishing it anyway '
+                '(its training cost is the best)')
+        self._publish(model, settings)
+
+    def _publish(self, model: RKGNNModel, settings: OnlineSettings) -> None:
+        law = self._law
+        closed = None
+        if model.case == 'pd_gains' and settings.case == 'torque' and law is not None:
+            # a closed-loop search (case 'torque' with the fitted law): publish the arm model
+            closed = model
+            model = open_loop_model(closed, info=dict(closed.info, controller_law=law.to_dict()))
+        gains = model.implied_gains()
+        loop = None
+        if model.case == 'torque' and law is not None:
+            gains = (law.kp, law.kd)
+            loop = _close_loop(model, law, closed)
+        self._model, self._loop = model, loop
+        self._published_genome = model.genome.copy()
+        self._last_model_pub = self._clock()
+        self._events.append(model_update(model, loop, gains))
+
+    def _set_status(self, state: str, detail: str, **numbers) -> None:
+        self._status = self._status._replace(state=state, detail=detail, **numbers)
+        self._on_status(self._status)
+
+    def _take_events(self) -> List[object]:
+        events, self._events = self._events, []
+        return events
+
+    def _log(self, level: str, text: str) -> None:
+        self._events.append(LogLine(level, text))
+
+    def _log_throttled(self, key: str, level: str, text: str) -> None:
+        now = self._clock()
+        if now - self._log_times.get(key, -math.inf) >= LOG_THROTTLE_S:
+            self._log_times[key] = now
+            self._log(level, text)

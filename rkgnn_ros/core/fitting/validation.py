@@ -1,0 +1,87 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Validation of an online fit: hold out the newest data, score a model on it.
+
+Pure functions on :class:`~rkgnn_ros.core.data.Dataset` segments, used by the online policy
+(:mod:`.online`) and testable on their own.
+"""
+
+import math
+from typing import List, Sequence, Tuple
+
+import numpy as np
+
+from .identify import nrmse
+from ..data import Dataset
+from ..model.model import RKGNNModel
+
+__all__ = ['MIN_SEGMENT_SAMPLES', 'split_validation', 'validation_nrmse']
+
+MIN_SEGMENT_SAMPLES = 10  # shorter segments (training or validation) are left out
+
+
+def split_validation(segments: Sequence[Dataset], fraction: float,
+                     min_samples: int = MIN_SEGMENT_SAMPLES
+                     ) -> Tuple[List[Dataset], List[Dataset], float]:
+    """
+    Hold out the newest ``fraction`` of the data for validation.
+
+    Parameters
+    ----------
+    segments : sequence of Dataset
+        Gap-free segments, oldest first, on one grid.
+    fraction : float
+        Share of the total duration to hold out (0: none).
+    min_samples : int
+        A segment is split only if both parts keep this many samples; otherwise it stays
+        whole in the training set.
+
+    Returns
+    -------
+    (train, validation, seconds)
+        Both lists oldest first; ``seconds`` is the total duration of ``segments``. A
+        split segment's parts share the boundary sample.
+
+    """
+    seconds = float(sum(seg.duration for seg in segments))
+    hold = fraction * seconds
+    train: List[Dataset] = []
+    validation: List[Dataset] = []
+    for seg in reversed(segments):
+        if hold <= 1e-9:
+            train.append(seg)
+        elif seg.duration <= hold + 1e-9:
+            validation.append(seg)
+            hold -= seg.duration
+        else:
+            k = seg.n_samples - 1 - int(round(hold / seg.dt))  # first validation sample
+            hold = 0.0
+            if seg.n_samples - k >= min_samples and k + 1 >= min_samples:
+                train.append(seg.slice(0, k + 1))
+                validation.append(seg.slice(k, seg.n_samples))
+            else:
+                train.append(seg)
+    return train[::-1], validation[::-1], seconds
+
+
+def validation_nrmse(model: RKGNNModel, segments: Sequence[Dataset]) -> float:
+    """Return the θ-NRMSE of ``model`` predicting each segment from its first state (NaN: none)."""
+    if not segments:
+        return math.nan
+    n = model.n_joints
+    predicted = [model.predict(seg)[:, :n] for seg in segments]
+    measured = [seg.theta for seg in segments]
+    return nrmse(np.vstack(predicted), np.vstack(measured))

@@ -1,0 +1,432 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Ingestion: the joint streams into the buffer, every rejection counted and logged.
+
+:class:`Ingestion` turns joint_states and joint_commands (raw CDR bytes) and the reference
+trajectory into buffered arrays (:class:`~rkgnn_ros.stream_buffer.StreamBuffer`), learns the
+joints from the first message when none are configured, keeps the newest state and command
+for predictions, and owns the drop accounting of the whole node: a counter per reason
+(shown in ``/diagnostics``) and a log line at most once a second per topic and reason,
+naming both. Nothing it is given raises: bad bytes are a counted reason.
+
+The two streams can come at 1 kHz each. Waking rclpy's executor for every message costs
+more than handling the message (README, *Responsiveness*), so their subscriptions sit in a
+callback group the executor never waits on (:class:`PolledGroup`) and the ingest thread
+(:meth:`Ingestion.start`) takes what is queued on them every :data:`INGEST_PERIOD_S`. A
+lock, also taken while the joints, the buffer or the settings change, keeps a message
+from seeing them half changed. The parts are testable with bytes, no middleware: the
+handlers take exactly what the subscriptions deliver.
+"""
+
+import math
+import threading
+import time
+import traceback
+from typing import Callable, Dict, NamedTuple, Optional, Tuple
+
+import numpy as np
+from rclpy.callback_groups import CallbackGroup
+from rclpy.exceptions import InvalidHandle
+from rclpy.serialization import deserialize_message
+from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arrays,
+                                   joint_trajectory_to_arrays, parse_joint_state_cdr,
+                                   Rejection, REJECTION_REASONS)
+from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
+from sensor_msgs.msg import JointState
+
+__all__ = ['NODE_REASONS', 'INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'StateSample']
+
+#: Drop reasons the node adds to the buffer's and the conversions' own.
+NODE_REASONS = ('no_joints', 'internal_error', 'prediction_non_finite', 'worker_error')
+
+DRAIN_LIMIT = 100        # queued stream messages taken per stream and pass
+INGEST_PERIOD_S = 0.001  # the ingest thread takes the queued stream messages this often
+LOG_THROTTLE_S = 1.0
+JOIN_TIMEOUT_S = 10.0
+
+
+class StateSample(NamedTuple):
+    """The newest accepted joint_states sample."""
+
+    stamp: Tuple[int, int]  # header stamp (sec, nanosec), copied into what derives from it
+    t: float                # the stamp in seconds
+    theta: np.ndarray       # (n,)
+    theta_dot: np.ndarray   # (n,)
+    tau: Optional[np.ndarray]  # (n,), case 'torque' only
+    received_ns: int        # when the middleware received it (time.time_ns clock)
+
+
+class PolledGroup(CallbackGroup):
+    """A callback group the executor never runs: its subscriptions are polled instead."""
+
+    def can_execute(self, entity) -> bool:
+        return False
+
+    def beginning_execution(self, entity) -> bool:
+        return False
+
+    def ending_execution(self, entity) -> None:
+        pass
+
+
+def received_ns(info) -> int:
+    """Return the rmw receive time (ns) from rclpy's message info, else now."""
+    received = info.get('received_timestamp') if isinstance(info, dict) else None
+    return received if received else time.time_ns()
+
+
+class Ingestion:
+    """
+    The joint streams in: conversion, buffering, the newest samples, drop accounting.
+
+    Parameters
+    ----------
+    config : Config
+        The parameters (:class:`~rkgnn_ros.identification.parameters.Config`); replaced by
+        :meth:`reconfigure`.
+    log : callable
+        ``log(level, text)``, level 'info' or 'warning' (the node queues them for its
+        executor).
+    alive : callable, optional
+        Returns False once the node shuts down: errors then are not counted.
+    on_state : callable, optional
+        Called when a prediction is due on an accepted state (``prediction.on_state``).
+    clock : callable
+        Monotonic seconds (staleness, log throttling).
+
+    """
+
+    def __init__(self, config, log: Callable[[str, str], None],
+                 alive: Callable[[], bool] = lambda: True,
+                 on_state: Optional[Callable[[], None]] = None,
+                 clock: Callable[[], float] = time.monotonic):
+        self._config = config
+        self._log = log
+        self._alive = alive
+        self._on_state = on_state or (lambda: None)
+        self._clock = clock
+        # held while a stream message is handled, and while the joints, the buffer or the
+        # settings they depend on change
+        self.lock = threading.RLock()
+        self._counts_lock = threading.Lock()
+        self._joints: Optional[Tuple[str, ...]] = None
+        self._buffer: Optional[StreamBuffer] = None
+        self._retired_drops: Dict[str, int] = {}
+        self._extra_drops: Dict[str, int] = {}
+        self._log_times: Dict[Tuple[str, str], float] = {}
+        self._received: Dict[str, float] = {}
+        self._last_state_prediction = -math.inf
+        self.latest_state: Optional[StateSample] = None
+        self.latest_command: Optional[np.ndarray] = None  # θd (n,)
+        self._stop = threading.Event()
+        self._thread: Optional[threading.Thread] = None
+        if config['joints']:
+            self.set_joints(config['joints'], 'the joints parameter')
+
+    # ------------------------------------------------------------------ reading
+
+    @property
+    def joints(self) -> Optional[Tuple[str, ...]]:
+        """Return the joint names (None until known)."""
+        return self._joints
+
+    @property
+    def buffer(self) -> Optional[StreamBuffer]:
+        """Return the stream buffer, None until the joints are known."""
+        return self._buffer
+
+    def view(self):
+        """Return ``(config, joints, buffer, received)``, consistent with each other."""
+        with self.lock:
+            return self._config, self._joints, self._buffer, dict(self._received)
+
+    def capture(self) -> Optional[Capture]:
+        """Return a capture of the buffered streams (None until the joints are known)."""
+        buffer = self._buffer
+        return None if buffer is None else buffer.capture()
+
+    def reference(self) -> Optional[PlannedReference]:
+        """Return the newest planned trajectory (immutable), or None."""
+        buffer = self._buffer
+        return None if buffer is None else buffer.reference()
+
+    def samples_buffered(self) -> int:
+        """Return the number of buffered joint_states samples."""
+        buffer = self._buffer
+        return buffer.stats()['state_samples'] if buffer is not None else 0
+
+    # ------------------------------------------------------------------ configuration
+
+    def reconfigure(self, config, rebuild: bool = False, joints_changed: bool = False) -> None:
+        """
+        Take new parameters; with ``rebuild`` make a new buffer (its data are dropped).
+
+        With ``joints_changed`` the joints come from the ``joints`` parameter (empty: from
+        the next joint_states message).
+        """
+        with self.lock:
+            self._config = config
+            if joints_changed:
+                self.set_joints(config['joints'] or None, 'the joints parameter')
+            elif rebuild:
+                self.set_joints(self._joints, 'a parameter change')
+
+    def set_joints(self, joints, source: str) -> None:
+        """Adopt ``joints`` (None: learn them from joint_states) and rebuild the buffer."""
+        with self.lock:
+            cfg = self._config
+            joints = tuple(joints) if joints else None
+            buffer = None
+            if joints is not None:
+                buffer = StreamBuffer(joints, cfg['model_step'], cfg['window'],
+                                      cfg['gap_threshold'], need_tau=cfg.case == 'torque',
+                                      need_desired=cfg.case != 'torque',
+                                      max_rate_hz=cfg['max_rate_hz'])
+            with self._counts_lock:
+                old = self._buffer
+                if old is not None:
+                    for reason, count in old.counters.items():
+                        self._retired_drops[reason] = self._retired_drops.get(reason, 0) + count
+                changed = joints != self._joints
+                self._joints = joints
+                self._buffer = buffer
+            self.latest_state = None
+            self.latest_command = None
+            self._received = {}
+        if changed:
+            if joints is None:
+                self._log('info', 'joints: taken from the next joint_states message')
+            else:
+                self._log('info', f'joints from {source}: {list(joints)}')
+
+    def clear(self) -> None:
+        """Forget every buffered sample and the reference (``~/reset``); counters stay."""
+        buffer = self._buffer
+        if buffer is not None:
+            buffer.clear()
+
+    # ------------------------------------------------------------------ drop accounting
+
+    def count(self, stream: str, reason: str) -> None:
+        """Count one drop of ``reason`` (shown in /diagnostics as ``drops.<reason>``)."""
+        buffer = self._buffer
+        if buffer is not None:
+            buffer.count_drop(stream, reason)
+        else:
+            with self._counts_lock:
+                self._extra_drops[reason] = self._extra_drops.get(reason, 0) + 1
+
+    def drop_counts(self) -> Dict[str, int]:
+        """Return the drops per reason since start (every stream, every buffer)."""
+        counts = dict.fromkeys(REJECTION_REASONS + DROP_REASONS + NODE_REASONS, 0)
+        with self._counts_lock:
+            buffer = self._buffer
+            sources = (dict(self._retired_drops), dict(self._extra_drops))
+        live = buffer.counters if buffer is not None else {}
+        for source in sources + (live,):
+            for reason, count in source.items():
+                counts[reason] = counts.get(reason, 0) + count
+        return counts
+
+    def log_drop(self, topic: str, reason: str, text: str) -> None:
+        """
+        Log a drop at most once a second per topic and reason.
+
+        rclpy's ``throttle_duration_sec`` throttles per call site, which would hide every
+        reason but the first one seen.
+        """
+        self.warn_throttled((topic, reason), f'{topic}: dropped a message ({reason}): {text}')
+
+    def warn_throttled(self, key, text: str) -> None:
+        """Log a warning unless one with the same ``key`` was logged in the last second."""
+        now = self._clock()
+        with self._counts_lock:
+            if now - self._log_times.get(key, -math.inf) < LOG_THROTTLE_S:
+                return
+            self._log_times[key] = now
+        self._log('warning', text)
+
+    def reject(self, topic: str, stream: str, reason: str, text: str) -> None:
+        """Count a drop and log it (throttled)."""
+        self.count(stream, reason)
+        self.log_drop(topic, reason, text)
+
+    def internal_error(self, where: str) -> None:
+        """Count and log the exception being handled (unless shutting down)."""
+        if not self._alive():
+            return  # shutting down (SIGINT): a publish that fails now is not an error
+        self.count('node', 'internal_error')
+        self.log_drop(where, 'internal_error',
+                      f'unexpected error (counted as internal_error)\n{traceback.format_exc()}')
+
+    # ------------------------------------------------------------------ messages
+
+    def handle_state(self, raw: bytes, received: int = 0) -> None:
+        """Take one joint_states message (CDR bytes) received at ``received`` ns."""
+        try:
+            with self.lock:
+                self._handle_state(raw, received or time.time_ns())
+        except Exception:  # noqa: B902 - bad input is counted, never raised
+            self.internal_error('joint_states')
+
+    def handle_command(self, raw: bytes, received: int = 0) -> None:
+        """Take one joint_commands message (CDR bytes)."""
+        try:
+            with self.lock:
+                self._handle_command(raw)
+        except Exception:  # noqa: B902 - bad input is counted, never raised
+            self.internal_error('joint_commands')
+
+    def handle_reference(self, msg, now: float) -> None:
+        """Take one reference_trajectory message (a zero stamp means ``now``, in s)."""
+        try:
+            joints = self._joints
+            if joints is None:
+                self.reject('reference_trajectory', 'reference', 'no_joints',
+                            'joints not known yet (waiting for joint_states)')
+                return
+            sample = joint_trajectory_to_arrays(msg, joints, now=now)
+            if not sample.ok:
+                self.reject('reference_trajectory', 'reference', sample.reason,
+                            sample.message)
+                return
+            result = self._buffer.add_reference(sample.t0, sample.times, sample.positions,
+                                                sample.velocities)
+            if not result.accepted:
+                self.log_drop('reference_trajectory', result.reason, 'rejected by the buffer')
+        except Exception:  # noqa: B902 - bad input is counted, never raised
+            self.internal_error('reference_trajectory')
+
+    @staticmethod
+    def _joint_sample(raw: bytes, joints, need_effort: bool):
+        """Read a raw JointState: the CDR fast path, else rclpy's deserialization."""
+        sample = joint_state_cdr_to_arrays(raw, joints, need_velocity=True,
+                                           need_effort=need_effort)
+        if sample is None:  # not plain CDR we read: let rclpy decide what it is
+            try:
+                msg = deserialize_message(raw, JointState)
+            except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
+                return Rejection('malformed', f'cannot read JointState: {error!r}')
+            sample = joint_state_to_arrays(msg, joints, need_velocity=True,
+                                           need_effort=need_effort)
+        return sample
+
+    @staticmethod
+    def _message_names(raw: bytes):
+        """Return the joint names of a raw JointState, or None if it has none readable."""
+        try:
+            parsed = parse_joint_state_cdr(raw)
+            if parsed is not None:
+                return parsed[2]
+            return tuple(deserialize_message(raw, JointState).name)
+        except Exception:  # noqa: B902 - the sample's own reading reports why
+            return None
+
+    def _handle_state(self, raw: bytes, received: int) -> None:
+        cfg = self._config
+        need_tau = cfg.case == 'torque'
+        joints = self._joints
+        if joints is None:
+            names = self._message_names(raw) or ()
+            sample = self._joint_sample(raw, names, need_tau)
+            if not sample.ok:
+                self.reject('joint_states', 'state', sample.reason, sample.message)
+                return
+            self.set_joints(names, 'the first joint_states message')
+            joints = self._joints
+        sample = self._joint_sample(raw, joints, need_tau)
+        if not sample.ok:
+            self.reject('joint_states', 'state', sample.reason, sample.message)
+            return
+        result = self._buffer.add_state(sample.stamp, sample.position, sample.velocity,
+                                        sample.effort if need_tau else None)
+        if result.clock_jump:
+            self.warn_throttled(('joint_states', 'clock_jump'),
+                                f'joint_states: the clock jumped (stamp {sample.stamp:.3f} s): '
+                                'buffered data cleared, identification continues on the new '
+                                'timeline')
+        if not result.accepted:
+            self.log_drop('joint_states', result.reason,
+                          f'stamp {sample.stamp:.6f} s rejected by the buffer')
+            return
+        self.latest_state = StateSample(sample.sec_nanosec, sample.stamp, sample.position,
+                                        sample.velocity, sample.effort, received)
+        now = self._clock()
+        self._received['state'] = now
+        if cfg['prediction.on_state'] and now - self._last_state_prediction >= cfg['model_step']:
+            self._last_state_prediction = now
+            self._on_state()
+
+    def _handle_command(self, raw: bytes) -> None:
+        joints = self._joints
+        if joints is None:
+            self.reject('joint_commands', 'command', 'no_joints',
+                        'joints not known yet (waiting for joint_states)')
+            return
+        sample = self._joint_sample(raw, joints, False)
+        if not sample.ok:
+            self.reject('joint_commands', 'command', sample.reason, sample.message)
+            return
+        result = self._buffer.add_command(sample.stamp, sample.position, sample.velocity)
+        if not result.accepted:
+            self.log_drop('joint_commands', result.reason,
+                          f'stamp {sample.stamp:.6f} s rejected by the buffer')
+            return
+        self.latest_command = sample.position
+        self._received['command'] = self._clock()
+
+    # ------------------------------------------------------------------ the ingest thread
+
+    def start(self, state_sub, command_sub) -> None:
+        """Start the ingest thread on the two raw subscriptions (in a :class:`PolledGroup`)."""
+        self._thread = threading.Thread(target=self._run, args=(state_sub, command_sub),
+                                        name='rkgnn_ingest', daemon=True)
+        self._thread.start()
+
+    def stop(self) -> bool:
+        """Stop and join the ingest thread; return False if it did not stop in time."""
+        self._stop.set()
+        thread = self._thread
+        if thread is not None and thread.is_alive():
+            thread.join(JOIN_TIMEOUT_S)
+            return not thread.is_alive()
+        return True
+
+    def _run(self, state_sub, command_sub) -> None:
+        """Every INGEST_PERIOD_S, take what is queued on the two streams."""
+        streams = ((state_sub, self.handle_state), (command_sub, self.handle_command))
+        while not self._stop.wait(INGEST_PERIOD_S):
+            for sub, handle in streams:
+                try:
+                    for raw, info in self._drain(sub):
+                        handle(raw, received_ns(info))
+                except Exception:  # noqa: B902 - the thread must survive
+                    if self._stop.is_set() or not self._alive():
+                        return
+                    self.internal_error(sub.topic_name)
+
+    @staticmethod
+    def _drain(sub):
+        """Yield the ``(message, info)`` pairs already queued on ``sub``, at most DRAIN_LIMIT."""
+        for _ in range(DRAIN_LIMIT):
+            try:
+                with sub.handle:
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            except InvalidHandle:  # destroyed at shutdown
+                return
+            if taken is None:
+                return
+            yield taken

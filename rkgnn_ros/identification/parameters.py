@@ -1,0 +1,416 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The identifier's parameters: the table, the checks, and one consistent snapshot per change.
+
+:data:`PARAMETERS` and :data:`OUTPUTS` are the node's rows (:class:`~rkgnn_ros.parameters.
+ParameterSpec`), each saying what a change does. :func:`check_parameters` is the on-set
+validation rclpy cannot do (open bounds, cross-parameter rules, the optimizer's own rules);
+its reasons name the parameter and its bound. :class:`IdentifierParameters` holds the
+accepted values; every accepted change replaces its :class:`Config`, an immutable snapshot
+the other parts read whole (one reference), so a generation, a message or a prediction
+never sees a change half applied.
+"""
+
+from dataclasses import dataclass
+import math
+import re
+import threading
+from types import MappingProxyType
+from typing import Dict, Mapping, Optional, Sequence, Tuple
+
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.parameter import Parameter
+from rkgnn_ros.core.fitting.identify import normalize_case
+from rkgnn_ros.core.fitting.online import OnlineSettings
+from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
+from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
+from rkgnn_ros.parameters import Change, ParameterSpec
+
+__all__ = ['PARAMETERS', 'OUTPUTS', 'Config', 'ConfigurationError', 'IdentifierParameters',
+           'check_parameters', 'make_config',
+           'network_spec', 'optimizer_settings', 'online_settings']
+
+_T = Parameter.Type
+_RESTART = Change.RESTART
+_REBUILD = Change.RESTART | Change.BUFFER  # a new timeline or layout: data and search anew
+_REC = NetworkSpec.recommended(1, 'torque')
+_RESTARTS = 'Changing it restarts the search.'
+_ES_NOTE = 'Applied between generations.'
+
+PARAMETERS = (
+    ParameterSpec('case', 'torque',
+                  "Identification case: 'torque' (1, measured torque), 'pd_gains' (2, known "
+                  "PD gains kp, kd) or 'unknown' (3, the controller is identified too); 1/2/3 "
+                  'accepted. Changing it clears the buffer and restarts the search.',
+                  choices=CASES, change=_REBUILD),
+    ParameterSpec('kp', (), "Known proportional gains per joint (case 'pd_gains'). "
+                  + _RESTARTS, low=0.0, ptype=_T.DOUBLE_ARRAY, change=_RESTART),
+    ParameterSpec('kd', (), "Known derivative gains per joint (case 'pd_gains'). "
+                  + _RESTARTS, low=0.0, ptype=_T.DOUBLE_ARRAY, change=_RESTART),
+    ParameterSpec('joints', (),
+                  'Joint names, in model column order; empty: the names of the first '
+                  'joint_states message (or of the loaded model_file). Changing it clears the '
+                  'buffer and restarts the search.', ptype=_T.STRING_ARRAY, change=_REBUILD),
+    ParameterSpec('window', 20.0,
+                  'Seconds of newest data the search uses (training plus validation). '
+                  'Changing it rebuilds the buffer.', 1.0, 600.0, change=Change.BUFFER),
+    ParameterSpec('min_window', 5.0, 'Seconds of buffered data needed before generations run.',
+                  0.1, 600.0, constraints='<= window'),
+    ParameterSpec('model_step', 0.01,
+                  'Grid step (s) of the resampled data, the model and ~/prediction. Changing '
+                  'it clears the buffer and restarts the search.', 0.001, 0.1, change=_REBUILD),
+    ParameterSpec('substeps', 0, 'RKG steps per model_step (0: automatic). ' + _RESTARTS,
+                  0, 64, change=_RESTART),
+    ParameterSpec('gap_threshold', 0.1,
+                  'Longer intervals (s) between samples split the data into segments. '
+                  'Changing it rebuilds the buffer.', 0.001, 10.0, change=Change.BUFFER),
+    ParameterSpec('max_rate_hz', 2000.0,
+                  'Highest sample rate (Hz) kept per stream: samples closer than 1/max_rate_hz '
+                  'are decimated (counted as rate_limited), which bounds the buffer memory '
+                  'whatever the input rate. Read-only: set it at start (params file or '
+                  '--ros-args -p).', 1.0, 100000.0, change=Change.START),
+    ParameterSpec('validation_fraction', 0.2,
+                  'Newest fraction of the window held out for the validation NRMSE (0: none).',
+                  0.0, 0.5),
+    ParameterSpec('stale_timeout', 1.0,
+                  'Seconds without an accepted joint_states (and, in cases pd_gains/unknown, '
+                  'joint_commands) sample after which the search pauses (state stale).',
+                  0.05, 60.0),
+    ParameterSpec('model_publish_period', 2.0, 'Minimum seconds between two ~/model messages.',
+                  0.0, 3600.0),
+    ParameterSpec('network.theta_units', _REC.theta_units,
+                  'Gaussian RBF units over theta (inertia, Coriolis, gravity). ' + _RESTARTS,
+                  0, 32, change=_RESTART),
+    ParameterSpec('network.torque_units', _REC.torque_units,
+                  "RBF units of each P and D torque sub-network (case 'unknown'). " + _RESTARTS,
+                  0, 32, change=_RESTART),
+    ParameterSpec('network.inertia', _REC.inertia,
+                  "'cholesky' (M = L L^T + eps I, positive definite) or 'penalty' (the "
+                  "paper's). " + _RESTARTS, choices=INERTIA_MODES, change=_RESTART),
+    ParameterSpec('network.velocity', _REC.velocity,
+                  "'christoffel' (Coriolis and centrifugal terms from M, energy-consistent) or "
+                  "'learned' (the paper's own RBF outputs). " + _RESTARTS,
+                  choices=VELOCITY_MODES, change=_RESTART),
+    ParameterSpec('network.bias', _REC.bias,
+                  'Constant term on every theta-dependent output. ' + _RESTARTS,
+                  change=_RESTART),
+    ParameterSpec('network.friction', _REC.friction,
+                  'Viscous and Coulomb friction per joint. ' + _RESTARTS, change=_RESTART),
+    ParameterSpec('network.torque_linear', _REC.torque_linear,
+                  "Linear P and D gains beside the torque RBF networks (case 'unknown'). "
+                  + _RESTARTS, change=_RESTART),
+    ParameterSpec('es.algorithm', 'cmaes',
+                  "Optimizer: 'cmaes', 'sep-cmaes' or 'paper' (the paper's EA). A change swaps "
+                  'the optimizer between generations, warm-started from the best genome.',
+                  choices=OPTIMIZERS, change=Change.ES),
+    ParameterSpec('es.population_size', 0,
+                  "Candidates per generation; 0 (at start only): the algorithm's default "
+                  '(cmaes: 4 + 3 ln N, paper: 100). ' + _ES_NOTE, 0, 100000,
+                  constraints='0 (at start) or >= 2; >= es.tournament_size (paper)',
+                  change=Change.ES),
+    ParameterSpec('es.tournament_size', PaperEA.DEFAULTS['tournament_size'],
+                  'paper: contestants per tournament.', 1, 100000,
+                  constraints='<= es.population_size (paper)', change=Change.ES),
+    ParameterSpec('es.crossover_rate', PaperEA.DEFAULTS['crossover_rate'],
+                  'paper: probability that a parent pair is replaced by BLX-alpha children.',
+                  0.0, 1.0, change=Change.ES),
+    ParameterSpec('es.mutation_rate', PaperEA.DEFAULTS['mutation_rate'],
+                  'paper: fraction of offspring mutated.', 0.0, 1.0, change=Change.ES),
+    ParameterSpec('es.sigma', CMAES.DEFAULTS['sigma'],
+                  'Step size (cmaes) or initial mutation spread (paper), in genome units.',
+                  0.0, 10.0, low_open=True, change=Change.ES),
+    ParameterSpec('es.sigma_min', PaperEA.DEFAULTS['sigma_min'],
+                  'paper: floor of the mutation spread.', 0.0, 10.0,
+                  constraints='<= es.sigma (paper)', change=Change.ES),
+    ParameterSpec('es.max_generations', 0,
+                  'Generations per search before it stops (0: forever).', 0, 1_000_000_000),
+    ParameterSpec('es.seed', 0,
+                  "Seed of the optimizer's random generator, used when a search (re)starts.",
+                  0, 2 ** 31 - 1),
+    ParameterSpec('prediction.horizon', 2.0, 'Seconds predicted on ~/prediction.', 0.01, 60.0,
+                  constraints='>= model_step'),
+    ParameterSpec('prediction.rate', 10.0, 'Rate (Hz) of ~/prediction (0: only on_state).',
+                  0.0, 1000.0),
+    ParameterSpec('prediction.on_state', False,
+                  'Also predict on every accepted joint_states sample (at most once per '
+                  'model_step).'),
+    ParameterSpec('model_file', '',
+                  'Model YAML: loaded at start if present (published, start genome), written '
+                  'atomically on ~/save_model and at shutdown; empty: no file.'),
+)
+
+OUTPUTS = (
+    ParameterSpec('identified.generation', 0, 'Output: generation of the published model.',
+                  change=Change.OUTPUT),
+    ParameterSpec('identified.cost', math.nan, 'Output: training cost of the published model.',
+                  change=Change.OUTPUT),
+    ParameterSpec('identified.validation_nrmse', math.nan,
+                  'Output: validation theta-NRMSE of the published model.',
+                  change=Change.OUTPUT),
+    ParameterSpec('identified.kp', (),
+                  "Output: the model's PD gains linearised at zero error (cases 2-3); case 1: "
+                  'the gains of the controller law fitted from effort and joint_commands.',
+                  ptype=_T.DOUBLE_ARRAY, change=Change.OUTPUT),
+    ParameterSpec('identified.kd', (),
+                  "Output: the model's derivative gains linearised at zero error (cases 2-3); "
+                  'case 1: the fitted law.', ptype=_T.DOUBLE_ARRAY, change=Change.OUTPUT),
+)
+
+_BY_NAME = {spec.name: spec for spec in PARAMETERS}
+_OUTPUT_NAMES = frozenset(spec.name for spec in OUTPUTS)
+_ES_NAMES = ('population_size', 'tournament_size', 'crossover_rate', 'mutation_rate',
+             'sigma_min', 'sigma', 'n_elite')
+_NETWORK_NAMES = ('theta_units', 'torque_units', 'inertia', 'velocity', 'bias', 'friction',
+                  'torque_linear')
+
+
+def optimizer_settings(values: Mapping) -> Tuple[str, dict]:
+    """Return ``(algorithm, settings)`` for ``make_optimizer`` from parameter values."""
+    algorithm = values['es.algorithm']
+    size = values['es.population_size']
+    if algorithm == 'paper':
+        return algorithm, {
+            'population_size': size or PaperEA.DEFAULTS['population_size'],
+            'tournament_size': values['es.tournament_size'],
+            'crossover_rate': values['es.crossover_rate'],
+            'mutation_rate': values['es.mutation_rate'],
+            'sigma': values['es.sigma'],
+            'sigma_min': values['es.sigma_min'],
+        }
+    return algorithm, {'population_size': size or None, 'sigma': values['es.sigma']}
+
+
+def online_settings(values: Mapping, version: int = 0) -> OnlineSettings:
+    """Return the policy's settings the parameter values describe."""
+    algorithm, settings = optimizer_settings(values)
+    return OnlineSettings(
+        case=normalize_case(values['case']), kp=tuple(values['kp']), kd=tuple(values['kd']),
+        network=MappingProxyType({name: values[f'network.{name}'] for name in _NETWORK_NAMES}),
+        optimizer=algorithm, optimizer_settings=MappingProxyType(settings),
+        seed=values['es.seed'], substeps=values['substeps'], min_window=values['min_window'],
+        validation_fraction=values['validation_fraction'],
+        stale_timeout=values['stale_timeout'],
+        model_publish_period=values['model_publish_period'],
+        max_generations=values['es.max_generations'], version=version)
+
+
+def network_spec(values: Mapping, n_joints: int) -> NetworkSpec:
+    """
+    Return the NetworkSpec the parameters describe for ``n_joints`` joints.
+
+    Settings without a parameter (e.g. the inertia floor) keep their values of
+    ``NetworkSpec.recommended``.
+    """
+    return online_settings(values).spec(n_joints)
+
+
+def _prefixed(text: str, prefix: str, names: Sequence[str]) -> str:
+    """Prefix the setting names in a core error message with their parameter group."""
+    for name in sorted(names, key=len, reverse=True):
+        text = re.sub(rf'(?<![\w.]){re.escape(name)}\b', prefix + name, text)
+    return text
+
+
+def _check_one(spec: ParameterSpec, value, at_start: bool, previous) -> Optional[str]:
+    """Return why ``value`` is invalid for ``spec`` (None if valid)."""
+    if spec.name == 'case' and isinstance(value, str):
+        try:
+            normalize_case(value)
+        except ValueError:
+            return f'case must be one of {", ".join(CASES)} (or 1, 2, 3), got {value!r}'
+        return None
+    if spec.name == 'es.population_size' and type(value) is int and (
+            value == 1 or (value == 0 and not at_start and previous != 0)):
+        return (f"es.population_size must be >= 2 (0, the algorithm's default, is "
+                f'accepted only at start), got {value}')
+    return spec.check(value)
+
+
+def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = False,
+                     previous: Optional[Mapping] = None) -> Optional[str]:
+    """
+    Return why a set of parameter values is invalid, or None.
+
+    ``values`` holds every parameter (the proposed ones merged into the current ones);
+    ``changed`` names those to check one by one (cross-parameter rules are always checked).
+    The reason names the parameter and its bound.
+    """
+    previous = previous or {}
+    for name in changed:
+        reason = _check_one(_BY_NAME[name], values[name], at_start, previous.get(name))
+        if reason:
+            return reason
+    if values['min_window'] > values['window']:
+        return (f"min_window ({values['min_window']}) must be <= window "
+                f"({values['window']})")
+    if values['prediction.horizon'] < values['model_step']:
+        return (f"prediction.horizon ({values['prediction.horizon']}) must be >= model_step "
+                f"({values['model_step']})")
+    joints = values['joints']
+    try:
+        network_spec(values, max(1, len(joints)))
+    except ValueError as exc:
+        return _prefixed(str(exc), 'network.', _NETWORK_NAMES)
+    if normalize_case(values['case']) == 'pd_gains':
+        kp, kd = values['kp'], values['kd']
+        if not kp or len(kp) != len(kd):
+            return (f"case 'pd_gains' needs kp and kd with one value per joint, got "
+                    f'{len(kp)} and {len(kd)} values')
+        if joints and len(kp) != len(joints):
+            return f'kp and kd have {len(kp)} values for {len(joints)} joints'
+    algorithm, settings = optimizer_settings(values)
+    cls = PaperEA if algorithm == 'paper' else CMAES
+    try:
+        cls.validate_settings(**settings)
+    except ValueError as exc:
+        return _prefixed(str(exc), 'es.', _ES_NAMES)
+    return None
+
+
+@dataclass(frozen=True)
+class Config:
+    """One consistent snapshot of the parameters and the policy settings they describe."""
+
+    values: Mapping
+    settings: OnlineSettings
+
+    def __getitem__(self, name):
+        return self.values[name]
+
+    @property
+    def case(self) -> str:
+        """Return the normalized identification case: torque, pd_gains or unknown."""
+        return self.settings.case
+
+
+def make_config(**values) -> Config:
+    """
+    Return the snapshot of the table's defaults with ``values`` replacing some (by name).
+
+    What the parts get from a node, built without one (tools and tests). Raises
+    ConfigurationError if the values are invalid.
+    """
+    merged = {spec.name: spec.plain(spec.default) for spec in PARAMETERS}
+    merged.update({name: _BY_NAME[name].plain(value) for name, value in values.items()})
+    reason = check_parameters(merged, list(values), at_start=True)
+    if reason:
+        raise ConfigurationError(reason)
+    return Config(MappingProxyType(merged), online_settings(merged))
+
+
+class ConfigurationError(ValueError):
+    """The parameters given at start are invalid: the node refuses to start."""
+
+
+class IdentifierParameters:
+    """
+    The node's parameters: declared from the table, validated, applied as snapshots.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node to declare on.
+
+    Raises
+    ------
+    ConfigurationError
+        A value given at start is invalid (the message names the parameter).
+
+    """
+
+    def __init__(self, node):
+        values = {spec.name: spec.plain(spec.declare(node)) for spec in PARAMETERS}
+        for spec in OUTPUTS:
+            spec.declare(node)
+        reason = check_parameters(values, list(values), at_start=True)
+        if reason:
+            raise ConfigurationError(reason)
+        self._lock = threading.Lock()
+        self._internal = threading.local()
+        self._config = Config(MappingProxyType(values), online_settings(values))
+
+    @property
+    def config(self) -> Config:
+        """Return the current snapshot."""
+        return self._config
+
+    def validate(self, params) -> SetParametersResult:
+        """Check a set of parameters (the on-set callback); never raises."""
+        try:
+            internal = getattr(self._internal, 'active', False)
+            current = dict(self._config.values)
+            values = dict(current)
+            changed = []
+            for param in params:
+                name = param.name
+                if name in _OUTPUT_NAMES:
+                    if not internal:
+                        return SetParametersResult(
+                            successful=False,
+                            reason=f'{name} is an output of the identifier, set by the node '
+                                   'as the model improves; it cannot be set')
+                    continue
+                if name not in _BY_NAME:
+                    continue  # use_sim_time and other parameters rclpy owns
+                values[name] = param.value
+                changed.append(name)
+            if not changed:
+                return SetParametersResult(successful=True)
+            reason = check_parameters(values, changed, at_start=False, previous=current)
+            return SetParametersResult(successful=reason is None, reason=reason or '')
+        except Exception as exc:  # noqa: B902 - a callback must never raise
+            return SetParametersResult(
+                successful=False, reason=f'cannot validate the parameters: {exc!r}')
+
+    def apply(self, params) -> Tuple[Tuple[str, ...], Change]:
+        """
+        Take accepted parameters (the post-set callback): ``(changed names, their changes)``.
+
+        A change with ``Change.RESTART`` increments the settings' version, which restarts
+        the search before its next generation.
+        """
+        changed = {p.name: _BY_NAME[p.name].plain(p.value)
+                   for p in params if p.name in _BY_NAME}
+        with self._lock:
+            old = self._config
+            diff = tuple(sorted(k for k, v in changed.items() if old.values.get(k) != v))
+            if not diff:
+                return (), Change(0)
+            effects = Change(0)
+            for name in diff:
+                effects |= _BY_NAME[name].change
+            values = dict(old.values, **{name: changed[name] for name in diff})
+            version = old.settings.version + (1 if effects & Change.RESTART else 0)
+            self._config = Config(MappingProxyType(values), online_settings(values, version))
+        return diff, effects
+
+    def set_outputs(self, node, generation: int, cost: float, validation_nrmse: float, kp,
+                    kd) -> Dict[str, str]:
+        """Set the ``identified.*`` outputs on ``node``; return the reasons of refused ones."""
+        params = [
+            Parameter('identified.generation', _T.INTEGER, int(generation)),
+            Parameter('identified.cost', _T.DOUBLE, float(cost)),
+            Parameter('identified.validation_nrmse', _T.DOUBLE, float(validation_nrmse)),
+            Parameter('identified.kp', _T.DOUBLE_ARRAY, [float(v) for v in kp]),
+            Parameter('identified.kd', _T.DOUBLE_ARRAY, [float(v) for v in kd]),
+        ]
+        self._internal.active = True
+        try:
+            results = node.set_parameters(params)
+        finally:
+            self._internal.active = False
+        return {param.name: result.reason for param, result in zip(params, results)
+                if not result.successful}

@@ -1,0 +1,223 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Publishing: everything the identifier tells the world, from the executor thread only.
+
+The worker, ingest and prediction threads never touch a publisher, a parameter or the
+logger: they put what they have to say into the :class:`Outbox` (a bounded queue whose
+``put`` triggers a guard condition), and :meth:`Publishing.drain`, the guard condition's
+callback, handles it in the executor thread: a prediction goes to ``~/prediction``; a new
+model to ``~/model`` (its YAML was made in the worker), to the ``identified.*`` output
+parameters and to the predictor; generation statistics to ``~/evolution``; log lines to
+the node's logger. :meth:`Publishing.publish_diagnostics` (a 1 Hz timer) gathers
+``/diagnostics`` from the parts' read-only views.
+"""
+
+from collections import deque
+from typing import Callable, NamedTuple, Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rkgnn_ros.conversions import make_float64_multiarray
+from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
+                                           Status)
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.identification.prediction import Prediction
+from std_msgs.msg import String
+
+__all__ = ['EVOLUTION_LABELS', 'ModelMessage', 'Outbox', 'Publishing']
+
+#: Field names of ``~/evolution`` (the layout label of its one dimension).
+EVOLUTION_LABELS = GenerationStats._fields
+
+OUTBOX_LIMIT = 10000  # items kept when nothing drains the outbox (no executor spins)
+
+
+class ModelMessage(NamedTuple):
+    """A model to publish, with its YAML (made in the worker thread)."""
+
+    update: ModelUpdate
+    text: str
+
+
+class Outbox:
+    """
+    What the threads hand to the executor: a bounded queue that wakes the executor.
+
+    ``connect`` gives it the function that wakes the executor (a guard condition's
+    ``trigger``); ``put`` and ``log`` may be called from any thread.
+    """
+
+    def __init__(self, limit: int = OUTBOX_LIMIT):
+        self._items: deque = deque(maxlen=limit)
+        self._wake: Callable[[], None] = lambda: None
+
+    def connect(self, wake: Callable[[], None]) -> None:
+        """Call ``wake`` after every ``put`` (and now, if anything is queued already)."""
+        self._wake = wake
+        if self._items:
+            wake()
+
+    def put(self, item) -> None:
+        """Queue ``item`` for the executor thread."""
+        self._items.append(item)
+        try:
+            self._wake()
+        except Exception:  # noqa: B902 - shutting down: nothing drains any more
+            pass
+
+    def log(self, level: str, text: str) -> None:
+        """Queue a log line ('info', 'warning' or 'error')."""
+        self.put(LogLine(level, text))
+
+    def take(self) -> list:
+        """Return and remove everything queued, oldest first."""
+        items = []
+        while True:
+            try:
+                items.append(self._items.popleft())
+            except IndexError:
+                return items
+
+
+class Publishing:
+    """
+    The identifier's outputs, handled in the executor thread.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node (logger, clock, names).
+    outbox : Outbox
+        What the other threads queued.
+    publishers : dict
+        ``model`` (String), ``prediction`` (JointTrajectory, takes CDR bytes),
+        ``evolution`` (Float64MultiArray), ``diagnostics``.
+    parameters : IdentifierParameters
+        Where the ``identified.*`` outputs are set.
+    predictor : Predictor
+        Gets every published model.
+    ingestion : Ingestion
+        Joints, buffered samples and drop counts for the diagnostics.
+    status : callable
+        Returns the search's current :class:`Status`.
+
+    """
+
+    def __init__(self, node, outbox: Outbox, publishers: dict, parameters, predictor,
+                 ingestion, status: Callable[[], Status]):
+        self._node = node
+        self._outbox = outbox
+        self._publishers = publishers
+        self._parameters = parameters
+        self._predictor = predictor
+        self._ingestion = ingestion
+        self._status = status
+        self._model: Optional[RKGNNModel] = None
+
+    @property
+    def model(self) -> Optional[RKGNNModel]:
+        """Return the last model published, None before the first."""
+        return self._model
+
+    def drain(self) -> None:
+        """Handle everything queued (the guard condition's callback); never raises."""
+        for item in self._outbox.take():
+            try:
+                self._handle(item)
+            except Exception:  # noqa: B902 - a callback must never raise
+                self._ingestion.internal_error('publishing')
+
+    def _handle(self, item) -> None:
+        if isinstance(item, Prediction):
+            self._publishers['prediction'].publish(item.data)
+            self._predictor.published(item)
+        elif isinstance(item, LogLine):
+            self.log(item.level, item.text)
+        elif isinstance(item, GenerationStats):
+            self._publishers['evolution'].publish(
+                make_float64_multiarray(list(item), EVOLUTION_LABELS))
+        elif isinstance(item, ModelMessage):
+            self.publish_model(item.update, item.text)
+        elif isinstance(item, LoopUpdate):
+            if item.model is self._model:
+                self._predictor.set_model(item.model, item.loop)
+
+    def publish_model(self, update: ModelUpdate, text: Optional[str] = None) -> None:
+        """Publish a model on ``~/model``, predict with it, set the ``identified.*`` outputs."""
+        model = update.model
+        # kept before publishing: a SIGINT that lands between the publish call and the next
+        # statement must not lose a model that subscribers have already received (the one
+        # saved at shutdown is the one they saw last)
+        self._model = model
+        self._publishers['model'].publish(String(data=text or model.to_yaml()))
+        self._predictor.set_model(model, update.loop)
+        refused = self._parameters.set_outputs(
+            self._node, update.generation, update.cost, update.validation_nrmse, update.kp,
+            update.kd)
+        for name, reason in refused.items():
+            self.log('warning', f'cannot update {name}: {reason}')
+
+    def log(self, level: str, text: str) -> None:
+        """Log with the node's logger (one call site per severity, as rclpy requires)."""
+        logger = self._node.get_logger()
+        if level == 'info':
+            logger.info(text)
+        elif level == 'warning':
+            logger.warning(text)
+        else:
+            logger.error(text)
+
+    def publish_diagnostics(self) -> None:
+        """Publish the node's status on ``/diagnostics`` (the 1 Hz timer); never raises."""
+        try:
+            self._publishers['diagnostics'].publish(self._diagnostics())
+        except Exception:  # noqa: B902 - a callback must never raise
+            self._ingestion.internal_error('diagnostics')
+
+    def _diagnostics(self) -> DiagnosticArray:
+        status = self._status()
+        ingestion = self._ingestion
+        latencies = self._predictor.latencies()
+        state = status.state
+        level = {'error': DiagnosticStatus.ERROR,
+                 'stale': DiagnosticStatus.WARN}.get(state, DiagnosticStatus.OK)
+        pairs = [
+            ('state', state), ('detail', status.detail),
+            ('generation', status.generation), ('best_cost', status.best_cost),
+            ('validation_nrmse', status.validation_nrmse),
+            ('generations_per_s', f'{status.generations_per_s:.2f}'),
+            ('samples_buffered', ingestion.samples_buffered()),
+            ('population_size', status.population_size),
+            ('case', self._parameters.config.case),
+            ('joints', ','.join(ingestion.joints or ())),
+            ('prediction_inputs', self._predictor.inputs),
+            ('prediction_latency_p50_ms', _percentile_text(latencies, 50)),
+            ('prediction_latency_p99_ms', _percentile_text(latencies, 99)),
+        ]
+        pairs += [(f'drops.{reason}', count)
+                  for reason, count in ingestion.drop_counts().items()]
+        node = self._node
+        diag = DiagnosticStatus(level=level, name=node.get_name(),
+                                message=f'{state}: {status.detail}',
+                                hardware_id=node.get_fully_qualified_name(),
+                                values=[KeyValue(key=k, value=str(v)) for k, v in pairs])
+        msg = DiagnosticArray(status=[diag])
+        msg.header.stamp = node.get_clock().now().to_msg()
+        return msg
+
+
+def _percentile_text(values: np.ndarray, q: float) -> str:
+    return f'{np.percentile(values, q):.2f}' if values.size else 'nan'

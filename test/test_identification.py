@@ -1,0 +1,333 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The parts of the identifier node (:mod:`rkgnn_ros.identification`), each on its own.
+
+The parameter table and its snapshots, the ingest thread on real subscriptions with no
+executor, the predictor's inputs and latency bookkeeping, the outbox, the worker's error
+handling and the shared parameter row type. The node's behaviour through its topics and
+services is in ``test_identifier.py`` and ``test_reliability.py``.
+"""
+
+import math
+import os
+import random
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message, serialize_message
+from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
+from rkgnn_ros.core.fitting.identify import Evolution
+from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification, Status
+from rkgnn_ros.core.model.spec import NetworkSpec
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
+from rkgnn_ros.identification.ingest import Ingestion, PolledGroup
+from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierParameters,
+                                                 make_config, PARAMETERS)
+from rkgnn_ros.identification.prediction import Predictor
+from rkgnn_ros.identification.publishing import Outbox
+from rkgnn_ros.identification.worker import SearchWorker
+from rkgnn_ros.parameters import Change, ParameterSpec
+from ros_helpers import wait_for
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+pytestmark = pytest.mark.ros
+
+DOMAIN_ID = int(os.environ.get('ROS_DOMAIN_ID', random.randint(150, 230)))
+JOINTS = ('j1', 'j2', 'j3')
+T0 = 1000.0
+
+
+@pytest.fixture(scope='module')
+def data():
+    """3 s at 100 Hz of the paper's arm under its PD."""
+    return simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 3.0,
+                    rate=100.0, joint_names=JOINTS)
+
+
+@pytest.fixture
+def context():
+    """Yield a private rclpy context on this run's domain."""
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
+    try:
+        yield ctx
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def _feed(ingestion, data, k0, k1, t0=T0):
+    for k in range(k0, k1):
+        stamp = t0 + data.t[k]
+        ingestion.handle_state(serialize_message(make_joint_state(
+            stamp, JOINTS, data.theta[k], data.theta_dot[k], data.tau[k])), 1000 + k)
+        ingestion.handle_command(serialize_message(make_joint_state(
+            stamp, JOINTS, data.theta_d[k], data.theta_d_dot[k])))
+
+
+# ------------------------------------------------------------------ parameter rows
+
+def test_a_parameter_row_declares_checks_and_says_what_a_change_does(context):
+    live = ParameterSpec('gain', 0.5, 'A gain.', 0.0, 1.0, low_open=True)
+    start = ParameterSpec('names', ['a', 'b'], 'Names.', change=Change.START)
+    assert live.kind == Parameter.Type.DOUBLE and not live.read_only
+    assert start.kind == Parameter.Type.STRING_ARRAY and start.read_only
+    assert live.check(0.0) == 'gain must be a finite number in (0.0, 1.0], got 0.0'
+    assert live.check(math.nan) and live.check(1) and live.check(1.0) is None
+    assert start.check(['a', 'a']) and start.check(['a', '']) and start.check(('x',)) is None
+    node = rclpy.create_node('rows', context=context)
+    try:
+        assert live.declare(node) == 0.5 and list(start.declare(node)) == ['a', 'b']
+        described = node.describe_parameter('gain')
+        assert described.floating_point_range[0].to_value == 1.0
+        assert node.describe_parameter('names').read_only
+    finally:
+        node.destroy_node()
+
+
+def test_every_identifier_parameter_says_what_a_change_does():
+    by_name = {spec.name: spec.change for spec in PARAMETERS}
+    for name in ('case', 'joints', 'model_step'):  # a new timeline: data and search anew
+        assert by_name[name] == Change.RESTART | Change.BUFFER
+    assert by_name['window'] == by_name['gap_threshold'] == Change.BUFFER
+    assert all(by_name[name] == Change.RESTART for name in by_name
+               if name.startswith('network.') or name in ('kp', 'kd', 'substeps'))
+    assert {name for name, change in by_name.items() if change == Change.ES} == {
+        'es.algorithm', 'es.population_size', 'es.tournament_size', 'es.crossover_rate',
+        'es.mutation_rate', 'es.sigma', 'es.sigma_min'}
+    assert by_name['max_rate_hz'] == Change.START
+    assert by_name['prediction.rate'] == by_name['es.seed'] == Change.LIVE
+
+
+def test_applied_parameters_make_one_new_snapshot_and_name_their_changes(context):
+    node = rclpy.create_node('identifier_parameters', context=context,
+                             parameter_overrides=[Parameter('case', value='unknown')])
+    try:
+        params = IdentifierParameters(node)
+        before = params.config
+        assert before.case == 'unknown' and before.settings.version == 0
+        changed, effects = params.apply([Parameter('es.sigma', value=0.25),
+                                         Parameter('window', value=10.0)])
+        after = params.config
+        assert changed == ('es.sigma', 'window') and effects == Change.ES | Change.BUFFER
+        assert after.settings.optimizer_settings['sigma'] == 0.25 and after['window'] == 10.0
+        assert after.settings.version == 0  # no restart
+        assert before['window'] == 20.0  # the old snapshot is untouched
+        assert params.apply([Parameter('es.sigma', value=0.25)]) == ((), Change(0))
+        changed, effects = params.apply([Parameter('network.theta_units', value=4)])
+        assert effects & Change.RESTART and params.config.settings.version == 1
+        assert params.config.settings.spec(3).theta_units == 4
+    finally:
+        node.destroy_node()
+
+
+def test_invalid_values_at_start_refuse_naming_the_parameter():
+    with pytest.raises(ConfigurationError, match='min_window'):
+        make_config(min_window=30.0)  # > window
+    with pytest.raises(ConfigurationError, match='kp and kd'):
+        make_config(case='pd_gains')
+    assert make_config(case='2', kp=[1.0], kd=[1.0]).case == 'pd_gains'
+
+
+# ------------------------------------------------------------------ ingestion
+
+def test_the_ingest_thread_takes_the_streams_without_any_executor(context, data):
+    # the subscriptions sit in a group no executor runs; the ingest thread takes what
+    # the middleware queued on them, states and commands
+    node = rclpy.create_node('ingest_only', context=context)
+    publisher = rclpy.create_node('streamer', context=context)
+    lines = []
+    ingestion = Ingestion(make_config(joints=list(JOINTS)),
+                          lambda level, text: lines.append(text))
+    polled = PolledGroup()
+    subs = [node.create_subscription(JointState, topic, lambda raw: None, 100,
+                                     callback_group=polled, raw=True)
+            for topic in ('joint_states', 'joint_commands')]
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    assert not any(executor.can_execute(sub) for sub in subs)
+    ingestion.start(*subs)
+    try:
+        states = publisher.create_publisher(JointState, 'joint_states', 100)
+        commands = publisher.create_publisher(JointState, 'joint_commands', 100)
+        assert wait_for(lambda: states.get_subscription_count() >= 1
+                        and commands.get_subscription_count() >= 1, 60.0), 'no discovery'
+        for k in range(60):
+            stamp = T0 + data.t[k]
+            states.publish(make_joint_state(stamp, JOINTS, data.theta[k], data.theta_dot[k],
+                                            data.tau[k]))
+            commands.publish(make_joint_state(stamp, JOINTS, data.theta_d[k],
+                                              data.theta_d_dot[k]))
+        # the default reliable QoS of these publishers against a best-effort reader:
+        # loopback may still lose a few of the burst
+        assert wait_for(lambda: ingestion.samples_buffered() >= 30
+                        and ingestion.buffer.stats()['command_samples'] >= 30, 60.0)
+        assert ingestion.drop_counts()['internal_error'] == 0
+        assert ingestion.latest_state.received_ns > 0
+    finally:
+        assert ingestion.stop()
+        executor.shutdown(timeout_sec=2.0)
+        publisher.destroy_node()
+        node.destroy_node()
+
+
+def test_joints_are_learned_from_the_first_state_and_a_rebuild_keeps_the_counters(data):
+    lines = []
+    ingestion = Ingestion(make_config(), lambda level, text: lines.append(text))
+    assert ingestion.joints is None
+    ingestion.handle_command(serialize_message(make_joint_state(
+        T0, JOINTS, data.theta_d[0], data.theta_d_dot[0])))
+    assert ingestion.drop_counts()['no_joints'] == 1
+    _feed(ingestion, data, 0, 50)
+    assert ingestion.joints == JOINTS and ingestion.samples_buffered() == 50
+    assert 'joints from the first joint_states message' in lines[-1]
+    ingestion.handle_state(b'\x00\x01\x00\x00 not a JointState')
+    ingestion.reconfigure(make_config(window=6.0), rebuild=True)
+    assert ingestion.samples_buffered() == 0 and ingestion.joints == JOINTS
+    assert ingestion.drop_counts()['malformed'] == 1  # counted before the rebuild, kept
+
+
+def test_a_prediction_is_asked_for_on_accepted_states_at_most_once_per_model_step(data):
+    clock = [0.0]
+    requests = []
+    ingestion = Ingestion(make_config(joints=list(JOINTS), **{'prediction.on_state': True}),
+                          lambda level, text: None, on_state=lambda: requests.append(clock[0]),
+                          clock=lambda: clock[0])
+    for k in range(40):
+        clock[0] += 0.004  # states every 4 ms, model_step 10 ms
+        ingestion.handle_state(serialize_message(make_joint_state(
+            T0 + 0.004 * k, JOINTS, data.theta[k], data.theta_dot[k], data.tau[k])))
+    assert 13 <= len(requests) <= 16
+    assert np.all(np.diff(requests) >= 0.01 - 1e-12)
+
+
+# ------------------------------------------------------------------ prediction
+
+@pytest.fixture(scope='module')
+def unknown_model(data):
+    """Return a case-3 model of the arm (start genome)."""
+    return Evolution(NetworkSpec.recommended(3, 'unknown'), [data], seed=0).best_model(JOINTS)
+
+
+def _predictor(config, model):
+    ingestion = Ingestion(config, lambda level, text: None)
+    published = []
+
+    def publish(prediction):  # what the node's executor does with a prediction
+        published.append(prediction.data)
+        predictor.published(prediction)
+    predictor = Predictor(ingestion, publish, lambda: config)
+    predictor.set_model(model)
+    predictor.warm_up(model)
+    return ingestion, predictor, published
+
+
+def test_latency_counts_the_first_prediction_from_each_state(data, unknown_model):
+    # a timer predicting again from the same state (the stream stopped) is not a latency
+    config = make_config(case='unknown', joints=list(JOINTS))
+    ingestion, predictor, published = _predictor(config, unknown_model)
+    assert not predictor.predict()  # no state yet
+    _feed(ingestion, data, 0, 100)
+    assert predictor.predict() and predictor.predict()
+    assert len(published) == 2 and predictor.latencies().size == 1
+    _feed(ingestion, data, 100, 101)
+    assert predictor.predict() and predictor.latencies().size == 2
+
+
+def test_a_prediction_follows_the_reference_snapshot_else_holds_the_command(
+        data, unknown_model):
+    config = make_config(case='unknown', joints=list(JOINTS),
+                         **{'prediction.horizon': 0.5})
+    ingestion, predictor, published = _predictor(config, unknown_model)
+    _feed(ingestion, data, 0, 100)
+    assert predictor.predict() and predictor.inputs == 'held command'
+    k = 99
+    ahead = slice(k, k + 100, 10)
+    ingestion.handle_reference(make_joint_trajectory(
+        T0 + data.t[k], JOINTS, data.t[ahead] - data.t[k], data.theta_d[ahead],
+        data.theta_d_dot[ahead]), T0)
+    assert predictor.predict() and predictor.inputs == 'reference'
+    msg = deserialize_message(published[-1], JointTrajectory)
+    assert len(msg.points) == 51
+    np.testing.assert_array_equal(msg.points[0].positions, data.theta[k])
+    ingestion.clear()  # ~/reset drops the reference (and the predictor's snapshot of it)
+    _feed(ingestion, data, 100, 110)
+    assert predictor.predict() and predictor.inputs == 'held command'
+
+
+# ------------------------------------------------------------------ outbox and worker
+
+def test_the_outbox_keeps_order_wakes_the_executor_and_stays_bounded():
+    outbox = Outbox(limit=3)
+    wakes = []
+    outbox.log('info', 'queued before anyone listens')
+    outbox.connect(lambda: wakes.append(1))
+    assert wakes == [1]  # woken at once: something was waiting
+    for k in range(4):
+        outbox.put(k)
+    assert len(wakes) == 5 and outbox.take() == [1, 2, 3] and outbox.take() == []
+
+    def broken():
+        raise RuntimeError('the guard condition is gone (shutdown)')
+    outbox.connect(broken)
+    outbox.put('after shutdown')  # never raises into the thread that puts
+    assert outbox.take() == ['after shutdown']
+
+
+class _Failing(OnlineIdentification):
+    """A policy whose steps fail."""
+
+    def step(self, obs):
+        raise FloatingPointError('injected')
+
+
+def test_the_worker_logs_counts_and_survives_a_failing_step(data):
+    outbox = Outbox()
+    ingestion = Ingestion(make_config(joints=list(JOINTS)), outbox.log)
+    predictor = Predictor(ingestion, lambda raw: None, make_config)
+    worker = SearchWorker(ingestion, predictor, outbox, policy=_Failing)
+    worker.start()
+    try:
+        assert wait_for(lambda: ingestion.drop_counts()['worker_error'] >= 2, 60.0)
+        assert worker.status.state == 'error' and 'injected' in worker.status.detail
+    finally:
+        assert worker.stop()
+    lines = [e for e in outbox.take() if isinstance(e, LogLine)]
+    failures = [e.text for e in lines if e.level == 'error']
+    assert 'identification worker failed (1 in a row), retrying in 0.5 s' in failures[0]
+    assert 'Traceback' in failures[0] and 'injected' in failures[0]
+    assert 'retrying in 1.0 s' in failures[1]  # backing off
+
+
+def test_the_worker_reports_status_and_pause(data):
+    outbox = Outbox()
+    ingestion = Ingestion(make_config(), outbox.log)
+    predictor = Predictor(ingestion, lambda raw: None, make_config)
+    worker = SearchWorker(ingestion, predictor, outbox)
+    assert worker.status == Status()
+    assert not worker.step()
+    assert worker.status.detail == 'no joint_states yet (joints unknown)'
+    assert worker.pause(True) == 0
+    assert not worker.step() and worker.status.state == 'paused'
+    worker.pause(False)
+    worker.request_reset()
+    assert not worker.step() and worker.status.state == 'waiting for data'

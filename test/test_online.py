@@ -1,0 +1,339 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The online identification policy without ROS: a fake clock, buffered data, events out.
+
+Every rule of :mod:`rkgnn_ros.core.fitting.online` is driven step by step: the clock only
+moves when a test moves it, so the tests do not depend on the machine's speed.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from rkgnn_ros.core.fitting.identify import Evolution
+from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
+                                           Observation, OnlineIdentification, OnlineSettings,
+                                           split_validation)
+from rkgnn_ros.core.fitting.validation import validation_nrmse
+from rkgnn_ros.core.model.spec import NetworkSpec
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
+from rkgnn_ros.stream_buffer import StreamBuffer
+
+JOINTS = ('j1', 'j2', 'j3')
+T0 = 1000.0
+KP, KD = (32.84, 42.05, 42.31), (42.44, 0.19, 4.86)
+
+
+class Clock:
+    """A clock that moves only when told."""
+
+    def __init__(self, now=100.0):
+        self.now = now
+
+    def __call__(self):
+        return self.now
+
+
+@pytest.fixture(scope='module')
+def data():
+    """6 s at 100 Hz of the paper's arm under its PD (every stream the node uses)."""
+    return simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 6.0,
+                    rate=100.0, joint_names=JOINTS)
+
+
+def settings(**changes):
+    base = {'case': 'unknown', 'min_window': 2.0, 'validation_fraction': 0.25,
+            'stale_timeout': 1.0, 'model_publish_period': 0.5,
+            'optimizer_settings': {'population_size': 8}, 'seed': 3}
+    base.update(changes)
+    return OnlineSettings(**base)
+
+
+def buffer_with(data, seconds, case='unknown', commands=True):
+    buffer = StreamBuffer(JOINTS, 0.01, 4.0, 0.1, need_tau=case == 'torque',
+                          need_desired=case != 'torque')
+    for k in range(int(round(seconds * 100)) + 1):
+        buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+        if commands:
+            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+    return buffer
+
+
+class Rig:
+    """A policy, its fake clock, what it said, and the observation it is given."""
+
+    def __init__(self, buffer, cfg, published=None):
+        self.clock = Clock()
+        self.statuses = []
+        self.policy = OnlineIdentification(self.clock, published=published,
+                                           on_status=self.statuses.append,
+                                           warm_start_seconds=2.0, warm_start_nfev=5)
+        self.buffer, self.settings = buffer, cfg
+        self.events = []
+        self.paused = self.reset = False
+        self.received = {'state': self.clock.now, 'command': self.clock.now}
+
+    def observe(self):
+        obs = Observation(self.settings, JOINTS, dict(self.received), self.paused, self.reset)
+        self.reset = False
+        if self.policy.data_due(obs):
+            obs = obs._replace(data=self.buffer.capture())
+        return obs
+
+    def step(self, dt=0.1, fresh=True):
+        """Advance the clock by ``dt``, keep the streams fresh, step once; return ran."""
+        self.clock.now += dt
+        if fresh:
+            self.received = {'state': self.clock.now, 'command': self.clock.now}
+        result = self.policy.step(self.observe())
+        self.events += result.events
+        return result.ran
+
+    def run(self, generations, dt=0.1, limit=200):
+        ran = 0
+        for _ in range(limit):
+            ran += self.step(dt)
+            if ran >= generations:
+                return
+        raise AssertionError(f'{ran} of {generations} generations in {limit} steps')
+
+    def of(self, kind):
+        return [e for e in self.events if isinstance(e, kind)]
+
+    def lines(self, *words, level=None):
+        return [e.text for e in self.of(LogLine)
+                if all(w in e.text for w in words) and level in (None, e.level)]
+
+    @property
+    def status(self):
+        return self.statuses[-1]
+
+
+def test_split_validation_holds_out_the_newest_fraction(data):
+    old, new = data.slice(0, 201), data.slice(300, 501)  # 2 s each, a gap between
+    train, validation, seconds = split_validation([old, new], 0.25)
+    assert seconds == pytest.approx(4.0)
+    assert [d.t[0] for d in train] == [old.t[0], new.t[0]]
+    assert validation[0].t[0] == pytest.approx(new.t[-1] - 1.0)
+    assert validation[-1].t[-1] == new.t[-1]
+    assert split_validation([old, new], 0.0)[1] == []
+    train, validation, _ = split_validation([old, new], 0.5)
+    assert train == [old] and validation == [new]
+    # a part shorter than min_samples is not split off: the segment stays for training
+    train, validation, _ = split_validation([old], 0.02, min_samples=10)
+    assert train == [old] and validation == []
+
+
+def test_waits_for_joints_then_for_min_window_then_searches(data):
+    rig = Rig(buffer_with(data, 1.0), settings())
+    obs = Observation(rig.settings, None, {})
+    assert not rig.policy.data_due(obs)
+    assert not rig.policy.step(obs).ran
+    assert rig.status.state == 'waiting for data' and 'joints unknown' in rig.status.detail
+    assert not rig.step()
+    assert rig.status.state == 'waiting for data' and 'of 2.0 s buffered' in rig.status.detail
+    rig.buffer = buffer_with(data, 3.0)
+    assert not rig.policy.data_due(Observation(rig.settings, JOINTS, rig.received))
+    rig.run(1)  # looks again WAITING_REFRESH_S later, builds the search, runs a generation
+    assert rig.lines('search started from the equation-error fit', 'case unknown')
+    assert rig.status.state == 'evolving' and rig.status.generation == 1
+
+
+def test_publishes_a_changed_best_at_most_every_period_and_reports_at_most_20_hz(data):
+    rig = Rig(buffer_with(data, 3.0), settings(model_publish_period=0.5))
+    rig.run(1)
+    first = len(rig.of(ModelUpdate))
+    for _ in range(40):  # 40 generations in 0.4 s of clock
+        rig.step(dt=0.01)
+    updates = rig.of(ModelUpdate)
+    assert first == 1 and len(updates) <= 2  # a changed best, at most every 0.5 s
+    update = updates[0]
+    assert update.model.joint_names == JOINTS and len(update.kp) == len(update.kd) == 3
+    assert update.generation == 1 and math.isfinite(update.cost)
+    assert update.validation_nrmse == update.model.info['validation_nrmse']
+    stats = rig.of(GenerationStats)
+    generations = [s.generation for s in stats]
+    assert generations == sorted(set(generations))
+    assert rig.status.generation == 41 and len(stats) <= 0.4 / 0.05 + 2  # at most 20 Hz
+    assert stats[-1].population_size == 8 and stats[-1].evaluations == 8 * stats[-1].generation
+
+
+def test_stale_streams_pause_with_one_warning_and_resume_by_themselves(data):
+    # reliability item 14, the policy's side: commands never came, then stop, then return
+    rig = Rig(buffer_with(data, 3.0, case='pd_gains'), settings(case='pd_gains', kp=KP, kd=KD))
+    rig.received = {'state': rig.clock.now}
+    rig.clock.now += 0.1
+    assert not rig.policy.step(rig.observe()).ran
+    assert rig.status.state == 'waiting for data'
+    assert 'joint_commands' in rig.status.detail
+    rig.run(2)  # commands arrive: the search starts by itself
+    generation = rig.status.generation
+    for _ in range(20):  # both streams silent for 2 s (stale_timeout 1 s)
+        assert not rig.step(dt=0.1, fresh=False) or rig.clock.now - rig.received['state'] <= 1
+    assert rig.status.state == 'stale' and 'silent' in rig.status.detail
+    assert rig.status.generation <= generation + 10  # none once stale
+    stale_generation = rig.status.generation
+    for _ in range(5):
+        assert not rig.step(dt=0.1, fresh=False)
+    assert len(rig.lines('no data for', 'the search pauses', level='warning')) == 1
+    rig.run(1)  # data returns
+    assert rig.status.generation == stale_generation + 1
+    assert rig.lines('data is flowing again', level='info')
+
+
+def test_reset_and_restarting_settings_restart_the_search(data):
+    rig = Rig(buffer_with(data, 3.0), settings())
+    rig.run(3)
+    rig.reset = True
+    rig.run(1)
+    assert rig.lines('restarting the search after generation 3: ~/reset')
+    assert rig.status.generation == 1
+    rig.run(2)
+    rig.settings = settings(version=1, seed=4)
+    rig.run(1)
+    assert rig.lines('restarting the search after generation 3: structural parameters')
+    assert rig.status.generation == 1
+
+
+def test_pause_and_max_generations_stop_generations(data):
+    rig = Rig(buffer_with(data, 3.0), settings(max_generations=3))
+    rig.run(2)
+    rig.paused = True
+    for _ in range(5):
+        assert not rig.step()
+    assert rig.status.state == 'paused' and rig.status.detail == 'paused at generation 2'
+    rig.paused = False
+    rig.run(1)
+    for _ in range(5):
+        assert not rig.step()
+    assert rig.status.state == 'finished' and rig.status.generation == 3
+
+
+def test_optimizer_settings_are_handed_over_between_generations(data):
+    rig = Rig(buffer_with(data, 3.0), settings())
+    rig.run(1)
+    rig.settings = settings(optimizer_settings={'population_size': 12, 'sigma': 0.3})
+    rig.run(1)
+    assert rig.lines('generation 2 takes the new settings', 'es.population_size=12',
+                     'es.sigma=0.3')
+    assert rig.of(GenerationStats)[-1].population_size == 12
+    rig.settings = settings(optimizer='paper',
+                            optimizer_settings={'population_size': 10, 'sigma': 0.3})
+    rig.run(1)
+    assert rig.lines("generation 3 runs es.algorithm 'paper'", 'population 10')
+
+
+def test_case_torque_fits_the_pd_law_and_publishes_the_arm_closed_with_it(data):
+    rig = Rig(buffer_with(data, 3.0, case='torque'), settings(case='torque'))
+    rig.run(3)
+    assert rig.lines('controller law fitted', 'closed loop')
+    assert rig.lines('search started', 'case pd_gains')  # a case-2 search with fitted gains
+    for _ in range(10):
+        rig.step(dt=0.2)
+    update = rig.of(ModelUpdate)[-1]
+    assert update.model.case == 'torque'  # the arm model, with the law in its info
+    law = update.model.info['controller_law']
+    # exact data: the law's own residual is at the level of rounding
+    np.testing.assert_allclose(law['kp'], KP, rtol=1e-6)
+    np.testing.assert_allclose(update.kp, KP, rtol=1e-6)
+    assert update.loop is not None and update.loop.model is update.model
+    assert update.loop.closed.case == 'pd_gains'
+    # commands gone: too few pairs to refit, so the law and the search stay (no restart);
+    # the closed-loop search needs paired data and waits for it
+    rig.buffer = buffer_with(data, 3.0, case='torque', commands=False)
+    before = len(rig.lines('restarting the search'))
+    for _ in range(3):
+        assert not rig.step(dt=1.0)
+    assert len(rig.lines('restarting the search')) == before
+    assert rig.status.state == 'waiting for data'
+
+
+def test_law_that_stops_explaining_the_torque_restarts_open_loop(data):
+    rig = Rig(buffer_with(data, 3.0, case='torque'), settings(case='torque'))
+    rig.run(3)
+    rig.run(8, dt=0.1)
+    assert rig.of(ModelUpdate)
+    noisy = buffer_with(data, 3.0, case='torque', commands=False)
+    rng = np.random.default_rng(0)
+    for k in range(301):  # commands unrelated to the torque: no PD law explains it
+        noisy.add_command(T0 + data.t[k], data.theta_d[k] + rng.normal(0, 0.5, 3),
+                          data.theta_d_dot[k])
+    rig.buffer = noisy
+    rig.run(1, dt=1.0)
+    assert rig.lines('no longer explain the measured torque', level='warning')
+    assert rig.lines('restarting the search', 'the controller law changed')
+    assert rig.of(LoopUpdate)[-1].loop is None
+
+
+def test_three_errors_in_a_row_restart_the_search(data):
+    rig = Rig(buffer_with(data, 3.0), settings())
+    rig.run(2)
+    error = FloatingPointError('injected')
+    assert rig.policy.report_error(error, 1) == []
+    assert rig.status.state == 'error' and 'injected' in rig.status.detail
+    rig.policy.report_error(error, 2)
+    events = rig.policy.report_error(error, 3)
+    assert [e.text for e in events if 'restarting the search' in e.text]
+    rig.run(1)
+    assert rig.status.state == 'evolving' and rig.status.generation == 1
+
+
+def test_a_diverging_best_warns_at_most_once_a_second(data, monkeypatch):
+    rig = Rig(buffer_with(data, 3.0), settings())
+    rig.run(2)
+    slow, refreshes = [2.0], []
+
+    def diverging_data(evo, datasets):  # the first takes 2 s of clock; the best diverges
+        refreshes.append(rig.clock.now)
+        rig.clock.now += slow.pop() if slow else 0.0
+        evo.optimizer.best_cost = math.inf
+    monkeypatch.setattr(Evolution, 'set_data', diverging_data)
+    rig.step(dt=1.0)  # the slow refresh warns ...
+    rig.step(dt=0.1)  # ... and the next is due at once (1 s after the slow one began)
+    rig.step(dt=1.0)
+    warnings = rig.lines('the best model diverges on the new data window', level='warning')
+    assert len(refreshes) == 3
+    assert len(warnings) == 2  # the second refresh came 0.1 s after a warning: throttled
+
+
+def test_a_loaded_model_starts_the_search_and_is_not_published_again(data):
+    buffer = buffer_with(data, 3.0)
+    spec = NetworkSpec.recommended(3, 'unknown')
+    loaded = Evolution(spec, [buffer.snapshot(10)[0]], seed=0).best_model(JOINTS)
+    rig = Rig(buffer, settings(), published=loaded)
+    rig.run(1)
+    assert rig.lines('search started from the loaded model')
+    republished = [u for u in rig.of(ModelUpdate)
+                   if np.array_equal(u.model.genome, loaded.genome)]
+    assert republished == []  # it is published already: only a changed best is
+
+
+def test_the_equation_error_fit_runs_again_when_the_window_grew(data):
+    rig = Rig(buffer_with(data, 2.2), settings(min_window=1.5, validation_fraction=0.0))
+    rig.run(1)
+    assert rig.lines('search started from the equation-error fit')
+    rig.buffer = buffer_with(data, 4.0)  # 1.5 x the data of the first fit
+    rig.run(1, dt=1.0)
+    assert rig.lines('equation-error fit again on 4.0 s of data')
+
+
+def test_validation_scores_a_model_on_the_held_out_segments(data):
+    model = Evolution(NetworkSpec.recommended(3, 'unknown'), [data], seed=0).best_model(JOINTS)
+    assert math.isnan(validation_nrmse(model, []))
+    score = validation_nrmse(model, [data.slice(0, 100), data.slice(200, 300)])
+    assert score > 0.0

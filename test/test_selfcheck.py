@@ -1,0 +1,166 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The self-check: predictions scored against the baselines, and what is fit to publish."""
+
+import numpy as np
+import pytest
+from rkgnn_ros.core.selfcheck import baseline, rollout_spread, SelfCheck
+
+N = 2
+RATE = 100.0
+OFFSETS = np.arange(0.0, 2.01, 0.05)
+
+
+def motion(t):
+    """Return the arm's true θ (..., 2): it follows θd with a 0.1 s delay."""
+    t = np.asarray(t, dtype=float)[..., None]
+    return np.concatenate([np.sin(1.5 * (t - 0.1)), 0.5 * np.cos(0.9 * (t - 0.1))], axis=-1)
+
+
+def desired(t):
+    """Return the commanded θd (..., 2)."""
+    t = np.asarray(t, dtype=float)[..., None]
+    return np.concatenate([np.sin(1.5 * t), 0.5 * np.cos(0.9 * t)], axis=-1)
+
+
+def run(check, seconds, model, start=0.0, predict_every=10):
+    """Feed states and commands at 100 Hz and a prediction every 0.1 s; return decisions."""
+    decisions = []
+    for k in range(int(round(start * RATE)), int(round((start + seconds) * RATE))):
+        t = k / RATE
+        check.add_state(t, motion(t))
+        check.add_reference(t, desired(t))
+        if k % predict_every == 0:
+            decision = check.decide()
+            decisions.append(decision)
+            check.add_prediction(t, OFFSETS, model(t), decision.source)
+    return decisions
+
+
+def perfect(t):
+    return motion(t + OFFSETS)
+
+
+def broken(t):
+    return motion(t + OFFSETS) + np.array([0.3, -0.2])
+
+
+def test_a_perfect_model_earns_publication_and_scores_zero():
+    check = SelfCheck(N, min_scored=5)
+    decisions = run(check, 15.0, perfect)
+    assert decisions[0].source != 'model' and not decisions[0].scored
+    assert 'not been scored yet' in decisions[0].reason
+    assert decisions[-1].source == 'model' and decisions[-1].scored
+    scores = check.scores()
+    for h in (0.5, 1.0, 2.0):
+        assert scores[h]['model'] < 1e-12
+        assert scores[h]['count'] >= 90                 # 10 s window, a prediction per 0.1 s
+        assert scores[h]['hold_last'] > scores[h]['follow_reference'] > 0.0
+        assert scores[h]['published'] < 1e-12
+
+
+def test_a_broken_model_is_replaced_by_the_better_baseline_with_the_reason():
+    check = SelfCheck(N)
+    decisions = run(check, 15.0, broken)
+    last = decisions[-1]
+    assert last.source == 'follow_reference' and last.is_baseline and last.scored
+    assert "the model's" in last.reason and 'follow_reference' in last.reason
+    scores = check.scores()
+    # what was published is the baseline's error, not the model's
+    assert scores[2.0]['published'] == pytest.approx(scores[2.0]['follow_reference'], rel=1e-9)
+    assert scores[2.0]['model'] > 3 * scores[2.0]['follow_reference']
+
+
+def test_switching_back_needs_the_model_to_match_the_baseline():
+    check = SelfCheck(N, margin=0.2)
+    run(check, 12.0, broken)
+    assert check.decide().source == 'follow_reference'
+    lag = 0.1       # the follow-reference baseline's error: the arm's 0.1 s delay
+
+    def nearly(t):   # 10 % worse than following the reference: within the margin
+        return motion(t + OFFSETS - 1.1 * lag)
+
+    decisions = run(check, 12.0, nearly, start=12.0)
+    ratio = check.scores()[2.0]['model'] / check.scores()[2.0]['follow_reference']
+    assert 1.0 < ratio < 1.2
+    assert decisions[-1].source == 'follow_reference'   # on a baseline it must match it
+    decisions = run(check, 12.0, perfect, start=24.0)
+    assert decisions[-1].source == 'model'
+    assert sum('horizon again' in d.reason for d in decisions) == 1     # one switch back
+    fresh = SelfCheck(N, margin=0.2)
+    assert run(fresh, 12.0, nearly)[-1].source == 'model'   # never switched: the margin
+
+
+def test_without_commands_hold_last_is_the_only_baseline():
+    check = SelfCheck(N)
+    for k in range(1500):
+        t = k / RATE
+        check.add_state(t, motion(t))
+        if k % 10 == 0:
+            wrong = motion(t + OFFSETS) + 2.0               # worse than standing still
+            check.add_prediction(t, OFFSETS, wrong, check.decide().source)
+    decision = check.decide()
+    assert decision.source == 'hold_last'
+    assert 'follow_reference' not in check.scores()[1.0]
+
+
+def test_uncertainty_is_the_recent_error_per_horizon():
+    check = SelfCheck(N)
+    run(check, 15.0, broken)
+    rmse = check.rmse('model')
+    sigma = check.uncertainty([0.0, 0.5, 0.75, 2.0, 3.0], 'model')
+    np.testing.assert_allclose(sigma[0], 0.0)
+    np.testing.assert_allclose(sigma[1], rmse[0.5])
+    np.testing.assert_allclose(sigma[2], 0.5 * (rmse[0.5] + rmse[1.0]))
+    np.testing.assert_allclose(sigma[3], rmse[2.0])
+    assert np.all(sigma[4] >= sigma[3])
+    np.testing.assert_allclose(rmse[2.0], [0.3, 0.2], rtol=1e-9)
+    assert np.all(np.isnan(SelfCheck(N).uncertainty([1.0])))
+
+
+def test_bad_input_is_counted_and_memory_stays_bounded():
+    check = SelfCheck(N, window=2.0)
+    check.add_state(1.0, [0.0, 0.0])
+    check.add_state(0.5, [0.0, 0.0])                    # older than the last
+    check.add_state(2.0, [np.nan, 0.0])
+    check.add_state(3.0, [0.0, 0.0, 0.0])
+    check.add_prediction(1.0, OFFSETS, np.full((OFFSETS.size, N), np.inf))
+    assert check.rejected == {'non_finite': 2, 'out_of_order': 1, 'wrong_shape': 1}
+    with pytest.raises(ValueError, match='source'):
+        check.add_prediction(1.0, OFFSETS, np.zeros((OFFSETS.size, N)), 'guess')
+    run(check, 30.0, perfect, start=2.0)
+    assert len(check._states) <= (2.0 + 2.0 + 1.0) * RATE + 2
+    assert len(check._t0) <= (2.0 + 2.0 + 1.0) * 10 + 2
+
+
+def test_a_new_plan_replaces_the_tail_of_the_old_one():
+    check = SelfCheck(1)
+    check.add_reference(np.arange(0.0, 3.0, 0.5), np.zeros((6, 1)))
+    check.add_reference(np.arange(1.0, 4.0, 0.5), np.ones((6, 1)))
+    values = check._reference.interp(np.array([0.5, 1.0, 3.5]))
+    np.testing.assert_array_equal(values[:, 0], [0.0, 1.0, 1.0])
+
+
+def test_rollout_spread_and_baselines():
+    rollouts = np.stack([np.full((4, 2), v) for v in (1.0, 2.0, 3.0, np.nan)])
+    np.testing.assert_allclose(rollout_spread(rollouts), 1.0)
+    assert np.all(np.isnan(rollout_spread(rollouts[2:])))
+    theta, theta_dot = baseline('hold_last', [0.0, 1.0], [0.3, 0.4])
+    np.testing.assert_array_equal(theta, [[0.3, 0.4], [0.3, 0.4]])
+    assert np.all(theta_dot == 0.0)
+    plan = np.arange(4.0).reshape(2, 2)
+    assert baseline('follow_reference', [0.0, 1.0], None, plan, plan)[0] is not None
+    with pytest.raises(ValueError, match='theta_d'):
+        baseline('follow_reference', [0.0], [0.0, 0.0])
