@@ -52,7 +52,8 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
+from .controller import closed_loop_model, fit_pd_law, open_loop_model
+from .controller_laws import PDLaw
 from .identify import Evolution
 from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
                              ModelUpdate, Observation, OnlineSettings, Status, StepResult,
