@@ -26,9 +26,13 @@ Writes ``bench/results/structure.json`` with
   docstring included, decorators not);
 - ``node_module_lines``: the lines of ``rkgnn_ros/identifier.py``;
 - ``rkg_step_definitions``: how many functions define a Runge-Kutta-Gill update, found by
-  scanning every function under ``rkgnn_ros/`` for the coefficients that only Gill's form
-  uses (alpha, beta, gamma of the paper: as names such as ``ALPHA`` or ``rkg.BETA``, or as
-  their numeric values), each listed by file and function;
+  scanning every function under ``rkgnn_ros/`` for the coefficients that only this method
+  uses: Gill's alpha, beta, gamma by name (``ALPHA``, ``rkg.BETA``), any coefficient a
+  module imports from ``integration.rkg`` (``D``, ``E``, ``G``, the tableau's ``A``, ``B``)
+  by its imported name, and the numeric values of alpha, beta, gamma, d, e, g and of the
+  tableau's entries that involve √2; each is listed by file and function. A module-level
+  table built from coefficients imported from ``rkg`` (a stepping method as data, such as
+  rows of Gill's stages for a generic stage loop) counts too, listed by file and name;
 
 and, to say where the limits (600 lines a module, 400 a class) are not met, every module
 and class over them. Nothing here imports the package: the files are parsed, not run.
@@ -49,7 +53,12 @@ CLASS_LIMIT = 400
 SQRT2 = math.sqrt(2.0)
 #: Gill's alpha, beta, gamma: the coefficients of the accumulator form and nothing else.
 GILL_NAMES = {'ALPHA', 'BETA', 'GAMMA'}
-GILL_VALUES = ((SQRT2 - 1.0) / SQRT2, -2.0 + 3.0 / SQRT2, -(2.0 + 3.0 / SQRT2))
+#: Names of coefficients that count where a module imports them from ``integration.rkg``.
+RKG_COEFFICIENTS = {'ALPHA', 'BETA', 'GAMMA', 'D', 'E', 'G', 'A', 'B'}
+#: |value| of alpha, beta, gamma, d, e, g and the tableau's √2 entries (A20, A21, B1, B2).
+GILL_VALUES = (abs((SQRT2 - 1.0) / SQRT2), abs(-2.0 + 3.0 / SQRT2), 2.0 + 3.0 / SQRT2,
+               (SQRT2 + 1.0) / SQRT2, 2.0 - SQRT2, 2.0 + SQRT2, (SQRT2 - 1.0) / 2.0,
+               (2.0 - SQRT2) / 2.0, (2.0 - SQRT2) / 6.0, (2.0 + SQRT2) / 6.0)
 
 
 def python_files(package):
@@ -61,17 +70,48 @@ def python_files(package):
     return found
 
 
-def uses_gill_coefficients(node):
-    """Return whether a function's body names Gill's alpha, beta or gamma, or their values."""
+def imported_coefficients(tree):
+    """Return the local names a module binds to RKG coefficients imported from ``rkg``."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.module or '').split('.')[-1] == 'rkg':
+            names |= {a.asname or a.name for a in node.names if a.name in RKG_COEFFICIENTS}
+    return names
+
+
+def uses_gill_coefficients(node, imported=frozenset()):
+    """
+    Return whether a function's body uses a coefficient of the RKG method.
+
+    By name (Gill's alpha, beta, gamma, or a coefficient the module imported from ``rkg``,
+    ``imported``) or by value (:data:`GILL_VALUES`).
+    """
     for child in ast.walk(node):
-        if isinstance(child, ast.Name) and child.id in GILL_NAMES:
+        if isinstance(child, ast.Name) and (child.id in GILL_NAMES or child.id in imported):
             return True
         if isinstance(child, ast.Attribute) and child.attr in GILL_NAMES:
             return True
         if isinstance(child, ast.Constant) and isinstance(child.value, float):
-            if any(abs(child.value - v) < 1e-6 for v in GILL_VALUES):
+            if any(abs(abs(child.value) - v) < 1e-6 for v in GILL_VALUES):
                 return True
     return False
+
+
+def coefficient_tables(tree, imported):
+    """Return the names of module-level values built from imported RKG coefficients."""
+    found = []
+    for stmt in tree.body:
+        if isinstance(stmt, ast.Assign):
+            targets, value = stmt.targets, stmt.value
+        elif isinstance(stmt, ast.AnnAssign) and stmt.value is not None:
+            targets, value = [stmt.target], stmt.value
+        else:
+            continue
+        uses = any(isinstance(child, ast.Name) and child.id in imported
+                   for child in ast.walk(value))
+        if uses:
+            found += [t.id for t in targets if isinstance(t, ast.Name)]
+    return found
 
 
 def measure(root):
@@ -84,11 +124,13 @@ def measure(root):
             text = f.read()
         modules.append((text.count('\n'), rel))
         tree = ast.parse(text, filename=rel)
+        imported = imported_coefficients(tree)
+        gill += [f'{rel}:{name}' for name in coefficient_tables(tree, imported)]
         for node in ast.walk(tree):
             if isinstance(node, ast.ClassDef):
                 classes.append((node.end_lineno - node.lineno + 1, f'{rel}:{node.name}'))
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                if uses_gill_coefficients(node):
+                if uses_gill_coefficients(node, imported):
                     gill.append(f'{rel}:{node.name}')
     modules.sort(reverse=True)
     classes.sort(reverse=True)
