@@ -65,7 +65,8 @@ from rkgnn_ros.core.control.feedforward import plan_feedforward  # noqa: E402
 from rkgnn_ros.core.control.gate import paired_torques, torque_error  # noqa: E402
 from rkgnn_ros.core.differentiate import centred_derivative  # noqa: E402
 from rkgnn_ros.core.fitting.identify import fit_best  # noqa: E402
-from rkgnn_ros.core.sim.plant import ArmParameters, PlanarArm  # noqa: E402
+from rkgnn_ros.core.sim.parameters import ArmParameters  # noqa: E402
+from rkgnn_ros.core.sim.plant import PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.servo import FeedforwardTrack, Servo  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate, SimulationError  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import (Chirp, hanging_pose, heldout_reference,  # noqa: E402

@@ -39,7 +39,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.fitting.identify import Evolution  # noqa: E402
 from rkgnn_ros.core.fitting.refine import refine_equation_error  # noqa: E402
-from rkgnn_ros.core.model.network import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import paper_reference  # noqa: E402

@@ -49,7 +49,7 @@ import time
 import numba
 import numpy as np
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
-from rkgnn_ros.core.model.network import NetworkSpec
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference

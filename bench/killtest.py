@@ -44,7 +44,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.core.fitting.identify import RKGNNModel  # noqa: E402
+from rkgnn_ros.core.model.model import RKGNNModel  # noqa: E402
 from rkgnn_ros.monitor import config, executable, NodeProcesses  # noqa: E402
 
 

@@ -67,7 +67,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.fitting.identify import Evolution, fit_best, nrmse  # noqa: E402
 from rkgnn_ros.core.fitting.refine import refine_equation_error  # noqa: E402
-from rkgnn_ros.core.model.network import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.simulate import NoiseModel, simulate, simulate_open_loop  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import (Chirp, hanging_pose, heldout_reference,  # noqa: E402

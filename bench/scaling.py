@@ -41,8 +41,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.fitting.fitness import FitnessProblem  # noqa: E402
-from rkgnn_ros.core.model.network import NetworkSpec  # noqa: E402
-from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm  # noqa: E402
+from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.sim.parameters import ArmParameters  # noqa: E402
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import paper_reference  # noqa: E402
 

@@ -59,7 +59,8 @@ sys.path.insert(0, os.path.dirname(HERE))
 from rkgnn_ros.core.data import Dataset  # noqa: E402
 from rkgnn_ros.core.differentiate import causal_derivative, centred_derivative  # noqa: E402
 from rkgnn_ros.core.fitting.controller import (closed_loop, fit_controller,  # noqa: E402
-                                               fit_pd_law, TrigFeatures)
+                                               fit_pd_law)
+from rkgnn_ros.core.fitting.controller_laws import TrigFeatures  # noqa: E402
 from rkgnn_ros.core.fitting.identify import fit_best  # noqa: E402
 from rkgnn_ros.core.selfcheck import range_normalised_rmse  # noqa: E402
 from rkgnn_ros.core.sim.plant import PlanarArm  # noqa: E402

@@ -122,9 +122,8 @@ class IdentifierNode(Node):
         config = self._params.config
 
         # No QoS-event handlers: rclpy adds each one to the wait set of every spin. Our
-        # subscriptions are best effort and our publishers volatile or transient-local
-        # reliable, so the incompatible-QoS events they would log cannot arise with usual
-        # peers.
+        # subscriptions are best effort and our publishers volatile or transient-local reliable,
+        # so the incompatible-QoS events they would log cannot arise with usual peers.
         pub_events = PublisherEventCallbacks(use_default_callbacks=False)
         sub_events = SubscriptionEventCallbacks(use_default_callbacks=False)
         stream_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
@@ -159,8 +158,7 @@ class IdentifierNode(Node):
         if model is not None:
             self._publishing.publish_model(model_update(model))
 
-        # the two 1 kHz-capable streams: raw CDR, taken by the ingest thread, never by the
-        # executor (PolledGroup)
+        # the two 1 kHz-capable streams: raw CDR, taken by the ingest thread (PolledGroup)
         polled = PolledGroup()
         state_sub = self.create_subscription(
             JointState, 'joint_states', lambda raw: None, stream_qos, callback_group=polled,

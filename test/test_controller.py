@@ -18,11 +18,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.fitting.controller import (closed_loop, closed_loop_model, ControllerLaw,
-                                               fit_controller, fit_pd_law, PDLaw, RBFFeatures,
-                                               TrigFeatures)
-from rkgnn_ros.core.fitting.identify import RKGNNModel
-from rkgnn_ros.core.model.network import NetworkSpec, Scales
+from rkgnn_ros.core.fitting.controller import (closed_loop, closed_loop_model, fit_controller,
+                                               fit_pd_law)
+from rkgnn_ros.core.fitting.controller_laws import (ControllerLaw, PDLaw, RBFFeatures,
+                                                    TrigFeatures)
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.model.scales import Scales
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.sensors import SensorModel
 from rkgnn_ros.core.sim.servo import Servo

@@ -157,6 +157,6 @@ def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(runnin
         log = (tmp_path / f'{name}.log').read_text()
         assert 'Traceback' not in log, log[-3000:]
     # the identifier saves its model at shutdown, atomically, in a loadable form
-    from rkgnn_ros.core.fitting.identify import RKGNNModel
+    from rkgnn_ros.core.model.model import RKGNNModel
     model = RKGNNModel.load(tmp_path / 'model.yaml')
     assert model.n_joints == 3

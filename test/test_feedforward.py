@@ -18,9 +18,11 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.control.feedforward import (computed_torque, feedforward_torque,
                                                 hermite_acceleration, plan_feedforward)
-from rkgnn_ros.core.fitting.identify import RKGNNModel
-from rkgnn_ros.core.model.network import NetworkSpec, Scales
-from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.model.scales import Scales
+from rkgnn_ros.core.model.spec import NetworkSpec
+from rkgnn_ros.core.sim.parameters import ArmParameters
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from scipy.integrate import solve_ivp

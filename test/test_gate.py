@@ -22,9 +22,11 @@ from rkgnn_ros.core.control.feedforward import plan_feedforward
 from rkgnn_ros.core.control.gate import (FeedforwardGate, GateSettings,
                                          torque_scale_from_effort, torque_scale_problem)
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.fitting.identify import RKGNNModel
-from rkgnn_ros.core.model.network import NetworkSpec, Scales
-from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.model.scales import Scales
+from rkgnn_ros.core.model.spec import NetworkSpec
+from rkgnn_ros.core.sim.parameters import ArmParameters
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import heldout_reference, paper_reference
 

@@ -35,7 +35,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification, Status
-from rkgnn_ros.core.model.network import NetworkSpec
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference

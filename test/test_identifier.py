@@ -46,7 +46,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
-from rkgnn_ros.core.fitting.identify import RKGNNModel
+from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference

@@ -16,10 +16,11 @@
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.fitting.linear import (certify_inertia, Layout, LinearDynamics,
-                                           regressor, Samples, samples_from_datasets,
+from rkgnn_ros.core.fitting.linear import (LinearDynamics, Samples, samples_from_datasets,
                                            torque_nrmse)
 from rkgnn_ros.core.model.trig import TrigBasis
+from rkgnn_ros.core.model.trig_certificate import certify_inertia
+from rkgnn_ros.core.model.trig_dynamics import Layout, regressor
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import NoiseModel, simulate, simulate_open_loop
 from rkgnn_ros.core.sim.trajectories import hanging_pose, paper_reference, SumOfSines

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The function network N_f: genome layout and sizes, decoding, the batched numpy evaluation.
+The function network N_f evaluated in numpy: inertia modes, terms, by-hand systems.
 
 Plain pytest, no middleware. Hand-built genomes with unit scales stand for systems whose
 accelerations are known in closed form.
@@ -21,267 +21,13 @@ accelerations are known in closed form.
 
 import math
 
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from model_helpers import set_block, unit_scales
 import numpy as np
 import pytest
-from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.model.network import (BatchedNetwork, check_genome, genome_report, NetworkSpec,
-                                          pair_products, Scales)
+from rkgnn_ros.core.model.network import BatchedNetwork, pair_products
+from rkgnn_ros.core.model.spec import NetworkSpec
 
 CASES = ('torque', 'pd_gains', 'unknown')
-
-
-def unit_scales(n, **overrides):
-    """Scales of 1 everywhere (θ centred on 0): genome values are then physical values."""
-    values = {name: np.ones(n) for name in ('theta_spread', 'velocity', 'acceleration',
-                                            'torque', 'error', 'error_rate')}
-    values['theta_center'] = np.zeros(n)
-    values.update({k: np.asarray(v, dtype=float) for k, v in overrides.items()})
-    return Scales(**values)
-
-
-def set_block(spec, genome, name, values):
-    """Write ``values`` (reshaped to the block's shape) into ``genome`` in place."""
-    block = next(b for b in spec.blocks() if b.name == name)
-    genome[block.start:block.stop] = np.asarray(values, dtype=float).reshape(block.shape).ravel()
-
-
-def expected_size(n, case='torque', k=3, kt=3, bias=False, friction=True, linear=False,
-                  velocity='learned'):
-    """Genome length from first principles (see the network.py docstring)."""
-    n_out = n * (n + 1) // 2 + n  # M's triangle and G
-    if velocity == 'learned':
-        n_out += n * (n * (n - 1) // 2) + n * n  # B and C
-    size = k * (n + 1 + n_out)  # per θ unit: n centre coordinates, a width, the weights
-    size += n_out if bias else 0
-    size += 2 * n if friction else 0
-    if case == 'unknown':
-        size += 2 * 3 * n * kt  # P and D nets: (centre, width, weight) per joint and unit
-        size += 2 * n if linear else 0
-    return size
-
-
-# ----- genome layout
-
-def test_paper_genome_sizes_match_the_paper():
-    # section 4: "In the cases 1 and 2, 99 elements and in case 3, 153 elements"
-    assert NetworkSpec.paper(3, 'torque').genome_size == 99
-    assert NetworkSpec.paper(3, 'pd_gains').genome_size == 99
-    assert NetworkSpec.paper(3, 'unknown').genome_size == 153
-    assert NetworkSpec.paper().genome_size == 99
-
-
-@pytest.mark.parametrize('n, case, size', [
-    (1, 'torque', 3 * (1 + 1 + 3) + 2), (2, 'torque', 46), (2, 'pd_gains', 46),
-    (2, 'unknown', 82), (5, 'torque', 313), (5, 'unknown', 403), (6, 'torque', 3 * 160 + 12)])
-def test_paper_structure_size_for_general_n(n, case, size):
-    spec = NetworkSpec.paper(n, case)
-    assert spec.genome_size == size == expected_size(n, case)
-    assert spec.n_outputs == n * (n + 1) // 2 + n * n * (n - 1) // 2 + n * n + n
-    assert spec.n_pairs == n * (n - 1) // 2
-
-
-@settings(max_examples=60, deadline=None)
-@given(n=st.integers(1, 7), case=st.sampled_from(CASES), k=st.integers(0, 4),
-       kt=st.integers(0, 3), bias=st.booleans(), friction=st.booleans(),
-       linear=st.booleans(), inertia=st.sampled_from(('penalty', 'cholesky')),
-       velocity=st.sampled_from(('learned', 'christoffel')))
-def test_genome_size_formula(n, case, k, kt, bias, friction, linear, inertia, velocity):
-    if k == 0 and not bias:
-        bias = True
-    if case == 'unknown' and kt == 0:
-        linear = True
-    spec = NetworkSpec(n, case, theta_units=k, torque_units=kt, inertia=inertia, bias=bias,
-                       friction=friction, torque_linear=linear, velocity=velocity)
-    assert spec.genome_size == expected_size(n, case, k, kt, bias, friction, linear, velocity)
-    # the blocks tile the genome: contiguous, in order, no gaps, sizes = product of shapes
-    blocks = spec.blocks()
-    assert blocks[0].start == 0
-    for before, after in zip(blocks, blocks[1:]):
-        assert after.start == before.stop
-    assert blocks[-1].stop == spec.genome_size
-    assert all(b.size == math.prod(b.shape) for b in blocks)
-    assert len({b.name for b in blocks}) == len(blocks)
-    assert sum(size for _, _, size in genome_report(spec)) == spec.genome_size
-    assert spec.initial_genome().shape == (spec.genome_size,)
-
-
-def test_block_layout_of_the_full_structure():
-    spec = NetworkSpec(3, 'unknown', theta_units=2, torque_units=4, bias=True,
-                       torque_linear=True)
-    layout = [(b.name, b.shape, b.start, b.stop) for b in spec.blocks()]
-    n_out = 27
-    starts = np.cumsum([0, 6, 2, n_out * 2, n_out, 6, 36, 36])
-    assert layout == [
-        ('theta_centres', (2, 3), starts[0], starts[1]),
-        ('theta_widths', (2,), starts[1], starts[2]),
-        ('theta_weights', (n_out, 2), starts[2], starts[3]),
-        ('theta_bias', (n_out,), starts[3], starts[4]),
-        ('friction', (2, 3), starts[4], starts[5]),
-        ('p_net', (3, 3, 4), starts[5], starts[6]),
-        ('d_net', (3, 3, 4), starts[6], starts[7]),
-        ('pd_linear', (2, 3), starts[7], starts[7] + 6),
-    ]
-    assert spec.genome_size == starts[7] + 6
-
-
-def test_output_slices_tile_the_output_vector():
-    spec = NetworkSpec.paper(4)
-    sl = spec.output_slices()
-    assert (sl['inertia'].start, sl['inertia'].stop) == (0, 10)
-    assert (sl['coriolis'].start, sl['coriolis'].stop) == (10, 10 + 4 * 6)
-    assert (sl['centrifugal'].start, sl['centrifugal'].stop) == (34, 34 + 16)
-    assert (sl['gravity'].start, sl['gravity'].stop) == (50, 54)
-    assert spec.n_outputs == 54
-    assert spec.output_scales(unit_scales(4)).shape == (54,)
-    # V from M's Christoffel symbols: no B and C outputs
-    spec = NetworkSpec(4, velocity='christoffel')
-    sl = spec.output_slices()
-    assert (sl['gravity'].start, sl['gravity'].stop) == (10, 14)
-    assert sl['coriolis'].stop - sl['coriolis'].start == 0
-    assert sl['centrifugal'].stop - sl['centrifugal'].start == 0
-    assert spec.n_outputs == 14
-
-
-def test_recommended_structure_is_smaller_than_the_papers():
-    # 3 units, bias, V from M: 3 × (3 + 1 + 9) + 9 + 6 = 54 elements against 126 with B, C
-    spec = NetworkSpec.recommended(3, 'torque')
-    assert spec.genome_size == expected_size(3, bias=True, velocity=spec.velocity)
-    assert spec.inertia == 'cholesky'
-
-
-@pytest.mark.parametrize('case', CASES)
-def test_decode_shapes(case):
-    n, k, kt, pop = 3, 4, 2, 5
-    spec = NetworkSpec(n, case, theta_units=k, torque_units=kt, bias=True,
-                       torque_linear=True)
-    scales = unit_scales(n)
-    genomes = np.random.default_rng(0).standard_normal((pop, spec.genome_size))
-    p = spec.decode(genomes, scales)
-    kt_used = kt if case == 'unknown' else 0
-    expected = {
-        'centres': (pop, k, n), 'inv_width2': (pop, k), 'weights': (pop, spec.n_outputs, k),
-        'bias': (pop, spec.n_outputs), 'viscous': (pop, n), 'coulomb': (pop, n),
-        'p_centres': (pop, n, kt_used), 'p_inv_width2': (pop, n, kt_used),
-        'p_weights': (pop, n, kt_used), 'd_centres': (pop, n, kt_used),
-        'd_inv_width2': (pop, n, kt_used), 'd_weights': (pop, n, kt_used),
-        'kp': (pop, n), 'kd': (pop, n)}
-    assert {key: value.shape for key, value in p.items()} == expected
-    # one genome decodes to a population of one
-    single = spec.decode(genomes[2], scales)
-    for key in expected:
-        np.testing.assert_array_equal(single[key][0], p[key][2])
-
-
-def test_decode_maps_the_normalised_genome_to_physical_units():
-    n = 2
-    scales = Scales(theta_center=[-1.0, 0.5], theta_spread=[0.3, 0.4], velocity=[2.0, 4.0],
-                    acceleration=[5.0, 10.0], torque=[3.0, 1.0], error=[0.1, 0.2],
-                    error_rate=[0.5, 0.25])
-    spec = NetworkSpec(n, 'unknown', theta_units=1, torque_units=1, torque_linear=True)
-    g = np.zeros(spec.genome_size)
-    set_block(spec, g, 'theta_centres', [[1.0, -2.0]])
-    set_block(spec, g, 'theta_widths', [0.5])
-    set_block(spec, g, 'friction', [[-1.0, 2.0], [3.0, -4.0]])
-    set_block(spec, g, 'p_net', [[[0.5], [1.0]], [[0.0], [0.0]], [[2.0], [-1.0]]])
-    set_block(spec, g, 'pd_linear', [[1.0, 2.0], [3.0, 4.0]])
-    p = spec.decode(g, scales)
-    np.testing.assert_allclose(p['centres'][0], [[-1.0 + 0.3, 0.5 - 0.8]])
-    np.testing.assert_allclose(p['inv_width2'][0], [math.exp(-1.0) / 0.25])  # |spread|² = .25
-    # friction is |g| times its scale: never negative damping
-    np.testing.assert_allclose(p['viscous'][0], [0.1 * 3.0 / 2.0 * 1.0, 0.1 * 1.0 / 4.0 * 2.0])
-    np.testing.assert_allclose(p['coulomb'][0], [0.1 * 3.0 * 3.0, 0.1 * 1.0 * 4.0])
-    np.testing.assert_allclose(p['p_centres'][0, :, 0], [0.05, 0.2])
-    np.testing.assert_allclose(p['p_weights'][0, :, 0], [6.0, -1.0])
-    np.testing.assert_allclose(p['kp'][0], [3.0 / 0.1 * 1.0, 1.0 / 0.2 * 2.0])
-    np.testing.assert_allclose(p['kd'][0], [3.0 / 0.5 * 3.0, 1.0 / 0.25 * 4.0])
-
-
-def test_decode_rejects_a_wrong_length():
-    spec = NetworkSpec.paper(3)
-    with pytest.raises(ValueError, match=r'shape \(P, 99\)'):
-        spec.decode(np.zeros(98), unit_scales(3))
-    with pytest.raises(ValueError, match=r'shape \(P, 99\)'):
-        spec.decode(np.zeros((2, 2, 99)), unit_scales(3))
-
-
-@pytest.mark.parametrize('kwargs, message', [
-    ({'n_joints': 0}, 'n_joints must be an integer >= 1'),
-    ({'n_joints': -2}, 'n_joints must be an integer >= 1'),
-    ({'n_joints': 2.5}, 'n_joints must be an integer >= 1'),
-    ({'n_joints': '3'}, 'n_joints must be an integer >= 1'),
-    ({'n_joints': 3, 'case': 'torques'}, 'case must be one of'),
-    ({'n_joints': 3, 'inertia': 'spd'}, 'inertia must be one of'),
-    ({'n_joints': 3, 'theta_units': -1}, 'theta_units and torque_units must be >= 0'),
-    ({'n_joints': 3, 'torque_units': -1}, 'theta_units and torque_units must be >= 0'),
-    ({'n_joints': 3, 'theta_units': 0}, 'theta_units = 0 needs bias'),
-    ({'n_joints': 3, 'case': 'unknown', 'torque_units': 0}, "case 'unknown' needs torque_units"),
-    ({'n_joints': 3, 'coulomb_velocity': 0.0}, 'coulomb_velocity must be > 0'),
-    ({'n_joints': 3, 'coulomb_velocity': float('nan')}, 'coulomb_velocity must be > 0'),
-    ({'n_joints': 3, 'velocity': 'lagrange'}, 'velocity must be one of'),
-    ({'n_joints': 3, 'inertia_floor': 0.0}, r'inertia_floor must be in \(0, 1\)'),
-    ({'n_joints': 3, 'inertia_floor': 1.0}, r'inertia_floor must be in \(0, 1\)'),
-])
-def test_invalid_specs_are_rejected(kwargs, message):
-    with pytest.raises(ValueError, match=message):
-        NetworkSpec(**kwargs)
-
-
-def test_valid_edge_specs_are_accepted():
-    assert NetworkSpec(2, theta_units=0, bias=True).genome_size == 11 + 4
-    assert NetworkSpec(2, 'unknown', torque_units=0, torque_linear=True).genome_size == 46 + 4
-
-
-def test_spec_dict_round_trip_and_unknown_settings():
-    spec = NetworkSpec(4, 'unknown', theta_units=2, torque_units=1, inertia='cholesky',
-                       bias=True, torque_linear=True, coulomb_velocity=0.1)
-    assert NetworkSpec.from_dict(spec.to_dict()) == spec
-    d = spec.to_dict()
-    d['hidden_layers'] = 2
-    with pytest.raises(ValueError, match=r"unknown settings \['hidden_layers'\]"):
-        NetworkSpec.from_dict(d)
-
-
-def test_check_genome():
-    spec = NetworkSpec.paper(2)
-    g = spec.initial_genome()
-    np.testing.assert_array_equal(check_genome(spec, list(g)), g)
-    with pytest.raises(ValueError, match='genome has 45 elements, the network needs 46'):
-        check_genome(spec, g[:-1])
-    g[3] = np.nan
-    with pytest.raises(ValueError, match='NaN or inf'):
-        check_genome(spec, g)
-
-
-def test_scales_validation_and_dict_round_trip():
-    scales = unit_scales(2, torque=[2.0, 3.0])
-    assert Scales.from_dict(scales.to_dict()).torque.tolist() == [2.0, 3.0]
-    np.testing.assert_allclose(scales.inertia, [2.0, 3.0])
-    with pytest.raises(ValueError, match='theta_spread must be positive'):
-        unit_scales(2, theta_spread=[0.1, -0.1])
-    with pytest.raises(ValueError, match='must be 2 finite values'):
-        unit_scales(2, velocity=[1.0, np.nan])
-    d = scales.to_dict()
-    del d['error']
-    with pytest.raises(ValueError, match='missing'):
-        Scales.from_dict(d)
-
-
-def test_scales_from_datasets():
-    t = np.arange(200) * 0.01
-    theta = np.column_stack([0.3 * np.sin(t), 0.1 * np.cos(2 * t)])
-    theta_dot = np.column_stack([0.3 * np.cos(t), -0.2 * np.sin(2 * t)])
-    data = Dataset(t, theta, theta_dot, tau=np.column_stack([2.0 * np.ones_like(t), -t]),
-                   theta_d=theta + 0.1, theta_d_dot=theta_dot)
-    s1 = Scales.from_datasets([data], 'torque')
-    np.testing.assert_allclose(s1.theta_center, theta.mean(axis=0))
-    np.testing.assert_allclose(s1.torque, np.sqrt(np.mean(data.tau ** 2, axis=0)))
-    s2 = Scales.from_datasets([data], 'pd_gains', kp=[10.0, 20.0], kd=[1.0, 1.0])
-    np.testing.assert_allclose(s2.torque, [1.0, 2.0])  # kp * 0.1, derr = 0
-    np.testing.assert_allclose(s2.error, [0.1, 0.1])
-    s3 = Scales.from_datasets([data], 'unknown')
-    np.testing.assert_array_equal(s3.torque, [1.0, 1.0])  # the gauge of case 3
 
 
 # ----- BatchedNetwork
@@ -544,10 +290,11 @@ def finite_difference_velocity_terms(net, x, step=1e-6):
     return np.einsum('pij,pj->pi', m_dot, theta_dot) - 0.5 * grad, m_dot
 
 
+@pytest.mark.parametrize('basis', ['rbf', 'poly', 'poly+rbf'])
 @pytest.mark.parametrize('inertia', ['penalty', 'cholesky'])
 @pytest.mark.parametrize('n', [1, 2, 3])
-def test_christoffel_velocity_terms(inertia, n):
-    spec = NetworkSpec(n, inertia=inertia, velocity='christoffel', bias=True)
+def test_christoffel_velocity_terms(inertia, n, basis):
+    spec = NetworkSpec(n, inertia=inertia, velocity='christoffel', bias=True, basis=basis)
     net = random_network(spec, pop=12, seed=5, scale=0.5)
     rng = np.random.default_rng(6)
     x = rng.uniform(-1.0, 1.0, (12, 2 * n))

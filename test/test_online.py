@@ -28,7 +28,7 @@ from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate,
                                            Observation, OnlineIdentification, OnlineSettings,
                                            split_validation)
 from rkgnn_ros.core.fitting.validation import validation_nrmse
-from rkgnn_ros.core.model.network import NetworkSpec
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference

@@ -12,31 +12,16 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The planar arm: closed forms, Lagrangian identities, energy, regressor, stiffness."""
+"""The planar arm: closed forms, Lagrangian identities, energy, regressor; its PD servo."""
 
 import numpy as np
+from plant_helpers import random_arm, random_states
 import pytest
-from rkgnn_ros.core.sim.plant import (
-    _forward_kernel, ArmParameters, forward_dynamics_into, forward_dynamics_kernel,
-    KernelConstants, MASS_MODELS, max_stable_rkg_step, PDController, PlanarArm,
-    RK4_IMAG_STABILITY_LIMIT, RK4_REAL_STABILITY_LIMIT, rk4_stability_radius)
-from rkgnn_ros.core.sim.trajectories import paper_reference
+from rkgnn_ros.core.sim.parameters import ArmParameters, MASS_MODELS
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from scipy.integrate import solve_ivp
 
 SIZES = (1, 2, 3, 5)
-
-
-def random_arm(n, mass_model, rng, friction=True, gravity=9.81):
-    return PlanarArm(ArmParameters(
-        masses=rng.uniform(0.5, 6.0, n), lengths=rng.uniform(0.1, 0.5, n),
-        mass_model=mass_model, gravity=gravity,
-        viscous=rng.uniform(0.0, 0.5, n) if friction else None,
-        coulomb=rng.uniform(0.0, 0.3, n) if friction else None))
-
-
-def random_states(n, rng, count=40):
-    return (rng.uniform(-np.pi, np.pi, (count, n)), rng.normal(0.0, 2.0, (count, n)),
-            rng.normal(0.0, 5.0, (count, n)))
 
 
 @pytest.fixture
@@ -192,27 +177,6 @@ def test_forward_inverts_inverse_dynamics(n, mass_model, rng):
     np.testing.assert_allclose(arm.dynamics(x, tau)[:, n:], theta_ddot, rtol=1e-9, atol=1e-9)
 
 
-@pytest.mark.parametrize('mass_model', MASS_MODELS)
-@pytest.mark.parametrize('n', SIZES)
-def test_public_compiled_kernels_match_numpy(n, mass_model, rng):
-    arm = random_arm(n, mass_model, rng)
-    theta, theta_dot, theta_ddot = random_states(n, rng)
-    tau = arm.inverse_dynamics(theta, theta_dot, theta_ddot)
-    expected = arm.forward_dynamics(theta, theta_dot, tau)           # batched numpy path
-    constants = arm.kernel_constants()
-    assert isinstance(constants, KernelConstants)
-    assert constants.d.shape == (n, n) and constants.gh.shape == (n,)
-    assert isinstance(constants.coulomb_velocity, float)
-    work, out = np.full((n + 3, n), np.nan), np.full(n, np.nan)
-    for k in range(theta.shape[0]):
-        np.testing.assert_allclose(
-            forward_dynamics_kernel(theta[k], theta_dot[k], tau[k], *constants), expected[k],
-            rtol=1e-12, atol=1e-12)
-        forward_dynamics_into(theta[k], theta_dot[k], tau[k], *constants, work, out)
-        np.testing.assert_allclose(out, expected[k], rtol=1e-12, atol=1e-12)
-    assert _forward_kernel is forward_dynamics_kernel     # the former private name
-
-
 def test_kernel_constants_are_copies():
     arm = PlanarArm.paper()
     before = arm.forward_dynamics(np.zeros(3), np.zeros(3), np.zeros(3))
@@ -308,8 +272,6 @@ def test_without_gravity_the_first_moment_of_link_one_is_unidentifiable(rng):
     assert np.linalg.matrix_rank(y_base.reshape(-1, 12)) == 11
 
 
-# -- PD controller and closed-loop stiffness ----------------------------------------------
-
 def test_pd_controller():
     ctl = PDController.paper()
     np.testing.assert_array_equal(np.diag(ctl.kp), [32.84, 42.05, 42.31])
@@ -323,82 +285,3 @@ def test_pd_controller():
     np.testing.assert_allclose(out, [1.0, -2.0, 0.4231])
     with pytest.raises(ValueError, match='kd'):
         PDController([1.0, 2.0], [1.0, 2.0, 3.0])
-
-
-def test_rk4_stability_radius():
-    # real axis: the root of z³ + 4z² + 12z + 24 = 0
-    root = np.roots([1.0, 4.0, 12.0, 24.0])
-    assert RK4_REAL_STABILITY_LIMIT == pytest.approx(-root[np.isreal(root)].real[0], rel=1e-12)
-    assert rk4_stability_radius(-5.0) == pytest.approx(RK4_REAL_STABILITY_LIMIT, rel=1e-9)
-    assert rk4_stability_radius(3.0j) == pytest.approx(RK4_IMAG_STABILITY_LIMIT)
-    lam = np.exp(1j * np.linspace(0.55 * np.pi, 1.45 * np.pi, 25))
-    r = rk4_stability_radius(lam)
-    z = r * lam
-    np.testing.assert_allclose(np.abs(1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24), 1.0,
-                               atol=1e-9)
-
-
-def closed_loop(arm, ctl, reference):
-    n = arm.n_joints
-
-    def f(t, x):
-        ref, ref_dot = reference.evaluate(t)
-        return arm.dynamics(x, ctl.torque(x[:n], x[n:], ref, ref_dot))
-    return f
-
-
-def rk4_rollout(f, h, duration, x0):
-    """Integrate with classical RK4 (Gill's stability polynomial); None once |x| > 1e3."""
-    x, t = x0.copy(), 0.0
-    for _ in range(int(round(duration / h))):
-        k1 = f(t, x)
-        k2 = f(t + h / 2, x + h / 2 * k1)
-        k3 = f(t + h / 2, x + h / 2 * k2)
-        k4 = f(t + h, x + h * k3)
-        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        t += h
-        if not np.all(np.abs(x) < 1e3):
-            return None
-    return x
-
-
-@pytest.mark.parametrize('mass_model, frictionless, band', [
-    ('point', True, (330.0, 440.0)),     # ~385 1/s
-    ('rod', True, (1250.0, 1650.0)),     # ~1436 1/s
-    ('point', False, (500.0, 650.0)),    # ~576 1/s: the tanh Coulomb term adds damping
-    ('rod', False, (1850.0, 2350.0)),    # ~2109 1/s
-])
-def test_closed_loop_stiffness_of_the_paper_arm(mass_model, frictionless, band):
-    params = ArmParameters.paper(mass_model)
-    arm = PlanarArm(params.without_friction() if frictionless else params)
-    ctl = PDController.paper()
-    hanging = np.array([-np.pi / 2, 0.0, 0.0])
-    stiffness = arm.closed_loop_stiffness(hanging, np.zeros(3), ctl.kp, ctl.kd)
-    assert band[0] < stiffness < band[1]
-    lam = arm.closed_loop_eigenvalues(hanging, np.zeros(3), ctl.kp, ctl.kd)
-    assert np.all(lam.real < 0.0)      # the hanging pose is stable under the paper's PD
-    # batched over states
-    states = np.tile(hanging, (4, 1))
-    np.testing.assert_allclose(
-        arm.closed_loop_stiffness(states, np.zeros((4, 3)), ctl.kp, ctl.kd), stiffness)
-
-
-@pytest.mark.parametrize('mass_model, band', [('point', (2.0e-3, 3.5e-3)),
-                                              ('rod', (0.5e-3, 1.0e-3))])
-def test_stable_rkg_step_is_stable_and_a_100hz_step_is_not(mass_model, band):
-    arm = PlanarArm.paper(mass_model)
-    ctl = PDController.paper()
-    reference = paper_reference()
-    h = max_stable_rkg_step(arm, ctl.kp, ctl.kd, reference, 20.0, samples=100)
-    assert band[0] < h < band[1]
-    theta_d, theta_d_dot = reference.evaluate(0.0)
-    x0 = np.concatenate([theta_d, theta_d_dot])
-    f = closed_loop(arm, ctl, reference)
-    exact = solve_ivp(f, (0.0, 1.0), x0, method='LSODA', rtol=1e-10, atol=1e-10).y[:, -1]
-    dt = 0.01
-    substeps = int(np.ceil(dt / h))
-    stable = rk4_rollout(f, dt / substeps, 1.0, x0)
-    assert stable is not None and np.max(np.abs(stable - exact)) < 1e-4
-    # one RKG step per 100 Hz sample is beyond the stability limit: blow-up or garbage
-    unstable = rk4_rollout(f, dt, 1.0, x0)
-    assert unstable is None or np.max(np.abs(unstable - exact)) > 1.0

@@ -20,7 +20,9 @@ import pytest
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.refine import (_openblas_controls, blas_threads, equation_residuals,
                                            refine_equation_error)
-from rkgnn_ros.core.model.network import BatchedNetwork, NetworkSpec, Scales
+from rkgnn_ros.core.model.network import BatchedNetwork
+from rkgnn_ros.core.model.scales import Scales
+from rkgnn_ros.core.model.spec import NetworkSpec
 
 
 def _spec(case='torque', velocity='christoffel', inertia='cholesky'):

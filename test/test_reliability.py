@@ -51,10 +51,11 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
-from rkgnn_ros.core.fitting.identify import Evolution, RKGNNModel
+from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification
 from rkgnn_ros.core.fitting.optimizers import make_optimizer
-from rkgnn_ros.core.model.network import NetworkSpec
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
@@ -809,7 +810,7 @@ def test_item_24_sigint_mid_generation_exits_cleanly(data, tmp_path):
 
 KILL_SAVER = """
 import sys, numpy as np
-from rkgnn_ros.core.fitting.identify import RKGNNModel
+from rkgnn_ros.core.model.model import RKGNNModel
 model = RKGNNModel.load(sys.argv[1])
 k = 0
 while True:

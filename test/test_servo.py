@@ -19,7 +19,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from rkgnn_ros.core.control.feedforward import plan_feedforward
-from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
+from rkgnn_ros.core.sim.parameters import ArmParameters
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.servo import (FeedforwardTrack, Servo, servo_integral_rate_into,
                                       servo_torque_into)
 from rkgnn_ros.core.sim.simulate import simulate

@@ -39,10 +39,12 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rkgnn_ros.core.sim.arm_simulator import ArmSimulator
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.sim_arm import ArmSimulator, ConfigurationError, PARAMETERS, SimArm
+from rkgnn_ros.sim_arm import SimArm
+from rkgnn_ros.sim_arm_parameters import ConfigurationError, PARAMETERS
 from ros_helpers import retire_node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState

@@ -29,11 +29,13 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rkgnn_ros.core.sim.arm_simulator import ArmSimulator
 from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.servo import Servo
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.sim_arm import ArmSimulator, ConfigurationError, SimArm
+from rkgnn_ros.sim_arm import SimArm
+from rkgnn_ros.sim_arm_parameters import ConfigurationError
 from ros_helpers import retire_node, spinning_context, stamp_ns, wait_for
 from sensor_msgs.msg import JointState
 

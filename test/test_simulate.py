@@ -17,7 +17,8 @@
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
+from rkgnn_ros.core.sim.parameters import ArmParameters
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import (
     NoiseModel, simulate, simulate_open_loop, SimulationError)
 from rkgnn_ros.core.sim.trajectories import paper_reference

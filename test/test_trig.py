@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.model.trig import (evaluate_features, feature_counts, feature_names,
                                        mass_support, modes, run_modes, TrigBasis)
-from rkgnn_ros.core.sim.plant import ArmParameters, PlanarArm
+from rkgnn_ros.core.sim.parameters import ArmParameters
+from rkgnn_ros.core.sim.plant import PlanarArm
 from spatial_arm import SpatialArm
 
 

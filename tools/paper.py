@@ -46,7 +46,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.fitting.identify import Evolution, fit_best, nrmse  # noqa: E402
 from rkgnn_ros.core.fitting.optimizers import PaperEA  # noqa: E402
-from rkgnn_ros.core.model.network import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import heldout_reference, paper_reference  # noqa: E402
@@ -291,7 +291,8 @@ def tune_gains(generations, log, servo_rate=None, torque_limit=None, seed=0):
     ``servo_rate`` None: the continuous PD of ``rkgnn_ros.core.sim.tuning``; otherwise the
     digital servo of ``tuning_study`` at that rate (Hz), saturated at ``torque_limit``.
     """
-    from rkgnn_ros.core.sim.tuning import DEFAULT_BOUNDS, tune_pd_gains
+    from rkgnn_ros.core.sim.tracking import DEFAULT_BOUNDS
+    from rkgnn_ros.core.sim.tuning import tune_pd_gains
     from rkgnn_ros.core.sim.tuning_study import SampledTrackingProblem
     arm, reference = PlanarArm.paper(), paper_reference(3)
     problem = (None if servo_rate is None else
@@ -328,7 +329,8 @@ def coordinate_scan(servo_rate, torque_limit, points=41):
     Says, gain by gain, whether eq. (10) has its minimum near the published value under the
     given servo: the value of the sweep's minimum, its cost and the paper's.
     """
-    from rkgnn_ros.core.sim.tuning import DEFAULT_BOUNDS, paper_gains, TrackingProblem
+    from rkgnn_ros.core.sim.tracking import DEFAULT_BOUNDS, TrackingProblem
+    from rkgnn_ros.core.sim.tuning import paper_gains
     from rkgnn_ros.core.sim.tuning_study import SampledTrackingProblem
     arm, reference = PlanarArm.paper(), paper_reference(3)
     problem = (TrackingProblem(arm, reference, 10.0) if servo_rate is None else

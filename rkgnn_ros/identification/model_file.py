@@ -24,7 +24,8 @@ are removed. Writes are atomic (``RKGNNModel.save``: a temp file in the same fol
 import os
 from typing import Callable, List, Optional, Tuple
 
-from rkgnn_ros.core.fitting.identify import remove_stale_temp_files, RKGNNModel
+from rkgnn_ros.core.model.files import remove_stale_temp_files
+from rkgnn_ros.core.model.model import RKGNNModel
 
 __all__ = ['load_model_file', 'save_model_file']
 

@@ -36,7 +36,7 @@ from rclpy.parameter import Parameter
 from rkgnn_ros.core.fitting.identify import normalize_case
 from rkgnn_ros.core.fitting.online import OnlineSettings
 from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
-from rkgnn_ros.core.model.network import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
+from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.parameters import Change, ParameterSpec
 
 __all__ = ['PARAMETERS', 'OUTPUTS', 'Config', 'ConfigurationError', 'IdentifierParameters',

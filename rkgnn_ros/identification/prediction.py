@@ -39,8 +39,8 @@ from typing import Callable, NamedTuple, Optional, Tuple
 from builtin_interfaces.msg import Time
 import numpy as np
 from rkgnn_ros.conversions import serialize_joint_trajectory
-from rkgnn_ros.core.fitting.identify import RKGNNModel
 from rkgnn_ros.core.fitting.online import ClosedLoop
+from rkgnn_ros.core.model.model import RKGNNModel
 
 __all__ = ['LATENCY_WINDOW', 'Prediction', 'Predictor']
 

@@ -31,9 +31,9 @@ from typing import Callable, NamedTuple, Optional
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rkgnn_ros.conversions import make_float64_multiarray
-from rkgnn_ros.core.fitting.identify import RKGNNModel
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Status)
+from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.identification.prediction import Prediction
 from std_msgs.msg import String
 

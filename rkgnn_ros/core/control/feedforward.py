@@ -29,7 +29,7 @@ at the measured state, with outer-loop gains in acceleration units::
 
 which is the inverse dynamics at (θ, θ̇) with the commanded acceleration, so both need from
 the model one method, ``inverse_dynamics(theta, theta_dot, theta_ddot)`` over (N, n)
-arrays: :class:`~rkgnn_ros.core.fitting.identify.RKGNNModel`, the simulated
+arrays: :class:`~rkgnn_ros.core.model.model.RKGNNModel`, the simulated
 :class:`~rkgnn_ros.core.sim.plant.PlanarArm` (the true model) and a least-squares model all
 have it, for any n.
 

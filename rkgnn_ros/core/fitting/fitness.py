@@ -28,8 +28,10 @@ plausible state range or turns non-finite costs +inf, never NaN.
 
 Three implementations share one :class:`FitnessProblem`: ``cost_loop`` (a per-individual
 Python loop), ``cost_numpy`` (batched over the population: the reference) and ``cost`` (the
-compiled numba kernel of :mod:`rkgnn_ros.core.model.kernels`, which releases the GIL). Tests hold
-them equal.
+compiled numba kernel of :mod:`rkgnn_ros.core.model.kernels`, which releases the GIL). Tests
+hold them equal. The problem builds the kernels' genome-independent records once
+(:class:`..model.kernels.Segments`, :class:`..model.params.NetworkConstants`); a generation
+decodes its population into one :class:`..model.params.NetworkParams`.
 """
 
 from typing import List, Optional, Sequence
@@ -37,109 +39,11 @@ from typing import List, Optional, Sequence
 import numpy as np
 
 from ..data import Dataset
+from ..integration.inputs import stage_inputs
 from ..integration.rkg import rkg_step
-from ..model.network import BatchedNetwork, NetworkSpec, Scales
-
-
-def hermite(t_knots, values, slopes, t_eval):
-    """
-    Cubic Hermite interpolation on a uniform grid, held constant outside it.
-
-    Parameters
-    ----------
-    t_knots : ndarray, shape (N,)
-        Uniform knot times.
-    values, slopes : ndarray, shape (N, m)
-        Values and derivatives at the knots.
-    t_eval : ndarray, shape (T,)
-        Where to evaluate.
-
-    Returns
-    -------
-    ndarray, shape (T, m)
-
-    """
-    dt = (t_knots[-1] - t_knots[0]) / (t_knots.size - 1)
-    s = np.clip((np.asarray(t_eval) - t_knots[0]) / dt, 0.0, t_knots.size - 1)
-    i = np.minimum(np.floor(s).astype(int), t_knots.size - 2)
-    u = (s - i)[:, None]
-    h00 = 2 * u ** 3 - 3 * u ** 2 + 1
-    h10 = u ** 3 - 2 * u ** 2 + u
-    h01 = -2 * u ** 3 + 3 * u ** 2
-    h11 = u ** 3 - u ** 2
-    return (h00 * values[i] + h10 * dt * slopes[i] + h01 * values[i + 1]
-            + h11 * dt * slopes[i + 1])
-
-
-def stage_times(t0, dt, n_intervals, substeps):
-    """Stage times t, t + h/2, t + h of every substep, shape (n_intervals, substeps, 3)."""
-    h = dt / substeps
-    base = t0 + dt * np.arange(n_intervals)[:, None] + h * np.arange(substeps)[None, :]
-    return base[:, :, None] + np.array([0.0, 0.5 * h, h])[None, None, :]
-
-
-def stage_inputs(case, t, substeps, tau=None, theta_d=None, theta_d_dot=None, reference=None,
-                 torque_interpolation='hold'):
-    """
-    Return the input u at every RKG stage of a uniformly sampled segment.
-
-    Parameters
-    ----------
-    case : str
-        'torque', 'pd_gains' or 'unknown'.
-    t : ndarray, shape (N,)
-        Uniform sample times.
-    substeps : int
-        RKG steps per sampling interval.
-    tau : ndarray, shape (N, n), optional
-        Case 'torque': the measured torque, held over each interval ('hold') or
-        interpolated linearly ('linear': first-order hold).
-    theta_d, theta_d_dot : ndarray, shape (N, n), optional
-        Other cases: desired samples, interpolated by cubic Hermite (θ̇d as the slope of θd,
-        finite differences of θ̇d as its own slope) unless ``reference`` is given.
-    reference : object with ``evaluate(times) -> (θd, θ̇d)``, optional
-        Evaluated exactly at the stage times.
-    torque_interpolation : str
-        'hold' or 'linear'.
-
-    Returns
-    -------
-    ndarray, shape (N-1, substeps, 3, m)
-        m = n (torque) or 2n ([θd, θ̇d]); the stages are t, t + h/2 and t + h.
-
-    """
-    t = np.asarray(t, dtype=float)
-    n_int = t.size - 1
-    dt = (t[-1] - t[0]) / n_int
-    if case == 'torque':
-        if tau is None:
-            raise ValueError("case 'torque' needs measured torque (Dataset.tau)")
-        tau = np.asarray(tau, dtype=float)
-        n = tau.shape[1]
-        if torque_interpolation == 'hold':
-            u = np.broadcast_to(tau[:-1, None, None, :], (n_int, substeps, 3, n))
-            return np.ascontiguousarray(u)
-        if torque_interpolation != 'linear':
-            raise ValueError(f"torque_interpolation must be 'hold' or 'linear', "
-                             f'got {torque_interpolation!r}')
-        frac = (stage_times(0.0, dt, n_int, substeps)
-                - dt * np.arange(n_int)[:, None, None]) / dt
-        tau0 = tau[:-1, None, None, :]
-        tau1 = tau[1:, None, None, :]
-        return np.ascontiguousarray(tau0 + frac[..., None] * (tau1 - tau0))
-    times = stage_times(t[0], dt, n_int, substeps).reshape(-1)
-    if reference is not None:
-        qd, qd_dot = reference.evaluate(times)
-    else:
-        if theta_d is None or theta_d_dot is None:
-            raise ValueError(f'case {case!r} needs the desired trajectory '
-                             '(Dataset.theta_d, theta_d_dot) or a reference')
-        qd = hermite(t, theta_d, theta_d_dot, times)
-        acc = np.gradient(theta_d_dot, dt, axis=0)
-        qd_dot = hermite(t, theta_d_dot, acc, times)
-    qd = np.asarray(qd)
-    u = np.concatenate([qd, np.asarray(qd_dot)], axis=-1)
-    return np.ascontiguousarray(u.reshape(n_int, substeps, 3, 2 * qd.shape[-1]))
+from ..model.network import BatchedNetwork
+from ..model.scales import Scales
+from ..model.spec import NetworkSpec
 
 
 class FitnessProblem:
@@ -229,6 +133,8 @@ class FitnessProblem:
         self.bound_scale = self.bound * np.concatenate(
             [self.scales.theta_spread + 1.0, self.scales.velocity * 10.0 + 1.0])
         self.n_predicted = sum(self._predicted(d.n_samples) for d in datasets)
+        self.constants = spec.constants(self.scales, self.kp, self.kd)
+        self._segments = None
 
     @staticmethod
     def _predicted(n_samples):
@@ -260,7 +166,7 @@ class FitnessProblem:
         net = self.network(genomes)
         data = self.datasets[segment]
         u = self.inputs[segment]
-        pop = net.p['centres'].shape[0]
+        pop = net.p.weights.shape[0]
         x_meas = data.state
         out = np.empty((pop, data.n_samples, x_meas.shape[1]))
         x = np.repeat(x_meas[:1], pop, axis=0)
@@ -314,30 +220,22 @@ class FitnessProblem:
         return np.array([self.cost_numpy(g[None, :])[0] for g in genomes])
 
     # ----- compiled fast path
-    def kernel_args(self, genomes):
-        """Decode into contiguous arrays for :func:`..model.kernels.population_cost`."""
-        p = self.spec.decode(genomes, self.scales)
-        spec = self.spec
-        case_id = {'torque': 0, 'pd_gains': 1, 'unknown': 2}[spec.case]
-        c = np.ascontiguousarray
-        return (self.x_meas, self.seg_start, self.u_flat, self.h, self.substeps,
-                self.shooting, case_id, spec.inertia == 'cholesky',
-                spec.velocity == 'christoffel', c(self.kp), c(self.kd),
-                c(spec.inertia_epsilon(self.scales)),
-                c(1.0 / np.sqrt(self.scales.inertia)), spec.coulomb_velocity,
-                c(p['centres']), c(p['inv_width2']), c(p['weights']), c(p['bias']),
-                c(p['viscous']), c(p['coulomb']),
-                c(p['p_centres']), c(p['p_inv_width2']), c(p['p_weights']),
-                c(p['d_centres']), c(p['d_inv_width2']), c(p['d_weights']),
-                c(p['kp']), c(p['kd']),
-                self.penalty_weight, self.bound_center, self.bound_scale,
-                float(self.n_predicted))
+    @property
+    def segments(self):
+        """Return the measured segments and stage inputs as the kernels take them (once)."""
+        if self._segments is None:
+            from ..model.kernels import Segments
+            self._segments = Segments(self.x_meas, self.seg_start, self.u_flat, self.h,
+                                      self.substeps, self.shooting, self.bound_center,
+                                      self.bound_scale)
+        return self._segments
 
     def cost(self, genomes):
         """Costs of a population with the compiled kernel: (P, N) -> (P,)."""
         from ..model.kernels import population_cost
-        genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
-        return population_cost(*self.kernel_args(genomes))
+        params = self.spec.decode(np.atleast_2d(np.asarray(genomes, dtype=float)), self.scales)
+        return population_cost(self.segments, self.constants, params, self.penalty_weight,
+                               float(self.n_predicted))
 
     __call__ = cost
 
@@ -353,12 +251,5 @@ class FitnessProblem:
 
         """
         from ..model.kernels import population_rollouts
-        args = self.kernel_args(np.atleast_2d(np.asarray(genomes, dtype=float)))
-        # the cost-only arguments (minor scaling, penalty, normaliser) are not needed here
-        (x_meas, seg_start, u_flat, h, substeps, shooting, case_id, chol, christ, kp_known,
-         kd_known, eps, _inv_sqrt_ms, vc, *params) = args
-        bound_center, bound_scale = params[15], params[16]
-        params = params[:14]
-        return population_rollouts(x_meas, seg_start, u_flat, h, substeps, shooting, case_id,
-                                   chol, christ, kp_known, kd_known, eps, vc, *params,
-                                   bound_center, bound_scale)
+        params = self.spec.decode(np.atleast_2d(np.asarray(genomes, dtype=float)), self.scales)
+        return population_rollouts(self.segments, self.constants, params)

@@ -15,22 +15,9 @@
 """
 Inverse dynamics linear in the trigonometric basis: a closed-form, global fit.
 
-With M(θ) = Σ_f W_f φ_f(θ) (W_f symmetric, one coefficient per entry and feature of
-:class:`~rkgnn_ros.core.model.trig.TrigBasis`, or the entries' coefficients a fixed linear
-map of fewer, for the tied planar basis), U(θ) = Σ_f u_f φ_f(θ) and the friction
-F = f_v θ̇ + f_c tanh(θ̇ / v_c), Lagrange's equations
-
-    τ = d/dt (M θ̇) - ½ ∂(θ̇ᵀ M θ̇)/∂θ + ∇U + F = M θ̈ + V(θ, θ̇) + G(θ) + F(θ̇)
-
-are linear in every coefficient: τ = Y(θ, θ̇, θ̈) w. The coefficient of feature f in entry
-(a, b) acts on joint k as
-
-    δ_ka (φ θ̈_b + φ̇ θ̇_b) + δ_kb (φ θ̈_a + φ̇ θ̇_a) - θ̇_a θ̇_b ∂_k φ      (a ≠ b)
-    δ_ka (φ θ̈_a + φ̇ θ̇_a) - ½ θ̇_a² ∂_k φ                               (a = b)
-
-so V comes from the Christoffel symbols of the same M (without friction the model
-conserves energy wherever M is above its floor, see below), and G = ∇U is conservative by
-construction.
+In the trigonometric basis M θ̈ + V + G + F = τ is linear in the coefficients of M, U and
+the friction, τ = Y(θ, θ̇, θ̈) w (:mod:`rkgnn_ros.core.model.trig_dynamics`, which also holds
+the model the coefficients make). This module fits w by least squares on measured samples.
 
 The fit (:class:`LinearDynamics`)
 ---------------------------------
@@ -76,18 +63,15 @@ and multiplying by a known mean gain (or any one known physical quantity) gives 
 physical model.
 """
 
-from dataclasses import dataclass
-import itertools
-from typing import List, NamedTuple, Optional, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, LinAlgError, solve_triangular
 from scipy.optimize import nnls
 
-from .fitness import stage_inputs
 from .warmstart import estimate_acceleration
-from ..integration.rkg import choose_substeps, rkg_step
-from ..model.trig import evaluate_features, TrigBasis
+from ..model.trig_certificate import certify_inertia
+from ..model.trig_dynamics import Layout, regressor, TrigDynamics
 
 CASES = ('torque', 'pd_gains', 'unknown')
 
@@ -173,305 +157,6 @@ def samples_from_datasets(datasets, case: str, kp=None, kd=None,
                 err = derr = None
         parts.append(Samples(d.theta, d.theta_dot, acc, tau, err, derr))
     return Samples.concatenate(parts)
-
-
-# ----------------------------------------------------------------------------- regressor
-
-class Layout(NamedTuple):
-    """Slices of the coefficient vector w (and the controller's gains in case 3)."""
-
-    mass: slice
-    potential: slice
-    viscous: slice
-    coulomb: slice
-    kp: Optional[slice]
-    kd: Optional[slice]
-    size: int
-
-    @classmethod
-    def of(cls, basis: TrigBasis, controller: bool = False) -> 'Layout':
-        """Return the layout [M entries | U | f_v | f_c (| Kp | Kd)] for a basis."""
-        n = basis.n_joints
-        a = basis.n_mass_coefficients
-        b = a + basis.n_potential_coefficients
-        kp = slice(b + 2 * n, b + 3 * n) if controller else None
-        kd = slice(b + 3 * n, b + 4 * n) if controller else None
-        return cls(slice(0, a), slice(a, b), slice(b, b + n), slice(b + n, b + 2 * n), kp, kd,
-                   b + (4 if controller else 2) * n)
-
-    def groups(self, basis: TrigBasis) -> List[slice]:
-        """Return the coefficient groups the ridge weight is scaled per."""
-        out, start = [], 0
-        if basis.mass_tie is not None:
-            out.append(self.mass)
-        else:
-            for ix in basis.mass_index:
-                out.append(slice(start, start + ix.size))
-                start += ix.size
-        out += [self.potential, self.viscous, self.coulomb]
-        out += [s for s in (self.kp, self.kd) if s is not None]
-        return out
-
-
-def regressor(basis: TrigBasis, theta, theta_dot, theta_ddot, coulomb_velocity: float,
-              error=None, error_rate=None) -> np.ndarray:
-    """
-    Return Y with ``Y @ w`` the inverse dynamics M θ̈ + V + G + F of coefficients w.
-
-    Parameters
-    ----------
-    basis : TrigBasis
-        Features of M and U.
-    theta, theta_dot, theta_ddot : array_like, shape (N, n)
-        Joint angles, velocities and accelerations.
-    coulomb_velocity : float
-        v_c of the smoothed Coulomb friction.
-    error, error_rate : array_like, shape (N, n), optional
-        θd - θ and θ̇d - θ̇: appends the controller's columns -diag(e), -diag(ė), so that
-        ``Y @ [w, kp, kd]`` is the dynamics minus the PD torque (case 3).
-
-    Returns
-    -------
-    ndarray, shape (N, n, P)
-        Columns in the order of :class:`Layout`.
-
-    """
-    theta = np.atleast_2d(np.asarray(theta, dtype=float))
-    qd = np.atleast_2d(np.asarray(theta_dot, dtype=float))
-    qdd = np.atleast_2d(np.asarray(theta_ddot, dtype=float))
-    n_samples, n = theta.shape
-    if n != basis.n_joints:
-        raise ValueError(f'theta has {n} joints, the basis {basis.n_joints}')
-    controller = error is not None
-    lay = Layout.of(basis, controller)
-    out = np.zeros((n_samples, n, lay.size))
-    phi, grad = basis.values(theta, gradient=True)              # (N, F), (N, F, n)
-    phi_dot = np.einsum('tfk,tk->tf', grad, qd)
-    tie = basis.mass_tie
-    mass = out if tie is None else np.zeros((n_samples, n, basis.n_entry_features))
-    start = 0
-    for (a, b), ix in zip(basis.mass_entries, basis.mass_index):
-        cols = slice(start, start + ix.size)
-        p, pd, g = phi[:, ix], phi_dot[:, ix], grad[:, ix, :]
-        mass[:, a, cols] += p * qdd[:, b, None] + pd * qd[:, b, None]
-        if a != b:
-            mass[:, b, cols] += p * qdd[:, a, None] + pd * qd[:, a, None]
-            q = qd[:, a] * qd[:, b]
-        else:
-            q = 0.5 * qd[:, a] ** 2
-        mass[:, :, cols] -= q[:, None, None] * np.swapaxes(g, 1, 2)
-        start += ix.size
-    if tie is not None:
-        out[:, :, lay.mass] = mass @ tie
-    out[:, :, lay.potential] = np.swapaxes(grad[:, basis.potential_index, :], 1, 2)
-    joints = np.arange(n)
-    out[:, joints, lay.viscous.start + joints] = qd
-    out[:, joints, lay.coulomb.start + joints] = np.tanh(qd / coulomb_velocity)
-    if controller:
-        out[:, joints, lay.kp.start + joints] = -np.asarray(error, dtype=float)
-        out[:, joints, lay.kd.start + joints] = -np.asarray(error_rate, dtype=float)
-    return out
-
-
-def unpack_mass(basis: TrigBasis, coefficients) -> np.ndarray:
-    """Return the symmetric coefficient matrices W_f of M, shape (F, n, n)."""
-    n = basis.n_joints
-    if basis.mass_tie is not None:
-        coefficients = basis.mass_tie @ np.asarray(coefficients, dtype=float)
-    w = np.zeros((basis.n_features, n, n))
-    start = 0
-    for (a, b), ix in zip(basis.mass_entries, basis.mass_index):
-        w[ix, a, b] = coefficients[start:start + ix.size]
-        w[ix, b, a] = coefficients[start:start + ix.size]
-        start += ix.size
-    return w
-
-
-# ----------------------------------------------------------------------------- certificate
-
-@dataclass(frozen=True)
-class InertiaCertificate:
-    """
-    A lower bound of λ_min(M(θ)) over a box of joint angles, and what was seen there.
-
-    Attributes
-    ----------
-    lower_bound : float
-        Rigorous: λ_min(M(θ)) >= lower_bound for every θ in the box (up to rounding).
-    smallest_seen : float
-        The smallest λ_min(M) at the cell centres evaluated (an upper bound of the minimum).
-    worst_theta : ndarray, shape (n,)
-        Where ``smallest_seen`` was found.
-    floor : float
-        The level asked for.
-    cells : int
-        Cells evaluated.
-    violations : ndarray, shape (K, n)
-        Cell centres with λ_min(M) < floor (K may be 0), worst first.
-
-    """
-
-    lower_bound: float
-    smallest_seen: float
-    worst_theta: np.ndarray
-    floor: float
-    cells: int
-    violations: np.ndarray
-
-    @property
-    def certified(self) -> bool:
-        """Whether λ_min(M) >= floor holds on the whole box."""
-        return self.lower_bound >= self.floor
-
-
-def _spectral_norms(a) -> np.ndarray:
-    """Return the spectral norm of symmetric matrices, shape (...) from (..., n, n)."""
-    ev = np.linalg.eigvalsh(a)
-    return np.maximum(np.abs(ev[..., 0]), np.abs(ev[..., -1]))
-
-
-def certify_inertia(basis: TrigBasis, mass_coefficients, floor: float, scale=None,
-                    lower=None, upper=None, max_cells: int = 200_000,
-                    chunk: int = 2048) -> InertiaCertificate:
-    """
-    Bound λ_min(S M(θ) S) from below over the joint range by adaptive cells.
-
-    S = diag(``scale``) (a congruence: S M S is positive definite exactly where M is; with
-    S = diag(M̄)^(-1/2) the bound no longer suffers from the spread of the joints' inertias).
-    For a cell with centre c and half-widths r, every θ in it satisfies
-
-        λ_min(S M(θ) S) >= min over the cell's vertices v of λ_min(S (M(c) + ∇M(c)·v) S)
-                           - ½ Σ_jk H_jk r_j r_k:
-
-    λ_min of an affine matrix function is concave, so its minimum over the box is at a
-    vertex, and H_jk >= sup ‖S ∂_j ∂_k M S‖ bounds the Taylor remainder (Weyl). H is the
-    smaller of two bounds: Σ_f ‖S W_f S‖ ω_fj ω_fk from the coefficients (ω_fk the
-    frequency of feature f in joint k), and Bernstein's inequality for trigonometric
-    polynomials of degree n_k in joint k, ‖∂_j ∂_k T‖ <= n_j n_k sup ‖T‖, with
-    T = S (M - M_const) S and sup ‖T‖ <= (max of ‖T‖ on a grid of m_k points per joint) /
-    (1 - Σ_k π n_k / m_k). Cells whose bound is below ``floor`` while their centre is above
-    it are halved along their most uncertain joint, until every cell is decided or
-    ``max_cells`` were evaluated. Joints M does not depend on (θ1 for any serial chain) are
-    not gridded. The cells needed grow like (1 / r)^d over d = n - 1 gridded joints, r the
-    cell size the margin λ_min - floor allows: a few thousand for 3 joints, about 10^5 for
-    a planar 4-joint arm, far beyond any budget for 6.
-
-    Parameters
-    ----------
-    basis : TrigBasis
-        The basis of M.
-    mass_coefficients : array_like, shape (P_M,)
-        M's coefficients (:class:`Layout` ``mass`` slice).
-    floor : float
-        The level to certify for λ_min(S M S).
-    scale : array_like, shape (n,), optional
-        The diagonal of S; ones by default.
-    lower, upper : array_like, shape (n,), optional
-        Joint limits; default the torus [-π, π] for every joint.
-    max_cells : int
-        Budget of cell evaluations.
-    chunk : int
-        Cells evaluated per batch.
-
-    Returns
-    -------
-    InertiaCertificate
-        Bounds in the scaled metric, λ_min(S M S).
-
-    """
-    n = basis.n_joints
-    s = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
-    w = unpack_mass(basis, np.asarray(mass_coefficients, dtype=float)) * np.outer(s, s)
-    used = np.flatnonzero(np.any(w != 0.0, axis=(1, 2)))
-    freq, kinds, w = basis.frequencies[used], basis.kinds[used], w[used]
-    omega = np.abs(freq).astype(float)                              # (F, n)
-    degree = omega.max(axis=0) if used.size else np.zeros(n)
-    dims = np.flatnonzero(degree > 0)
-    d = dims.size
-    lo = np.full(n, -np.pi) if lower is None else np.asarray(lower, dtype=float)
-    hi = np.full(n, np.pi) if upper is None else np.asarray(upper, dtype=float)
-    mid = 0.5 * (lo + hi)
-
-    def matrices(theta):
-        phi, grad = evaluate_features(freq, kinds, theta, gradient=True)
-        return (np.einsum('tf,fij->tij', phi, w),
-                np.einsum('tfk,fij->tkij', grad[:, :, dims], w))       # (T, d, n, n)
-
-    def grid(points):
-        axes = [lo[k] + (np.arange(points[i]) + 0.5) * (hi[k] - lo[k]) / points[i]
-                for i, k in enumerate(dims)]
-        mesh = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).reshape(-1, d)
-        theta = np.tile(mid, (mesh.shape[0], 1))
-        theta[:, dims] = mesh
-        return theta
-
-    hess = np.einsum('f,fj,fk->jk', _spectral_norms(w), omega, omega) if used.size else \
-        np.zeros((n, n))
-    if d:
-        # Bernstein: m_k = 4π d n_k points per joint make Σ π n_k / m_k = 1/4
-        points = np.ceil(4.0 * np.pi * d * degree[dims]).astype(int)
-        if np.prod(points.astype(float)) <= max_cells / 4:
-            constant = np.flatnonzero(~np.any(freq, axis=1))
-            varying = w.copy()
-            varying[constant] = 0.0
-            sup = 0.0
-            theta = grid(points)
-            for start in range(0, theta.shape[0], chunk):
-                phi = evaluate_features(freq, kinds, theta[start:start + chunk])
-                t = np.einsum('tf,fij->tij', phi, varying)
-                sup = max(sup, float(_spectral_norms(t).max()))
-            sup /= 1.0 - float(np.sum(np.pi * degree[dims] / points))
-            hess = np.minimum(hess, sup * np.outer(degree, degree))
-    per_dim = np.full(d, max(2, min(16, int((max_cells / 64.0) ** (1.0 / d))))) if d else []
-    centres = grid(per_dim) if d else mid[None].copy()
-    half = np.zeros_like(centres)
-    if d:
-        half[:, dims] = 0.5 * (hi[dims] - lo[dims]) / per_dim
-    signs = np.array(list(itertools.product((-1.0, 1.0), repeat=d))).reshape(-1, d)
-    bound, seen, worst, evaluated = np.inf, np.inf, mid.copy(), 0
-    bad_theta, bad_value = [], []
-    while centres.shape[0]:
-        last = evaluated + centres.shape[0] > max_cells
-        keep_c, keep_h = [], []
-        for start in range(0, centres.shape[0], chunk):
-            c, r = centres[start:start + chunk], half[start:start + chunk]
-            m, dm = matrices(c)
-            lam = np.linalg.eigvalsh(m)[:, 0]
-            # the linear part at every vertex: M(c) + Σ_k ±r_k ∂_k M(c)
-            offsets = signs[None] * r[:, None, dims]                       # (T, V, d)
-            vert = m[:, None] + np.einsum('tvk,tkij->tvij', offsets, dm)
-            linear = np.linalg.eigvalsh(vert)[..., 0].min(axis=1)
-            lb = linear - 0.5 * np.einsum('tj,jk,tk->t', r, hess, r)
-            evaluated += c.shape[0]
-            k = int(np.argmin(lam))
-            if lam[k] < seen:
-                seen, worst = float(lam[k]), c[k].copy()
-            low = lam < floor
-            bad_theta.append(c[low])
-            bad_value.append(lam[low])
-            split = (lb < floor) & ~low & (not last)
-            bound = min(bound, float(lb[~split].min(initial=np.inf)))
-            if np.any(split):
-                # halve along the joint with the largest first- plus second-order spread
-                rs = r[split]
-                spread = (_spectral_norms(dm[split]) * rs[:, dims]
-                          + rs[:, dims] * (rs @ hess)[:, dims])
-                axis = dims[np.argmax(spread, axis=1)]
-                rows = np.arange(axis.size)
-                rs[rows, axis] *= 0.5
-                for sign in (-1.0, 1.0):
-                    cs = c[split].copy()
-                    cs[rows, axis] += sign * rs[rows, axis]
-                    keep_c.append(cs)
-                    keep_h.append(rs)
-        centres = np.vstack(keep_c) if keep_c else np.zeros((0, n))
-        half = np.vstack(keep_h) if keep_h else np.zeros((0, n))
-    bad_theta = np.vstack(bad_theta)
-    bad_value = np.concatenate(bad_value)
-    order = np.argsort(bad_value)
-    return InertiaCertificate(lower_bound=float(bound), smallest_seen=float(seen),
-                              worst_theta=worst, floor=float(floor), cells=int(evaluated),
-                              violations=bad_theta[order])
 
 
 # ----------------------------------------------------------------------------- solving
@@ -560,12 +245,13 @@ def _spread(points, order, count, distance=0.3):
     return chosen
 
 
-class LinearDynamics:
+class LinearDynamics(TrigDynamics):
     """
     M, V, G, F of an n-joint arm in the trigonometric basis, fitted by linear least squares.
 
     The estimator pattern: the constructor stores settings, :meth:`fit` learns the
-    coefficients and returns ``self``; the model methods refuse before a fit. See the
+    coefficients and returns ``self``; the model methods (those of
+    :class:`~rkgnn_ros.core.model.trig_dynamics.TrigDynamics`) refuse before a fit. See the
     module docstring for the method.
 
     Parameters
@@ -617,10 +303,7 @@ class LinearDynamics:
                  joint_upper=None, certify: bool = True, check_points: int = 20_000,
                  max_cells: int = 50_000, max_certified_joints: int = 4,
                  gain_normalisation: float = 1.0):
-        self.basis = basis if isinstance(basis, TrigBasis) else TrigBasis(int(basis))
-        if not (np.isfinite(coulomb_velocity) and coulomb_velocity > 0.0):
-            raise ValueError(f'coulomb_velocity must be positive, got {coulomb_velocity}')
-        self.coulomb_velocity = float(coulomb_velocity)
+        super().__init__(basis, coulomb_velocity)
         self.ridges = tuple(float(r) for r in ridges)
         if not self.ridges or min(self.ridges) < 0.0:
             raise ValueError('ridges must be non-negative and not empty')
@@ -638,12 +321,6 @@ class LinearDynamics:
         self.check_points = int(check_points)
         self.max_cells = int(max_cells)
         self.max_certified_joints = int(max_certified_joints)
-        self.coef_ = None
-
-    @property
-    def n_joints(self) -> int:
-        """Return the number of joints n."""
-        return self.basis.n_joints
 
     @classmethod
     def from_coefficients(cls, basis, coefficients, coulomb_velocity: float = 0.05, kp=None,
@@ -670,9 +347,7 @@ class LinearDynamics:
         coef = np.asarray(coefficients, dtype=float)
         if coef.shape != (lay.size,):
             raise ValueError(f'coefficients must have shape ({lay.size},), got {coef.shape}')
-        case = 'torque' if kp is None else 'pd_gains'
-        model.case_, model.layout_ = case, lay
-        model._set(coef, lay, case, kp, kd)
+        model._set(coef, lay, 'torque' if kp is None else 'pd_gains', kp, kd)
         model.inertia_scale_, model.min_eigenvalue_ = None, 0.0
         model.certificate_, model.cuts_, model.floor_active_ = None, 0, None
         return model
@@ -744,8 +419,6 @@ class LinearDynamics:
             if best is None or score < best[0]:
                 best = (score, window, samples, path)
         _, window, samples, (coef, ridge, scores, normal, scale, chol) = best
-        self.case_ = case
-        self.layout_ = lay
         self.weights_ = weights
         self.window_ = window
         self.ridge_ = ridge
@@ -831,23 +504,6 @@ class LinearDynamics:
         coef = self._constrained(chol, total, scale, lay, [])
         return coef, best, scores, total, scale, chol
 
-    def _set(self, coef, lay, case, kp, kd):
-        n = self.n_joints
-        self.coef_ = coef[:lay.kp.start] if lay.kp is not None else coef.copy()
-        self._w_mass = unpack_mass(self.basis, coef[lay.mass])
-        self._w_pot = np.zeros(self.basis.n_features)
-        self._w_pot[self.basis.potential_index] = coef[lay.potential]
-        self.viscous_ = coef[lay.viscous].copy()
-        self.coulomb_ = coef[lay.coulomb].copy()
-        if lay.kp is not None:
-            self.kp_, self.kd_ = coef[lay.kp].copy(), coef[lay.kd].copy()
-        elif case == 'pd_gains':
-            self.kp_ = np.broadcast_to(np.asarray(kp, dtype=float), (n,)).copy()
-            self.kd_ = np.broadcast_to(np.asarray(kd, dtype=float), (n,)).copy()
-        else:
-            self.kp_ = self.kd_ = None
-        self._full_coef = coef.copy()
-
     def _enforce_positive(self, samples, chol, normal, scale, lay, case, kp, kd,
                           rounds: int = 20, cuts_per_round: int = 48):
         """Cut and refit until λ_min(S M S) >= floor on the check set; then certify."""
@@ -912,208 +568,6 @@ class LinearDynamics:
         normal, scale = self._scaled_gram
         ev = np.linalg.eigvalsh(normal.gram / np.outer(scale, scale))
         return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float('inf')
-
-    # ----- the model
-    def _check(self):
-        if self.coef_ is None:
-            raise RuntimeError('LinearDynamics is not fitted yet: call fit() first')
-
-    def _theta(self, theta):
-        theta = np.asarray(theta, dtype=float)
-        if theta.ndim == 0 or theta.shape[-1] != self.n_joints:
-            raise ValueError(f'theta must have shape (..., {self.n_joints}), got {theta.shape}')
-        return theta
-
-    def raw_mass_matrix(self, theta) -> np.ndarray:
-        """Return M(θ) = Σ_f W_f φ_f(θ) as fitted (no floor), shape (..., n, n)."""
-        self._check()
-        phi = self.basis.values(self._theta(theta))
-        return np.einsum('...f,fij->...ij', phi, self._w_mass)
-
-    def mass_matrix(self, theta) -> np.ndarray:
-        """
-        Return the model's M(θ), raised to the floor, shape (..., n, n).
-
-        M + S⁻¹ max(0, ε - λ_min(S M S)) S⁻¹ with M = :meth:`raw_mass_matrix`: symmetric
-        positive definite for every θ by construction. The fit enforces the floor on the
-        joint range (module docstring), so this equals the raw M wherever that held
-        (everywhere when :attr:`certificate_` is certified); elsewhere it is the last
-        guard, and V (the raw M's Christoffel symbols) no longer matches it exactly.
-        """
-        return self._lift(self.raw_mass_matrix(theta))
-
-    def potential(self, theta) -> np.ndarray:
-        """Return U(θ) (its constant is not identifiable; 0 here), shape (...)."""
-        self._check()
-        return self.basis.values(self._theta(theta)) @ self._w_pot
-
-    def gravity_terms(self, theta) -> np.ndarray:
-        """Return G(θ) = ∇U, shape (..., n)."""
-        self._check()
-        _, grad = self.basis.values(self._theta(theta), gradient=True)
-        return np.einsum('...fk,f->...k', grad, self._w_pot)
-
-    def _terms(self, theta, theta_dot):
-        """Return M, V, G at states of shape (..., n), from one feature evaluation."""
-        phi, grad = self.basis.values(theta, gradient=True)
-        m = np.einsum('...f,fij->...ij', phi, self._w_mass)
-        dm = np.einsum('...fk,fij->...kij', grad, self._w_mass)       # ∂_k M
-        m_dot = np.einsum('...kij,...k->...ij', dm, theta_dot)
-        v = (np.einsum('...ij,...j->...i', m_dot, theta_dot)
-             - 0.5 * np.einsum('...kij,...i,...j->...k', dm, theta_dot, theta_dot))
-        g = np.einsum('...fk,f->...k', grad, self._w_pot)
-        return m, v, g
-
-    def velocity_terms(self, theta, theta_dot) -> np.ndarray:
-        """Return V(θ, θ̇) = Ṁ θ̇ - ½ ∂(θ̇ᵀMθ̇)/∂θ, shape (..., n)."""
-        self._check()
-        theta, theta_dot = np.broadcast_arrays(self._theta(theta), self._theta(theta_dot))
-        return self._terms(theta, theta_dot)[1]
-
-    def friction_terms(self, theta_dot) -> np.ndarray:
-        """Return F(θ̇) = f_v θ̇ + f_c tanh(θ̇ / v_c), shape (..., n)."""
-        self._check()
-        qd = self._theta(theta_dot)
-        return self.viscous_ * qd + self.coulomb_ * np.tanh(qd / self.coulomb_velocity)
-
-    def inverse_dynamics(self, theta, theta_dot, theta_ddot) -> np.ndarray:
-        """Return τ = M θ̈ + V + G + F (M floored, as :meth:`mass_matrix`), shape (..., n)."""
-        self._check()
-        theta, theta_dot, theta_ddot = np.broadcast_arrays(
-            self._theta(theta), self._theta(theta_dot), self._theta(theta_ddot))
-        m, v, g = self._terms(theta, theta_dot)
-        return (np.einsum('...ij,...j->...i', self._lift(m), theta_ddot) + v + g
-                + self.friction_terms(theta_dot))
-
-    def _lift(self, m):
-        """Raise M (..., n, n) to the floor (see :meth:`mass_matrix`)."""
-        if self.inertia_scale_ is None:
-            return m
-        s = self.inertia_scale_
-        lam = np.linalg.eigvalsh(m * np.outer(s, s))[..., 0]
-        lift = np.maximum(0.0, self.min_eigenvalue_ - lam)
-        return m + lift[..., None, None] * np.diag(1.0 / s ** 2)
-
-    def forward_dynamics(self, theta, theta_dot, tau) -> np.ndarray:
-        """Return θ̈ = M⁻¹ (τ - V - G - F) with the floored M, shape (..., n)."""
-        self._check()
-        theta, theta_dot, tau = np.broadcast_arrays(
-            self._theta(theta), self._theta(theta_dot), self._theta(tau))
-        m, v, g = self._terms(theta, theta_dot)
-        m = self._lift(m)
-        rhs = tau - v - g - self.friction_terms(theta_dot)
-        return np.linalg.solve(m, rhs[..., None])[..., 0]
-
-    def controller_torque(self, theta, theta_dot, theta_d, theta_d_dot) -> np.ndarray:
-        """Return Kp (θd - θ) + Kd (θ̇d - θ̇) with the known or identified gains."""
-        self._check()
-        if self.kp_ is None:
-            raise ValueError("case 'torque' has no controller: pass the torque")
-        return (self.kp_ * (np.asarray(theta_d) - theta)
-                + self.kd_ * (np.asarray(theta_d_dot) - theta_dot))
-
-    def scaled(self, factor: float) -> 'LinearDynamics':
-        """
-        Return a copy with M, V, G, F (and the gains) multiplied by ``factor``.
-
-        Case 3 fixes the scale by the mean Kp; ``model.scaled(true_mean_kp /
-        model.kp_.mean())`` is the physical model once that one number is known.
-        """
-        self._check()
-        import copy
-        out = copy.copy(self)
-        out._set(self._full_coef * factor, self.layout_, self.case_,
-                 None if self.kp_ is None else self.kp_ * factor,
-                 None if self.kd_ is None else self.kd_ * factor)
-        if self.inertia_scale_ is not None:
-            out.inertia_scale_ = self.inertia_scale_ / np.sqrt(factor)
-        return out
-
-    def stiffness(self, theta) -> float:
-        """Return the largest |eigenvalue| of the linearised closed loop (or arm) at θ."""
-        self._check()
-        n = self.n_joints
-        m = self.mass_matrix(self._theta(theta))
-        damp = np.diag(self.viscous_ + self.coulomb_ / self.coulomb_velocity)
-        spring = np.zeros((n, n))
-        if self.kp_ is not None:
-            damp = damp + np.diag(self.kd_)
-            spring = np.diag(self.kp_)
-        jac = np.block([[np.zeros((n, n)), np.eye(n)],
-                        [-np.linalg.solve(m, spring), -np.linalg.solve(m, damp)]])
-        return float(np.max(np.abs(np.linalg.eigvals(jac))))
-
-    def simulate(self, x0, t, tau=None, reference=None, theta_d=None, theta_d_dot=None,
-                 substeps: Optional[int] = None) -> np.ndarray:
-        """
-        Roll the model out with Runge-Kutta-Gill from ``x0`` over the uniform times ``t``.
-
-        Parameters
-        ----------
-        x0 : array_like, shape (2n,)
-            Start state [θ, θ̇].
-        t : array_like, shape (N,)
-            Uniform output times.
-        tau : array_like, shape (N, n), optional
-            Open loop: torque samples, linear between samples.
-        reference : object, optional
-            Closed loop (known or identified gains): ``evaluate(times) -> (θd, θ̇d)``.
-        theta_d, theta_d_dot : array_like, shape (N, n), optional
-            Closed loop: desired samples instead of ``reference``.
-        substeps : int, optional
-            RKG steps per interval; default from the stiffness at ``x0`` (half the
-            stability limit).
-
-        Returns
-        -------
-        ndarray, shape (N, 2n)
-            States; rows after a divergence are NaN.
-
-        """
-        self._check()
-        n = self.n_joints
-        t = np.asarray(t, dtype=float)
-        x = np.asarray(x0, dtype=float).copy()
-        if x.shape != (2 * n,):
-            raise ValueError(f'x0 must have shape ({2 * n},), got {x.shape}')
-        dt = (t[-1] - t[0]) / (t.size - 1)
-        closed = tau is None
-        if closed and self.kp_ is None:
-            raise ValueError('pass tau (open loop) or fit a case with a controller')
-        if substeps is None:
-            substeps = choose_substeps(dt, self.stiffness(x[:n]))
-        u = stage_inputs('pd_gains' if closed else 'torque', t, substeps, tau, theta_d,
-                         theta_d_dot, reference, 'linear')
-
-        def f(state, ui):
-            theta, theta_dot = state[:n], state[n:]
-            if closed:
-                torque = self.controller_torque(theta, theta_dot, ui[:n], ui[n:])
-            else:
-                torque = ui
-            return np.concatenate([theta_dot, self.forward_dynamics(theta, theta_dot,
-                                                                    torque)])
-
-        out = np.full((t.size, 2 * n), np.nan)
-        out[0] = x
-        h = dt / substeps
-        with np.errstate(all='ignore'):
-            for k in range(t.size - 1):
-                try:
-                    for s in range(substeps):
-                        x = rkg_step(f, x, h, u[k, s, 0], u[k, s, 1], u[k, s, 2])
-                except np.linalg.LinAlgError:        # a non-finite state reached M
-                    break
-                if not np.all(np.isfinite(x)) or np.abs(x).max() > 1e6:
-                    break
-                out[k + 1] = x
-        return out
-
-    def energy(self, theta, theta_dot) -> np.ndarray:
-        """Return ½ θ̇ᵀ M θ̇ + U with the raw M (U's constant taken as 0), shape (...)."""
-        m = self.raw_mass_matrix(theta)
-        return (0.5 * np.einsum('...i,...ij,...j->...', theta_dot, m, theta_dot)
-                + self.potential(theta))
 
 
 def torque_nrmse(predicted, measured) -> float:

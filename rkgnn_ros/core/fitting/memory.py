@@ -19,7 +19,7 @@ The identifier fits on its newest window of data. When the arm moves elsewhere (
 task, another pose), that window forgets the configurations it left, and a model fitted
 on it alone is only right where the arm is now. This memory keeps, beside the window, at
 most ``capacity`` samples chosen so that the stacked regressor of the linear fit
-(:func:`rkgnn_ros.core.fitting.linear.regressor`) stays as informative as possible: the
+(:func:`rkgnn_ros.core.model.trig_dynamics.regressor`) stays as informative as possible: the
 fit on memory + window keeps what it learned, and a sample from a configuration the
 memory lacks is taken at once (the idea of concurrent learning, which keeps a history
 stack whose smallest singular value grows).
@@ -47,8 +47,9 @@ from typing import Optional
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 
-from .linear import regressor, Samples
+from .linear import Samples
 from ..model.trig import TrigBasis
+from ..model.trig_dynamics import regressor
 
 
 class ExcitationMemory:

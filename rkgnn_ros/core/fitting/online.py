@@ -52,8 +52,9 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
-from .identify import Evolution, RKGNNModel
+from .controller import closed_loop_model, fit_pd_law, open_loop_model
+from .controller_laws import PDLaw
+from .identify import Evolution
 from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
                              ModelUpdate, Observation, OnlineSettings, Status, StepResult,
                              StreamCapture)
@@ -61,6 +62,7 @@ from .optimizers import make_optimizer
 from .refine import refine_equation_error
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
 from ..data import Dataset
+from ..model.model import RKGNNModel
 
 __all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCapture', 'Status',
            'ClosedLoop', 'ModelUpdate', 'LoopUpdate', 'GenerationStats', 'LogLine',

@@ -27,9 +27,9 @@ from typing import Dict, List, Mapping, NamedTuple, Optional, Tuple
 
 import numpy as np
 
-from .identify import RKGNNModel
 from ..data import Dataset
-from ..model.network import NetworkSpec
+from ..model.model import RKGNNModel
+from ..model.spec import NetworkSpec
 
 __all__ = ['OnlineSettings', 'Observation', 'StreamCapture', 'Status', 'ClosedLoop',
            'ModelUpdate', 'LoopUpdate', 'GenerationStats', 'LogLine', 'StepResult',

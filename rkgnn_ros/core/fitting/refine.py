@@ -32,12 +32,11 @@ import ctypes
 import time
 from typing import List, Optional, Sequence
 
-from numba import njit, prange
 import numpy as np
 from scipy.optimize import least_squares
 
 from .fitness import FitnessProblem
-from ..model.kernels import _christoffel, _learned_velocity, _mass, _theta_outputs
+from ..model.network import BatchedNetwork
 
 DIVERGED_RESIDUAL = 10.0
 
@@ -75,8 +74,7 @@ def blas_threads(count=1):
 
     The least-squares steps factorise small dense Jacobians between parallel kernel calls;
     multithreaded OpenBLAS on such matrices, on a machine that is busy anyway, spins and
-    can be slower than one thread by orders of magnitude (seen: 1.6 s instead of 20 ms per
-    SVD of a 1500 × 85 matrix on 2 loaded cores).
+    can be slower than one thread by orders of magnitude (README, numerical core).
     """
     controls = _openblas_controls()
     before = [get() for get, _ in controls]
@@ -197,45 +195,6 @@ def _equation_data(spec, datasets, kp, kd, window, max_samples):
     return x[sel], acc[sel], u[sel], None if tau is None else tau[sel]
 
 
-@njit(cache=True, nogil=True, parallel=True, error_model='numpy')
-def _inertial_terms(x, acc, chol, christ, eps, centres, inv_w2, weights, bias, out_mv,
-                    out_diag):
-    """M θ̈ + V + G per (genome, sample) into ``out_mv`` (P, S, n); diag M into ``out_diag``."""
-    pop, samples, n = out_mv.shape
-    n_out = weights.shape[1]
-    n_units = centres.shape[1]
-    n_in = n * (n + 1) // 2
-    n_pairs = n * (n - 1) // 2
-    for p in prange(pop):
-        phi = np.empty(n_units)
-        out = np.empty(n_out)
-        mat = np.empty((n, n))
-        lmat = np.empty((n, n))
-        dout = np.empty((n, n_in))
-        dl = np.empty((n, n))
-        dmat = np.empty((n, n, n))
-        vvec = np.empty(n)
-        y = np.empty(n)
-        z = np.empty(n)
-        for s in range(samples):
-            xs = x[s]
-            _theta_outputs(xs, centres[p], inv_w2[p], weights[p], bias[p], phi, out)
-            _mass(out, n, chol, eps, mat, lmat)
-            if christ:
-                _christoffel(xs, n, chol, centres[p], inv_w2[p], weights[p], phi, lmat, dout,
-                             dl, dmat, vvec, y, z)
-                g0 = n_in
-            else:
-                _learned_velocity(xs, n, out, vvec)
-                g0 = n_in + n * n_pairs + n * n
-            for i in range(n):
-                acc_i = vvec[i] + out[g0 + i]
-                for j in range(n):
-                    acc_i += mat[i, j] * acc[s, j]
-                out_mv[p, s, i] = acc_i
-                out_diag[p, s, i] = mat[i, i]
-
-
 def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=None,
                        gauge_weight=1.0, compiled=True):
     """
@@ -272,7 +231,6 @@ def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=N
         over samples; the gauge residual is appended in case 'unknown'.
 
     """
-    from ..model.network import BatchedNetwork
     genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
     pop, samples = genomes.shape[0], x.shape[0]
     n = spec.n_joints
@@ -282,19 +240,16 @@ def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=N
 
     def network():
         # one network row per (genome, sample): it evaluates one state per row
-        tiled = {k: np.repeat(v, samples, axis=0) for k, v in params.items()}
-        return BatchedNetwork(spec, tiled, scales, kp, kd)
+        return BatchedNetwork(spec, params.repeat(samples), scales, kp, kd)
 
     with np.errstate(all='ignore'):
         if compiled:
+            from ..model.kernels import inverse_dynamics_terms
             c = np.ascontiguousarray
             mv = np.empty((pop, samples, n))
             diag = np.empty((pop, samples, n))
-            _inertial_terms(c(x), c(acc), spec.inertia == 'cholesky',
-                            spec.velocity == 'christoffel', c(spec.inertia_epsilon(scales)),
-                            c(params['centres']), c(params['inv_width2']),
-                            c(params['weights']), c(params['bias']), mv, diag)
-            fric = (params['viscous'][:, None] * x[None, :, n:] + params['coulomb'][:, None]
+            inverse_dynamics_terms(c(x), c(acc), spec.constants(scales), params, mv, diag)
+            fric = (params.viscous[:, None] * x[None, :, n:] + params.coulomb[:, None]
                     * np.tanh(x[None, :, n:] / spec.coulomb_velocity))
             lhs = (mv + fric).reshape(pop * samples, n)
             diag = diag.reshape(pop * samples, n)

@@ -24,8 +24,9 @@ from typing import List, Sequence, Tuple
 
 import numpy as np
 
-from .identify import nrmse, RKGNNModel
+from .identify import nrmse
 from ..data import Dataset
+from ..model.model import RKGNNModel
 
 __all__ = ['MIN_SEGMENT_SAMPLES', 'split_validation', 'validation_nrmse']
 

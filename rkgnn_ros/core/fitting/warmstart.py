@@ -38,7 +38,9 @@ import numpy as np
 from scipy.optimize import lsq_linear
 from scipy.signal import savgol_filter
 
-from ..model.network import NetworkSpec, Scales
+from ..model.network import BatchedNetwork, features
+from ..model.scales import Scales
+from ..model.spec import NetworkSpec
 
 # Genome blocks solved here; everything else (centres, widths) is kept from the start genome.
 LINEAR_BLOCKS = ('theta_weights', 'theta_bias', 'friction', 'pd_linear')
@@ -85,9 +87,8 @@ def _design(spec: NetworkSpec, scales: Scales, params, theta, theta_dot, theta_d
     out_scale = spec.output_scales(scales)
     sl = spec.output_slices()
     n_out = spec.n_outputs
-    # φ of the θ units at every sample, (N, K); the bias is a unit with φ = 1
-    d2 = np.sum(np.square(theta[:, None, :] - params['centres'][0][None]), axis=-1)
-    phi = np.exp(-d2 * params['inv_width2'][0][None])
+    # φ of the θ features at every sample, (N, F); the bias is a feature with φ = 1
+    phi = features(spec, params, theta)
     # r[t, i, o]: how output o (in physical units) enters row i at sample t
     r = np.zeros((n_samples, n, n_out))
     idx = sl['inertia'].start
@@ -112,8 +113,8 @@ def _design(spec: NetworkSpec, scales: Scales, params, theta, theta_dot, theta_d
     r = r * out_scale[None, None, :]
     columns, index = [], []
     b = blocks['theta_weights']
-    # weight (o, k) -> regressor r[:, :, o] * φ_k
-    cols = r[:, :, :, None] * phi[:, None, None, :]  # (N, n, n_out, K)
+    # weight (o, f) -> regressor r[:, :, o] * φ_f
+    cols = r[:, :, :, None] * phi[:, None, None, :]  # (N, n, n_out, F)
     columns.append(cols.reshape(n_samples * n, -1))
     index.append(np.arange(b.start, b.stop))
     if 'theta_bias' in blocks:
@@ -137,14 +138,15 @@ def _design(spec: NetworkSpec, scales: Scales, params, theta, theta_dot, theta_d
             lin[:, i, 1, i] = -scales.torque[i] / scales.error_rate[i] * derr[:, i]
         columns.append(lin.reshape(n_samples * n, 2 * n))
         index.append(np.arange(b.start, b.stop))
-    for name, e in (('p', err), ('d', derr)):
+    for name, e, centres, inv_width2 in (('p', err, params.p_centres, params.p_inv_width2),
+                                         ('d', derr, params.d_centres, params.d_inv_width2)):
         if f'{name}_net' not in blocks:
             continue
         b = blocks[f'{name}_net']
         kt = spec.torque_units
         # weights are the third slab of the (3, n, Kt) block
-        phi_e = np.exp(-np.square(e[:, :, None] - params[f'{name}_centres'][0][None])
-                       * params[f'{name}_inv_width2'][0][None])  # (N, n, Kt)
+        phi_e = np.exp(-np.square(e[:, :, None] - centres[0][None])
+                       * inv_width2[0][None])  # (N, n, Kt)
         cols = np.zeros((n_samples, n, n, kt))
         for i in range(n):
             cols[:, i, i, :] = -scales.torque[i] * phi_e[:, i, :]
@@ -238,7 +240,6 @@ def least_squares_genome(spec: NetworkSpec, datasets: Sequence, scales: Scales,
 
 def _fix_gauge(spec, scales, g, datasets):
     """Scale the linear elements so that mean diag(M)/inertia scale = 1 (case 3 gauge)."""
-    from ..model.network import BatchedNetwork
     theta = np.vstack([d.theta for d in datasets])
     step = max(1, theta.shape[0] // 200)
     net = BatchedNetwork(spec, spec.decode(g[None], scales), scales)

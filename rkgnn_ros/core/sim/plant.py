@@ -12,6 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
+
 """
 The plant: a planar n-link revolute arm in a vertical plane, and its PD servo controller.
 
@@ -38,67 +39,21 @@ g Σ h_i sin φ_i, and Lagrange's equations give, with w_i = Σ_j d_ij sin(φ_i 
 
     M = Sᵀ D S,   V = Sᵀ w,   G = Sᵀ (g h ∘ cos φ)
 
-All of it is analytic (no finite differences) and vectorised over leading batch axes.
-
-For compiled code, :func:`forward_dynamics_kernel` (allocating) and
-:func:`forward_dynamics_into` (caller-owned buffers, for inner loops) are numba versions of
-``forward_dynamics`` for one state; they take the constants of
-:meth:`PlanarArm.kernel_constants`.
+All of it is analytic (no finite differences) and vectorised over leading batch axes. The
+parameters are in :mod:`.parameters`, the compiled single-state forward dynamics in
+:mod:`.plant_kernels`, the closed-loop stability analysis (which step a simulation may take)
+in :mod:`.stability`. :class:`PDController` is the arm's servo, eq. (9) of the paper.
 """
 
-from dataclasses import dataclass
-import math
-from typing import NamedTuple, Optional, Tuple, Union
+from typing import Tuple, Union
 
-from numba import njit
 import numpy as np
 
-#: Stability limit |hλ| of every 4-stage 4th-order explicit Runge-Kutta method (classical
-#: RK4 and Runge-Kutta-Gill share the stability polynomial 1 + z + z²/2 + z³/6 + z⁴/24) on
-#: the negative real axis: the real root of z³ + 4z² + 12z + 24 = 0.
-RK4_REAL_STABILITY_LIMIT = 2.785293563405282
-
-#: The same limit on the imaginary axis, 2√2.
-RK4_IMAG_STABILITY_LIMIT = 2.0 * np.sqrt(2.0)
-
-MASS_MODELS = ('point', 'rod')
+from .parameters import ArmParameters
+from .plant_kernels import forward_dynamics_kernel, KernelConstants
+from .stability import ClosedLoopAnalysis, gain_matrix
 
 ArrayLike = Union[float, np.ndarray]
-
-
-def _vector(name: str, value, n: Optional[int] = None, *, positive=False,
-            nonnegative=False) -> np.ndarray:
-    """Validate a finite 1-D float vector (a scalar is broadcast when ``n`` is given)."""
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0 and n is not None:
-        arr = np.full(n, float(arr))
-    if arr.ndim != 1:
-        raise ValueError(f'{name} must be a 1-D array, got shape {arr.shape}')
-    if n is not None and arr.size != n:
-        raise ValueError(f'{name} must have {n} entries, got {arr.size}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name} must be finite, got {arr}')
-    if positive and np.any(arr <= 0.0):
-        raise ValueError(f'{name} must be positive, got {arr}')
-    if nonnegative and np.any(arr < 0.0):
-        raise ValueError(f'{name} must be non-negative, got {arr}')
-    return arr
-
-
-def _gain_matrix(name: str, value, n: int) -> np.ndarray:
-    """Return a gain as an (n, n) matrix; a scalar or (n,) vector means a diagonal gain."""
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(n, float(arr))
-    if arr.ndim == 1:
-        if arr.size != n:
-            raise ValueError(f'{name} must have {n} diagonal entries, got {arr.size}')
-        arr = np.diag(arr)
-    if arr.shape != (n, n):
-        raise ValueError(f'{name} must be a scalar, shape ({n},) or ({n}, {n}), got {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name} must be finite')
-    return arr
 
 
 def _rcumsum(a: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -106,138 +61,7 @@ def _rcumsum(a: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.flip(np.cumsum(np.flip(a, axis), axis=axis), axis)
 
 
-@dataclass(frozen=True, eq=False)
-class ArmParameters:
-    """
-    Physical parameters of a planar n-link arm.
-
-    Attributes
-    ----------
-    masses : ndarray, shape (n,)
-        Link masses m_i (kg), positive.
-    lengths : ndarray, shape (n,)
-        Link lengths l_i (m), positive.
-    mass_model : {'point', 'rod'}
-        ``'point'`` (default): each mass is a point at the distal end of its link, c_i = l_i,
-        no inertia about the centre of mass (the paper's Table 1 gives only masses and
-        lengths). ``'rod'``: uniform slender rods, c_i = l_i / 2, inertia m_i l_i² / 12 about
-        the centre of mass.
-    gravity : float
-        Gravitational acceleration g (m/s²) along -y; the arm moves in a vertical plane.
-    viscous : ndarray, shape (n,)
-        Viscous friction coefficients (N m s/rad), default zeros.
-    coulomb : ndarray, shape (n,)
-        Coulomb friction levels (N m), default zeros. The friction torque is
-        ``viscous * θ̇ + coulomb * tanh(θ̇ / coulomb_velocity)``.
-    coulomb_velocity : float
-        Smoothing velocity (rad/s) of the Coulomb term, positive.
-
-    """
-
-    masses: np.ndarray
-    lengths: np.ndarray
-    mass_model: str = 'point'
-    gravity: float = 9.81
-    viscous: Optional[np.ndarray] = None
-    coulomb: Optional[np.ndarray] = None
-    coulomb_velocity: float = 0.05
-
-    def __post_init__(self):
-        masses = _vector('masses', self.masses, positive=True)
-        n = masses.size
-        if n < 1:
-            raise ValueError('masses must have at least one entry (n >= 1)')
-        lengths = _vector('lengths', self.lengths, n, positive=True)
-        if self.mass_model not in MASS_MODELS:
-            raise ValueError(f'mass_model must be one of {MASS_MODELS}, got {self.mass_model!r}')
-        gravity = float(self.gravity)
-        if not np.isfinite(gravity):
-            raise ValueError(f'gravity must be finite, got {self.gravity}')
-        viscous = _vector('viscous', 0.0 if self.viscous is None else self.viscous, n,
-                          nonnegative=True)
-        coulomb = _vector('coulomb', 0.0 if self.coulomb is None else self.coulomb, n,
-                          nonnegative=True)
-        coulomb_velocity = float(self.coulomb_velocity)
-        if not (np.isfinite(coulomb_velocity) and coulomb_velocity > 0.0):
-            raise ValueError(f'coulomb_velocity must be positive, got {self.coulomb_velocity}')
-        for name, value in (('masses', masses), ('lengths', lengths), ('gravity', gravity),
-                            ('viscous', viscous), ('coulomb', coulomb),
-                            ('coulomb_velocity', coulomb_velocity)):
-            object.__setattr__(self, name, value)
-
-    @classmethod
-    def paper(cls, mass_model: str = 'point') -> 'ArmParameters':
-        """
-        Return the three-link arm of the paper's Table 1 with modest friction.
-
-        Masses (6, 4, 3) kg and lengths (0.2, 0.3, 0.1) m are the paper's. The paper gives no
-        friction values; these are plausible for small geared joints, decreasing towards the
-        wrist: viscous (0.5, 0.3, 0.1) N m s/rad and Coulomb (0.3, 0.2, 0.1) N m, smoothed
-        with ``tanh(θ̇ / 0.05 rad/s)``.
-        """
-        return cls(masses=np.array([6.0, 4.0, 3.0]), lengths=np.array([0.2, 0.3, 0.1]),
-                   mass_model=mass_model, gravity=9.81,
-                   viscous=np.array([0.5, 0.3, 0.1]), coulomb=np.array([0.3, 0.2, 0.1]),
-                   coulomb_velocity=0.05)
-
-    @property
-    def n_joints(self) -> int:
-        """Count of links and joints, n."""
-        return self.masses.size
-
-    @property
-    def com_distances(self) -> np.ndarray:
-        """Distance c_i of each link's centre of mass from its joint, shape (n,)."""
-        return self.lengths if self.mass_model == 'point' else 0.5 * self.lengths
-
-    @property
-    def com_inertias(self) -> np.ndarray:
-        """Inertia of each link about its own centre of mass (kg m²), shape (n,)."""
-        if self.mass_model == 'point':
-            return np.zeros(self.n_joints)
-        return self.masses * self.lengths ** 2 / 12.0
-
-    @property
-    def first_moments(self) -> np.ndarray:
-        """First moments m_i c_i of the links about their joints (kg m), shape (n,)."""
-        return self.masses * self.com_distances
-
-    @property
-    def joint_inertias(self) -> np.ndarray:
-        """Inertias J_i = m_i c_i² + I_ci of the links about their joints, shape (n,)."""
-        return self.masses * self.com_distances ** 2 + self.com_inertias
-
-    def without_friction(self) -> 'ArmParameters':
-        """Return a copy with zero viscous and Coulomb friction."""
-        return ArmParameters(self.masses, self.lengths, self.mass_model, self.gravity,
-                             coulomb_velocity=self.coulomb_velocity)
-
-
-class KernelConstants(NamedTuple):
-    """
-    Constants of the compiled forward-dynamics kernels, in their argument order.
-
-    Attributes
-    ----------
-    d : ndarray, shape (n, n)
-        The symmetric link constants d_ij of the module docstring (D(φ) = d ∘ cos(φ_i - φ_j)).
-    gh : ndarray, shape (n,)
-        The gravity moments g h_i.
-    viscous, coulomb : ndarray, shape (n,)
-        Friction coefficients (:class:`ArmParameters`).
-    coulomb_velocity : float
-        Coulomb smoothing velocity.
-
-    """
-
-    d: np.ndarray
-    gh: np.ndarray
-    viscous: np.ndarray
-    coulomb: np.ndarray
-    coulomb_velocity: float
-
-
-class PlanarArm:
+class PlanarArm(ClosedLoopAnalysis):
     """
     Rigid-body dynamics of a planar n-link arm in a vertical plane.
 
@@ -587,307 +411,6 @@ class PlanarArm:
         """
         return self.regressor(theta, theta_dot, theta_ddot)[..., self.n_joints:]
 
-    # -- closed-loop stiffness ------------------------------------------------------------
-
-    def closed_loop_eigenvalues(self, theta: ArrayLike, theta_dot: ArrayLike, kp, kd,
-                                theta_d: Optional[ArrayLike] = None,
-                                theta_d_dot: Optional[ArrayLike] = None,
-                                eps: float = 1e-6) -> np.ndarray:
-        """
-        Return the eigenvalues of the Jacobian ∂f/∂x of the PD closed loop at a state.
-
-        The closed loop is ẋ = f(x) = [θ̇, M⁻¹(Kp(θd - θ) + Kd(θ̇d - θ̇) - V - G - F)] with
-        θd, θ̇d frozen (default: equal to θ, θ̇, i.e. on the reference). The Jacobian is
-        taken by central differences with relative step ``eps``.
-
-        Parameters
-        ----------
-        theta, theta_dot : array_like, shape (..., n)
-            States at which to linearise.
-        kp, kd : array_like, scalar, shape (n,) or (n, n)
-            Proportional and derivative gains (a vector means a diagonal gain).
-        theta_d, theta_d_dot : array_like, shape (..., n), optional
-            Frozen desired trajectory; default ``theta`` and ``theta_dot``.
-        eps : float
-            Relative finite-difference step.
-
-        Returns
-        -------
-        ndarray, shape (..., 2n), complex
-
-        """
-        n = self.n_joints
-        theta = self._joint_array('theta', theta)
-        theta_dot = self._joint_array('theta_dot', theta_dot)
-        kp = _gain_matrix('kp', kp, n)
-        kd = _gain_matrix('kd', kd, n)
-        theta_d = theta if theta_d is None else self._joint_array('theta_d', theta_d)
-        theta_d_dot = (theta_dot if theta_d_dot is None
-                       else self._joint_array('theta_d_dot', theta_d_dot))
-        theta, theta_dot, theta_d, theta_d_dot = np.broadcast_arrays(
-            theta, theta_dot, theta_d, theta_d_dot)
-        x = np.concatenate([theta, theta_dot], axis=-1)             # (..., 2n)
-        step = eps * np.maximum(1.0, np.abs(x))                      # (..., 2n)
-        delta = np.eye(2 * n) * step[..., None, :]                   # (..., 2n, 2n) rows
-        xs = np.concatenate([x[..., None, :] + delta, x[..., None, :] - delta], axis=-2)
-        th, thd = xs[..., :n], xs[..., n:]
-        ref = theta_d[..., None, :]
-        ref_dot = theta_d_dot[..., None, :]
-        tau = (ref - th) @ kp.T + (ref_dot - thd) @ kd.T
-        f = np.concatenate([thd, self.forward_dynamics(th, thd, tau)], axis=-1)
-        jac_t = (f[..., :2 * n, :] - f[..., 2 * n:, :]) / (2.0 * step[..., :, None])
-        return np.linalg.eigvals(np.swapaxes(jac_t, -1, -2))
-
-    def closed_loop_stiffness(self, theta: ArrayLike, theta_dot: ArrayLike, kp, kd,
-                              **kwargs) -> Union[float, np.ndarray]:
-        """
-        Return the largest |λ| of the PD closed-loop Jacobian at a state (1/s).
-
-        See :meth:`closed_loop_eigenvalues` for the arguments. A float for a single state,
-        otherwise an array of shape (...).
-        """
-        lam = np.abs(self.closed_loop_eigenvalues(theta, theta_dot, kp, kd, **kwargs))
-        out = lam.max(axis=-1)
-        return float(out) if out.ndim == 0 else out
-
-    def stable_step(self, kp, kd, theta: ArrayLike, theta_dot: ArrayLike,
-                    safety: float = 0.5, **kwargs) -> float:
-        """
-        Return the largest Runge-Kutta-Gill step that is stable at all the given states.
-
-        For each eigenvalue λ of the closed-loop Jacobian the limit is r(arg λ) / |λ|, where
-        r is the distance from the origin to the boundary of the RK4 stability region along
-        the ray through λ (2.785 on the negative real axis); the result is ``safety`` times
-        the smallest limit. See :func:`rk4_stability_radius`.
-
-        Parameters
-        ----------
-        kp, kd : array_like
-            PD gains, as for :meth:`closed_loop_eigenvalues`.
-        theta, theta_dot : array_like, shape (..., n)
-            States (e.g. along a reference trajectory).
-        safety : float
-            Safety factor in (0, 1]; 0.5 by default, since the linearisation is local and the
-            trajectory leaves the sampled states.
-
-        """
-        if not 0.0 < safety <= 1.0:
-            raise ValueError(f'safety must be in (0, 1], got {safety}')
-        lam = self.closed_loop_eigenvalues(theta, theta_dot, kp, kd, **kwargs).ravel()
-        lam = lam[np.abs(lam) > 0.0]
-        if lam.size == 0:
-            return float('inf')
-        return float(safety * np.min(rk4_stability_radius(lam) / np.abs(lam)))
-
-
-@njit(cache=True, nogil=True, inline='always')
-def _smooth_sign(x):
-    """Return tanh(x) from one ``expm1`` (libm's tanh costs about four times as much)."""
-    if x > 20.0:
-        return 1.0
-    if x < -20.0:
-        return -1.0
-    e = math.expm1(2.0 * x)
-    return e / (e + 2.0)
-
-
-@njit(cache=True, nogil=True, fastmath={'contract'})
-def forward_dynamics_into(theta, theta_dot, tau, d, gh, viscous, coulomb, coulomb_velocity,
-                          work, out):
-    """
-    Write θ̈ of one state into ``out``, allocating nothing: compiled forward dynamics.
-
-    The arithmetic of :meth:`PlanarArm.forward_dynamics` for a single state: builds D(φ)
-    and the right-hand side in absolute angles, solves by an LDLᵀ factorisation (D is
-    symmetric positive definite; n divisions and no square roots), then θ̈ = S⁻¹ φ̈. It
-    agrees with the numpy method to rounding (about 1e-15 relative; fused multiply-adds
-    are allowed). A numba function (``nogil``), callable from other compiled code in inner
-    loops (integrators, population kernels) with caller-owned buffers. The constants come
-    from :meth:`PlanarArm.kernel_constants`::
-
-        forward_dynamics_into(theta, theta_dot, tau, *arm.kernel_constants(), work, out)
-
-    Parameters
-    ----------
-    theta, theta_dot, tau : ndarray, shape (n,)
-        Joint angles (rad), velocities (rad/s) and applied torques (N m).
-    d : ndarray, shape (n, n)
-        The link constants d_ij (see the module docstring).
-    gh : ndarray, shape (n,)
-        g h_i, the gravity moments.
-    viscous, coulomb : ndarray, shape (n,)
-        Friction coefficients.
-    coulomb_velocity : float
-        Coulomb smoothing velocity.
-    work : ndarray, shape (n + 3, n)
-        Scratch space, overwritten.
-    out : ndarray, shape (n,)
-        Receives θ̈ (rad/s²). Must not alias the inputs.
-
-    """
-    n = theta.shape[0]
-    a = work[:n]                # D(φ), then L (below the diagonal) and p (on it)
-    c = work[n]                 # cos φ
-    s = work[n + 1]             # sin φ
-    phi_dot = work[n + 2]
-    acc, acc_dot = 0.0, 0.0
-    for i in range(n):
-        acc += theta[i]
-        acc_dot += theta_dot[i]
-        c[i] = math.cos(acc)
-        s[i] = math.sin(acc)
-        phi_dot[i] = acc_dot
-    # q = τ - F in out, then (in place, ascending) the right-hand side S⁻ᵀ q - w - g h cos φ
-    for i in range(n):
-        out[i] = (tau[i] - viscous[i] * theta_dot[i]
-                  - coulomb[i] * _smooth_sign(theta_dot[i] / coulomb_velocity))
-    for i in range(n):
-        r = out[i] - gh[i] * c[i]
-        if i + 1 < n:
-            r -= out[i + 1]
-        for j in range(n):
-            r -= d[i, j] * (s[i] * c[j] - c[i] * s[j]) * phi_dot[j] * phi_dot[j]
-            a[i, j] = d[i, j] * (c[i] * c[j] + s[i] * s[j])
-        out[i] = r
-    # LDLᵀ by columns: a[i, j] <- L_ij (i > j), a[j, j] <- p_j, and 1/p_j in the c row,
-    # free by now
-    inv_p = c
-    for j in range(n):
-        for i in range(j, n):
-            v = a[i, j]
-            for k in range(j):
-                v -= a[i, k] * a[j, k] * a[k, k]        # L_ik L_jk p_k
-            a[i, j] = v
-        p = a[j, j]
-        inv = 1.0 / p if p > 0.0 else math.nan
-        inv_p[j] = inv
-        for i in range(j + 1, n):
-            a[i, j] *= inv
-    for i in range(n):                                  # L z = rhs
-        v = out[i]
-        for k in range(i):
-            v -= a[i, k] * out[k]
-        out[i] = v
-    for i in range(n - 1, -1, -1):                      # Lᵀ φ̈ = z / p
-        v = out[i] * inv_p[i]
-        for k in range(i + 1, n):
-            v -= a[k, i] * out[k]
-        out[i] = v
-    # θ̈ = S⁻¹ φ̈ (descending, in place)
-    for i in range(n - 1, 0, -1):
-        out[i] -= out[i - 1]
-
-
-@njit(cache=True, nogil=True)
-def forward_dynamics_kernel(theta, theta_dot, tau, d, gh, viscous, coulomb,
-                            coulomb_velocity):
-    """
-    Return θ̈ of one state, shape (n,): compiled forward dynamics.
-
-    :func:`forward_dynamics_into` with freshly allocated buffers, for compiled code that
-    is not in a hot loop and for use from Python::
-
-        theta_ddot = forward_dynamics_kernel(theta, theta_dot, tau, *arm.kernel_constants())
-
-    The arguments are those of :func:`forward_dynamics_into` without ``work`` and ``out``.
-    """
-    n = theta.shape[0]
-    out = np.empty(n)
-    forward_dynamics_into(theta, theta_dot, tau, d, gh, viscous, coulomb, coulomb_velocity,
-                          np.empty((n + 3, n)), out)
-    return out
-
-
-#: Former private name of :func:`forward_dynamics_kernel`, kept for existing importers.
-_forward_kernel = forward_dynamics_kernel
-
-
-def rk4_stability_radius(lam: ArrayLike) -> np.ndarray:
-    """
-    Return the distance r to the RK4 stability boundary along the ray through each λ.
-
-    ``|R(r λ/|λ|)| = 1`` with R(z) = 1 + z + z²/2 + z³/6 + z⁴/24, the stability polynomial of
-    classical RK4 and of Runge-Kutta-Gill. For λ in the open left half-plane this is the
-    first exit from the stability region (2.785 on the negative real axis). Eigenvalues with
-    Re λ >= 0 belong to undamped or growing modes that no step size stabilises; they get
-    the imaginary-axis value 2√2 so that the step still resolves their time scale.
-
-    Parameters
-    ----------
-    lam : array_like, complex, shape (...)
-        Non-zero eigenvalues.
-
-    Returns
-    -------
-    ndarray, shape (...)
-
-    """
-    lam = np.asarray(lam, dtype=complex)
-    u = lam / np.abs(lam)
-    radius = np.full(u.shape, RK4_IMAG_STABILITY_LIMIT)
-    left = u.real < -1e-12
-    if np.any(left):
-        ul = u[left]
-
-        def unstable(r):
-            z = r * ul
-            return np.abs(1.0 + z * (1.0 + z * (0.5 + z * (1.0 / 6.0 + z / 24.0)))) > 1.0
-
-        # the boundary lies within |z| < 3 in the left half-plane; scan, then bisect
-        grid = np.linspace(0.0, 3.0, 601)[1:]
-        exits = np.array([unstable(r) for r in grid])               # (601-1, L)
-        first = np.where(exits.any(axis=0), exits.argmax(axis=0), grid.size - 1)
-        hi = grid[first]
-        lo = np.where(first > 0, grid[np.maximum(first - 1, 0)], 0.0)
-        for _ in range(50):
-            mid = 0.5 * (lo + hi)
-            bad = unstable(mid)
-            hi = np.where(bad, mid, hi)
-            lo = np.where(bad, lo, mid)
-        radius[left] = lo
-    return radius
-
-
-def max_stable_rkg_step(arm: PlanarArm, kp, kd, reference, duration: float,
-                        t0: float = 0.0, samples: int = 200, safety: float = 0.5) -> float:
-    """
-    Estimate the largest stable Runge-Kutta-Gill step along a reference trajectory.
-
-    Samples ``samples`` states on the reference (θ = θd(t), θ̇ = θ̇d(t)) over
-    ``[t0, t0 + duration]`` and returns :meth:`PlanarArm.stable_step` over all of them. A
-    sampling interval dt larger than this needs ``ceil(dt / h)`` RKG sub-steps per sample.
-
-    Parameters
-    ----------
-    arm : PlanarArm
-        The plant.
-    kp, kd : array_like
-        PD gains (a vector means a diagonal gain).
-    reference : Reference
-        Anything with ``evaluate(t) -> (theta_d, theta_d_dot)``.
-    duration : float
-        Time span to sample (s), positive.
-    t0 : float
-        Start time.
-    samples : int
-        Number of states.
-    safety : float
-        Safety factor, 0.5 by default.
-
-    Returns
-    -------
-    float
-        Step h in seconds.
-
-    """
-    if not (np.isfinite(duration) and duration > 0.0):
-        raise ValueError(f'duration must be positive, got {duration}')
-    if samples < 1:
-        raise ValueError(f'samples must be >= 1, got {samples}')
-    t = t0 + np.linspace(0.0, duration, int(samples))
-    theta, theta_dot = reference.evaluate(t)
-    return arm.stable_step(kp, kd, theta, theta_dot, safety=safety)
-
 
 class PDController:
     """
@@ -907,10 +430,14 @@ class PDController:
         n = kp_arr.shape[0] if kp_arr.ndim >= 1 else None
         if n is None:
             raise ValueError('kp must be a vector or matrix so that n is known')
-        self.kp = _gain_matrix('kp', kp_arr, n)
-        self.kd = _gain_matrix('kd', kd, n)
-        self.tau_limit = (None if tau_limit is None
-                          else _vector('tau_limit', tau_limit, n, positive=True))
+        self.kp = gain_matrix('kp', kp_arr, n)
+        self.kd = gain_matrix('kd', kd, n)
+        self.tau_limit = None
+        if tau_limit is not None:
+            limit = np.broadcast_to(np.asarray(tau_limit, dtype=float), (n,)).copy()
+            if not (np.all(np.isfinite(limit)) and np.all(limit > 0.0)):
+                raise ValueError(f'tau_limit must be positive and finite, got {tau_limit!r}')
+            self.tau_limit = limit
 
     @classmethod
     def paper(cls) -> 'PDController':

@@ -46,11 +46,12 @@ import math
 from numba import get_parallel_chunksize, njit, prange, set_parallel_chunksize
 import numpy as np
 
-from .plant import forward_dynamics_into, PlanarArm
+from .plant import PlanarArm
+from .plant_kernels import forward_dynamics_into
 from .simulate import MAX_SPEED
+from .tracking import TrackingProblem
 from .trajectories import Reference
-from .tuning import TrackingProblem
-from ..integration.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
+from ..integration.rkg import gill_stage, rkg_step
 
 __all__ = ['DEFAULT_STEP', 'SampledTrackingProblem']
 
@@ -58,45 +59,28 @@ __all__ = ['DEFAULT_STEP', 'SampledTrackingProblem']
 #: rollout is then far below the differences the study compares.
 DEFAULT_STEP = 1e-3
 
-#: Gill's form of one Runge-Kutta-Gill step as data, one row (a, b, beta, e) per stage:
-#: y += a k + b q, then q = beta q + e k, with k = h f(y) the stage's slope and y starting
-#: at x with q = 0 (the last row's q update is unused). Rows 2-4 are the paper's steps 2-4
-#: with its step-4 typo fixed (x4 = x3 + k3 / 6 - q3 / 3).
-_GILL_STAGES = np.array([[0.5, 0.0, 0.0, 1.0],
-                         [ALPHA, -ALPHA, BETA, E],
-                         [D, -D, GAMMA, G],
-                         [1.0 / 6.0, -1.0 / 3.0, 0.0, 0.0]])
-
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _held_torque_step(th, om, tau, h, stages, d, gh, viscous, coulomb, coulomb_velocity,
-                      yth, yom, qth, qom, acc, work):
-    """Advance θ, θ̇ (n,) in place by one RKG step of width ``h`` under the torque ``tau``."""
-    n = th.shape[0]
-    for i in range(n):
-        yth[i] = th[i]
-        yom[i] = om[i]
-        qth[i] = 0.0
-        qom[i] = 0.0
-    for s in range(4):
-        a, b, beta, e = stages[s, 0], stages[s, 1], stages[s, 2], stages[s, 3]
-        forward_dynamics_into(yth, yom, tau, d, gh, viscous, coulomb, coulomb_velocity, work,
-                              acc)
-        for i in range(n):
-            kth = h * yom[i]
-            kom = h * acc[i]
-            yth[i] += a * kth + b * qth[i]
-            yom[i] += a * kom + b * qom[i]
-            qth[i] = beta * qth[i] + e * kth
-            qom[i] = beta * qom[i] + e * kom
-    for i in range(n):
-        th[i] = yth[i]
-        om[i] = yom[i]
+def _held_torque_step(x, tau, h, d, gh, viscous, coulomb, coulomb_velocity, xs, f, q, work):
+    """
+    Advance x = [θ, θ̇] (2n,) in place by one RKG step of width ``h`` under the torque ``tau``.
+
+    The stage loop of :func:`..integration.rkg.rkg_step` with its compiled stage update
+    :func:`..integration.rkg.gill_stage`; ``xs``, ``f``, ``q`` (2n,) and ``work`` (n + 3, n)
+    are the caller's buffers.
+    """
+    n = tau.shape[0]
+    xs[:] = x
+    for stage in range(4):
+        f[:n] = xs[n:]
+        forward_dynamics_into(xs[:n], xs[n:], tau, d, gh, viscous, coulomb, coulomb_velocity,
+                              work, f[n:])
+        gill_stage(stage, h, x, xs, f, q)
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
 def _sampled_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, p, limit,
-                  stages, d, gh, viscous, coulomb, coulomb_velocity, max_speed):
+                  d, gh, viscous, coulomb, coulomb_velocity, max_speed):
     """
     Return the eq. (10) cost of candidate ``p`` under the digital servo, or +inf.
 
@@ -106,14 +90,13 @@ def _sampled_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, p,
     the torque limits (inf: none).
     """
     n = x0.shape[0] // 2
-    th = x0[:n].copy()
-    om = x0[n:].copy()
+    x = x0.copy()
+    th = x[:n]                          # views: the step updates x in place
+    om = x[n:]
     tau = np.zeros(n)
-    yth = np.empty(n)
-    yom = np.empty(n)
-    qth = np.empty(n)
-    qom = np.empty(n)
-    acc = np.empty(n)
+    xs = np.empty(2 * n)
+    f = np.empty(2 * n)
+    q = np.empty(2 * n)
     work = np.empty((n + 3, n))
     n_steps = (sample_ref.shape[0] - 1) * per_sample
     total = 0.0
@@ -124,8 +107,8 @@ def _sampled_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, p,
                 u = (gains[p, i] * (servo_ref[k, 0, i] - th[i])
                      + gains[p, n + i] * (servo_ref[k, 1, i] - om[i]))
                 tau[i] = min(max(u, -limit[i]), limit[i])
-        _held_torque_step(th, om, tau, h, stages, d, gh, viscous, coulomb, coulomb_velocity,
-                          yth, yom, qth, qom, acc, work)
+        _held_torque_step(x, tau, h, d, gh, viscous, coulomb, coulomb_velocity, xs, f, q,
+                          work)
         for i in range(n):
             if not (abs(om[i]) <= max_speed and math.isfinite(th[i])):
                 return math.inf
@@ -142,12 +125,11 @@ def _sampled_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, p,
 
 @njit(cache=True, nogil=True, parallel=True, error_model='numpy')
 def _population_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, limit,
-                     stages, d, gh, viscous, coulomb, coulomb_velocity, max_speed, out):
+                     d, gh, viscous, coulomb, coulomb_velocity, max_speed, out):
     """Write the cost of every row of ``gains`` (P, 2n) into ``out`` (P,), in parallel."""
     for p in prange(gains.shape[0]):
         out[p] = _sampled_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, p,
-                               limit, stages, d, gh, viscous, coulomb, coulomb_velocity,
-                               max_speed)
+                               limit, d, gh, viscous, coulomb, coulomb_velocity, max_speed)
 
 
 def _grid(rate: float, servo_rate: float, step: float):
@@ -268,7 +250,7 @@ class SampledTrackingProblem:
         try:
             _population_cost(self.x0, self.servo_reference, self.sample_reference,
                              self.per_servo, self.per_sample, self.h, g, self.torque_limit,
-                             _GILL_STAGES, *self._constants, self.max_speed, out)
+                             *self._constants, self.max_speed, out)
         finally:
             set_parallel_chunksize(chunksize)
         return out

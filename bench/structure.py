@@ -1,0 +1,185 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The shape of the package, measured: module and class sizes and where the Gill update lives.
+
+Run from the package root (any checkout: ``--root`` measures another one)::
+
+    python3 bench/structure.py
+
+Writes ``bench/results/structure.json`` with
+
+- ``max_module_lines``: the longest module under ``rkgnn_ros/`` (lines, as ``wc -l``);
+- ``max_class_lines``: the longest class there (from its ``class`` line to its last line,
+  docstring included, decorators not);
+- ``node_module_lines``: the lines of ``rkgnn_ros/identifier.py``;
+- ``rkg_step_definitions``: how many functions define a Runge-Kutta-Gill update, found by
+  scanning every function under ``rkgnn_ros/`` for the coefficients that only this method
+  uses: Gill's alpha, beta, gamma by name (``ALPHA``, ``rkg.BETA``), any coefficient a
+  module imports from ``integration.rkg`` (``D``, ``E``, ``G``, the tableau's ``A``, ``B``)
+  by its imported name, and the numeric values of alpha, beta, gamma, d, e, g and of the
+  tableau's entries that involve √2; each is listed by file and function. A module-level
+  table built from coefficients imported from ``rkg`` (a stepping method as data, such as
+  rows of Gill's stages for a generic stage loop) counts too, listed by file and name;
+
+and, to say where the limits (600 lines a module, 400 a class) are not met, every module
+and class over them. Nothing here imports the package: the files are parsed, not run.
+"""
+
+import argparse
+import ast
+import datetime
+import json
+import math
+import os
+import subprocess
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+MODULE_LIMIT = 600
+CLASS_LIMIT = 400
+
+SQRT2 = math.sqrt(2.0)
+#: Gill's alpha, beta, gamma: the coefficients of the accumulator form and nothing else.
+GILL_NAMES = {'ALPHA', 'BETA', 'GAMMA'}
+#: Names of coefficients that count where a module imports them from ``integration.rkg``.
+RKG_COEFFICIENTS = {'ALPHA', 'BETA', 'GAMMA', 'D', 'E', 'G', 'A', 'B'}
+#: |value| of alpha, beta, gamma, d, e, g and the tableau's √2 entries (A20, A21, B1, B2).
+GILL_VALUES = (abs((SQRT2 - 1.0) / SQRT2), abs(-2.0 + 3.0 / SQRT2), 2.0 + 3.0 / SQRT2,
+               (SQRT2 + 1.0) / SQRT2, 2.0 - SQRT2, 2.0 + SQRT2, (SQRT2 - 1.0) / 2.0,
+               (2.0 - SQRT2) / 2.0, (2.0 - SQRT2) / 6.0, (2.0 + SQRT2) / 6.0)
+
+
+def python_files(package):
+    """Return every ``.py`` file under ``package``, sorted, as paths."""
+    found = []
+    for folder, dirs, files in os.walk(package):
+        dirs[:] = sorted(d for d in dirs if d != '__pycache__')
+        found += [os.path.join(folder, f) for f in sorted(files) if f.endswith('.py')]
+    return found
+
+
+def imported_coefficients(tree):
+    """Return the local names a module binds to RKG coefficients imported from ``rkg``."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.module or '').split('.')[-1] == 'rkg':
+            names |= {a.asname or a.name for a in node.names if a.name in RKG_COEFFICIENTS}
+    return names
+
+
+def uses_gill_coefficients(node, imported=frozenset()):
+    """
+    Return whether a function's body uses a coefficient of the RKG method.
+
+    By name (Gill's alpha, beta, gamma, or a coefficient the module imported from ``rkg``,
+    ``imported``) or by value (:data:`GILL_VALUES`).
+    """
+    for child in ast.walk(node):
+        if isinstance(child, ast.Name) and (child.id in GILL_NAMES or child.id in imported):
+            return True
+        if isinstance(child, ast.Attribute) and child.attr in GILL_NAMES:
+            return True
+        if isinstance(child, ast.Constant) and isinstance(child.value, float):
+            if any(abs(abs(child.value) - v) < 1e-6 for v in GILL_VALUES):
+                return True
+    return False
+
+
+def coefficient_tables(tree, imported):
+    """Return the names of module-level values built from imported RKG coefficients."""
+    found = []
+    for stmt in tree.body:
+        if isinstance(stmt, ast.Assign):
+            targets, value = stmt.targets, stmt.value
+        elif isinstance(stmt, ast.AnnAssign) and stmt.value is not None:
+            targets, value = [stmt.target], stmt.value
+        else:
+            continue
+        uses = any(isinstance(child, ast.Name) and child.id in imported
+                   for child in ast.walk(value))
+        if uses:
+            found += [t.id for t in targets if isinstance(t, ast.Name)]
+    return found
+
+
+def measure(root):
+    """Return the measurements of the checkout at ``root`` as a dict."""
+    package = os.path.join(root, 'rkgnn_ros')
+    modules, classes, gill = [], [], []
+    for path in python_files(package):
+        rel = os.path.relpath(path, root)
+        with open(path, encoding='utf-8') as f:
+            text = f.read()
+        modules.append((text.count('\n'), rel))
+        tree = ast.parse(text, filename=rel)
+        imported = imported_coefficients(tree)
+        gill += [f'{rel}:{name}' for name in coefficient_tables(tree, imported)]
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                classes.append((node.end_lineno - node.lineno + 1, f'{rel}:{node.name}'))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if uses_gill_coefficients(node, imported):
+                    gill.append(f'{rel}:{node.name}')
+    modules.sort(reverse=True)
+    classes.sort(reverse=True)
+    node = os.path.join(package, 'identifier.py')
+    node_lines = None
+    if os.path.exists(node):
+        with open(node, encoding='utf-8') as f:
+            node_lines = f.read().count('\n')
+    return {
+        'max_module_lines': modules[0][0],
+        'max_module': modules[0][1],
+        'max_class_lines': classes[0][0],
+        'max_class': classes[0][1],
+        'node_module_lines': node_lines,
+        'rkg_step_definitions': len(gill),
+        'rkg_step_definition_sites': gill,
+        'modules_over_limit': {name: lines for lines, name in modules if lines > MODULE_LIMIT},
+        'classes_over_limit': {name: lines for lines, name in classes if lines > CLASS_LIMIT},
+        'limits': {'module_lines': MODULE_LIMIT, 'class_lines': CLASS_LIMIT},
+        'modules': len(modules),
+    }
+
+
+def commit(root):
+    """Return the checkout's commit, or None outside git."""
+    try:
+        return subprocess.run(['git', 'rev-parse', 'HEAD'], cwd=root, check=True,
+                              capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--root', default=os.path.dirname(HERE),
+                        help='checkout to measure (default: this one)')
+    parser.add_argument('--out', default=os.path.join(HERE, 'results', 'structure.json'),
+                        help="where to write the JSON ('-': print only)")
+    args = parser.parse_args(argv)
+    result = measure(os.path.abspath(args.root))
+    result['commit'] = commit(args.root)
+    result['date'] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.out != '-':
+        with open(args.out, 'w', encoding='utf-8') as f:
+            f.write(text + '\n')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,126 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The inputs of a rollout at every Runge-Kutta-Gill stage time, from sampled data.
+
+A rollout between two samples takes ``substeps`` RKG steps, whose stages need the input u
+at t, t + h/2 and t + h of every step: the measured torque held or interpolated between its
+samples (case 1), or the desired trajectory θd, θ̇d (cases 2 and 3) evaluated from a
+reference or interpolated by cubic Hermite from its samples. The model's rollouts and the
+fitness problem both build their inputs here, once per segment.
+"""
+
+import numpy as np
+
+
+def hermite(t_knots, values, slopes, t_eval):
+    """
+    Cubic Hermite interpolation on a uniform grid, held constant outside it.
+
+    Parameters
+    ----------
+    t_knots : ndarray, shape (N,)
+        Uniform knot times.
+    values, slopes : ndarray, shape (N, m)
+        Values and derivatives at the knots.
+    t_eval : ndarray, shape (T,)
+        Where to evaluate.
+
+    Returns
+    -------
+    ndarray, shape (T, m)
+
+    """
+    dt = (t_knots[-1] - t_knots[0]) / (t_knots.size - 1)
+    s = np.clip((np.asarray(t_eval) - t_knots[0]) / dt, 0.0, t_knots.size - 1)
+    i = np.minimum(np.floor(s).astype(int), t_knots.size - 2)
+    u = (s - i)[:, None]
+    h00 = 2 * u ** 3 - 3 * u ** 2 + 1
+    h10 = u ** 3 - 2 * u ** 2 + u
+    h01 = -2 * u ** 3 + 3 * u ** 2
+    h11 = u ** 3 - u ** 2
+    return (h00 * values[i] + h10 * dt * slopes[i] + h01 * values[i + 1]
+            + h11 * dt * slopes[i + 1])
+
+
+def stage_times(t0, dt, n_intervals, substeps):
+    """Stage times t, t + h/2, t + h of every substep, shape (n_intervals, substeps, 3)."""
+    h = dt / substeps
+    base = t0 + dt * np.arange(n_intervals)[:, None] + h * np.arange(substeps)[None, :]
+    return base[:, :, None] + np.array([0.0, 0.5 * h, h])[None, None, :]
+
+
+def stage_inputs(case, t, substeps, tau=None, theta_d=None, theta_d_dot=None, reference=None,
+                 torque_interpolation='hold'):
+    """
+    Return the input u at every RKG stage of a uniformly sampled segment.
+
+    Parameters
+    ----------
+    case : str
+        'torque', 'pd_gains' or 'unknown'.
+    t : ndarray, shape (N,)
+        Uniform sample times.
+    substeps : int
+        RKG steps per sampling interval.
+    tau : ndarray, shape (N, n), optional
+        Case 'torque': the measured torque, held over each interval ('hold') or
+        interpolated linearly ('linear': first-order hold).
+    theta_d, theta_d_dot : ndarray, shape (N, n), optional
+        Other cases: desired samples, interpolated by cubic Hermite (θ̇d as the slope of θd,
+        finite differences of θ̇d as its own slope) unless ``reference`` is given.
+    reference : object with ``evaluate(times) -> (θd, θ̇d)``, optional
+        Evaluated exactly at the stage times.
+    torque_interpolation : str
+        'hold' or 'linear'.
+
+    Returns
+    -------
+    ndarray, shape (N-1, substeps, 3, m)
+        m = n (torque) or 2n ([θd, θ̇d]); the stages are t, t + h/2 and t + h.
+
+    """
+    t = np.asarray(t, dtype=float)
+    n_int = t.size - 1
+    dt = (t[-1] - t[0]) / n_int
+    if case == 'torque':
+        if tau is None:
+            raise ValueError("case 'torque' needs measured torque (Dataset.tau)")
+        tau = np.asarray(tau, dtype=float)
+        n = tau.shape[1]
+        if torque_interpolation == 'hold':
+            u = np.broadcast_to(tau[:-1, None, None, :], (n_int, substeps, 3, n))
+            return np.ascontiguousarray(u)
+        if torque_interpolation != 'linear':
+            raise ValueError(f"torque_interpolation must be 'hold' or 'linear', "
+                             f'got {torque_interpolation!r}')
+        frac = (stage_times(0.0, dt, n_int, substeps)
+                - dt * np.arange(n_int)[:, None, None]) / dt
+        tau0 = tau[:-1, None, None, :]
+        tau1 = tau[1:, None, None, :]
+        return np.ascontiguousarray(tau0 + frac[..., None] * (tau1 - tau0))
+    times = stage_times(t[0], dt, n_int, substeps).reshape(-1)
+    if reference is not None:
+        qd, qd_dot = reference.evaluate(times)
+    else:
+        if theta_d is None or theta_d_dot is None:
+            raise ValueError(f'case {case!r} needs the desired trajectory '
+                             '(Dataset.theta_d, theta_d_dot) or a reference')
+        qd = hermite(t, theta_d, theta_d_dot, times)
+        acc = np.gradient(theta_d_dot, dt, axis=0)
+        qd_dot = hermite(t, theta_d_dot, acc, times)
+    qd = np.asarray(qd)
+    u = np.concatenate([qd, np.asarray(qd_dot)], axis=-1)
+    return np.ascontiguousarray(u.reshape(n_int, substeps, 3, 2 * qd.shape[-1]))
