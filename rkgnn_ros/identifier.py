@@ -212,7 +212,8 @@ class IdentifierNode(Node):
 
     def _load_model_file(self, config):
         model, lines = load_model_file(config['model_file'], self._ingestion.joints,
-                                       config.case, lambda n: network_spec(config.values, n))
+                                       config.case, lambda n: network_spec(config.values, n),
+                                       config['model_step'])
         for level, text in lines:
             self._outbox.log(level, text)
         if model is not None and self._ingestion.joints is None:
