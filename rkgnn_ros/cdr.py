@@ -205,14 +205,14 @@ def joint_trajectory_cdr_size(raw: bytes):
     """
     Return ``(joint names, number of points)`` of a JointTrajectory's CDR bytes, or None.
 
-    Reads only the header and the names: what a size budget needs before anything is built
-    from the points. None when ``raw`` is not plain CDR or its beginning does not hold a
+    Reads only the header, the names and the count of points the message claims: what a
+    size budget needs before anything is built from the points (which need not even be
+    there). None when ``raw`` is not plain CDR or its beginning does not hold a
     JointTrajectory.
     """
     try:
         reader, _, _, names = _trajectory_reader(bytes(raw))
-        # an empty point takes 4 counts and a Duration: 24 bytes
-        return names, reader.count(24)
+        return names, reader.u32()  # the count the message claims, the points unread
     except (UnicodeDecodeError, struct.error, ValueError):
         return None
 
