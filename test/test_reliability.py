@@ -1266,3 +1266,13 @@ def test_hostile_clock_reset_clears_the_buffer(data):
         assert not _tracebacks(r)
     finally:
         r.close()
+
+
+def test_hostile_too_many_joints_to_learn_are_refused(data):
+    s = Streams(joints=[])
+    names = [f'j{k}' for k in range(70)]  # within the message budget, beyond the node's
+    s.state(_js(names, [0.1] * 70, [0.0] * 70, [0.0] * 70))
+    assert s.drops()['over_budget'] == 1 and s.ingestion.joints is None
+    assert s.log_lines('joint_states', 'over_budget', 'set the joints parameter')
+    s.feed(data, 0, 10)  # an arm's own stream is learned as before
+    assert s.ingestion.joints == JOINTS and s.buffered() == 10

@@ -45,6 +45,7 @@ from rkgnn_ros.cdr import is_plain_cdr
 from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arrays,
                                    joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
                                    parse_joint_state_cdr, Rejection, REJECTION_REASONS)
+from rkgnn_ros.identification.parameters import MAX_JOINTS
 from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -373,6 +374,9 @@ class Ingestion:
         if joints is None:
             names = self._message_names(raw) or ()
             sample = self._joint_sample(raw, names, need_tau)
+            if sample.ok and len(names) > MAX_JOINTS:
+                sample = Rejection('over_budget', f'{len(names)} joints to learn, more than '
+                                                  f'{MAX_JOINTS}: set the joints parameter')
             if not sample.ok:
                 self.reject('joint_states', 'state', sample.reason, sample.message)
                 return
