@@ -171,6 +171,33 @@ def pd_tuning_section(d):
     return lines + ['']
 
 
+def generalization_section(d):
+    """Return the generalization table: per arm, case and noise, ours beside the true model."""
+    meta = d.get('meta', {})
+    out = ['## Beyond the training motion (`bench/generalization.py`)', '',
+           f"Planar arms fitted on {meta.get('fit_s', '?')} s of one reference and scored on "
+           'a reference around another pose. Ours: ' + str(meta.get('ours', '?')) + '. '
+           'θ: 10 s held-out rollout NRMSE; τ: inverse-dynamics torque NRMSE on the held-out '
+           'states. Noisy: ' + str(meta.get('noise', '?')) + '.', '',
+           '| links | case | θ ours | θ true model | τ ours | τ true model | '
+           'θ ours, noisy | τ ours, noisy |', '|---|---|---|---|---|---|---|---|']
+    noisy = d.get('noisy', {})
+    for n in meta.get('arms', sorted(k for k in d if k.isdigit())):
+        for case in ('1', '2', '3'):
+            entry = d.get(n, {}).get(case)
+            if not entry:
+                continue
+            true = entry.get('methods', {}).get('true_model', {})
+            loud = noisy.get(n, {}).get(case, {})
+            out.append(f'| {n} | {case} | {_pct(entry.get("heldout_nrmse_10s"))} | '
+                       f'{_pct(true.get("heldout_nrmse_10s"))} | '
+                       f'{_pct(entry.get("torque_nrmse"))} | {_pct(true.get("torque_nrmse"))} | '
+                       f'{_pct(loud.get("heldout_nrmse_10s"))} | '
+                       f'{_pct(loud.get("torque_nrmse"))} |')
+    out.append('')
+    return out
+
+
 def _mean_rate(soak):
     rates = [float(s['generations_per_s']) for s in soak['samples']
              if s.get('generations_per_s') not in (None, '')]
@@ -186,6 +213,9 @@ def main():
     peers = _load('peers')
     if peers:
         out += peers_section(peers)
+    generalization = _load('generalization')
+    if generalization:
+        out += generalization_section(generalization)
     speed = _load('fitness_speed')
     if speed:
         out += ['## Fitness speed (`bench/fitness_speed.py`)', '',
