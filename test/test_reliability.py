@@ -292,7 +292,8 @@ def test_item_04_non_finite_values_are_rejected(streams, field, bad):
 
 def test_item_05_extra_joints_ignored_missing_joint_dropped(streams, data):
     s = streams
-    k = 300
+    k = 250  # within a second of the newest sample: a stamp farther ahead is held as an
+    # outlier until the stream confirms it (hostile input, README)
     names = ['gripper', 'j3', 'j1', 'j2']
     order = [2, 0, 1]
     before = s.buffered()
@@ -306,7 +307,7 @@ def test_item_05_extra_joints_ignored_missing_joint_dropped(streams, data):
 
 def test_item_06_joint_order_is_mapped_by_name(streams, data):
     s = streams
-    k = 301
+    k = 251
     perm = [2, 0, 1]
     names = [JOINTS[i] for i in perm]
     s.state(_js(names, data.theta[k][perm], data.theta_dot[k][perm], data.tau[k][perm],
