@@ -201,6 +201,13 @@ def _numbers(where: str, values, low: float, high: float, size: Optional[int] = 
                                  f'{_shown(value)}')
 
 
+def _integer(where: str, value, low: int, high: int) -> None:
+    """Check an integer in ``[low, high]`` (a bool is not one)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ModelFileError(f'{where} must be an integer in [{low}, {high}], got '
+                             f'{_shown(value)}')
+
+
 def _shown(value) -> str:
     text = repr(value)
     return text if len(text) <= 60 else text[:60] + '...'
@@ -234,11 +241,7 @@ def _check_info(info) -> None:
         raise ModelFileError(f'info must be a mapping, got {type(info).__name__}')
     _plain('info', info)
     for key in ('generation', 'evaluations'):
-        value = info.get(key, 0)
-        if isinstance(value, bool) or not isinstance(value, int) or not \
-                0 <= value <= _MAX_COUNT:
-            raise ModelFileError(f'info.{key} must be an integer in [0, {_MAX_COUNT}], got '
-                                 f'{_shown(value)}')
+        _integer(f'info.{key}', info.get(key, 0), 0, _MAX_COUNT)
     for key in ('cost', 'validation_nrmse'):  # .nan: not known, .inf: diverged
         value = info.get(key, math.nan)
         if not _real(value) or value < 0.0:
@@ -272,11 +275,7 @@ def check_model_dict(d) -> None:
     if not isinstance(network, dict):
         raise ModelFileError('network must be a mapping')
     for key in ('theta_units', 'torque_units'):
-        value = network.get(key, 0)
-        if isinstance(value, bool) or not isinstance(value, int) or not \
-                0 <= value <= _MAX_UNITS:
-            raise ModelFileError(f'network.{key} must be an integer in [0, {_MAX_UNITS}], got '
-                                 f'{_shown(value)}')
+        _integer(f'network.{key}', network.get(key, 0), 0, _MAX_UNITS)
     if network.get('n_joints') != n:
         raise ModelFileError(f'network.n_joints must be {n} (the joint_names), got '
                              f'{_shown(network.get("n_joints"))}')
@@ -287,11 +286,7 @@ def check_model_dict(d) -> None:
     if not isinstance(integration, dict):
         raise ModelFileError('integration must be a mapping')
     _numbers('integration.dt', [integration.get('dt')], *_DT)
-    substeps = integration.get('substeps')
-    if isinstance(substeps, bool) or not isinstance(substeps, int) or not \
-            1 <= substeps <= _MAX_SUBSTEPS:
-        raise ModelFileError(f'integration.substeps must be an integer in [1, '
-                             f'{_MAX_SUBSTEPS}], got {_shown(substeps)}')
+    _integer('integration.substeps', integration.get('substeps'), 1, _MAX_SUBSTEPS)
     _numbers('genome', d.get('genome'), -_MAX_GENOME, _MAX_GENOME)
     scales = d.get('scales')
     if not isinstance(scales, dict):
