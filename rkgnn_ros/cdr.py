@@ -18,7 +18,11 @@ The CDR wire form of the two messages the 1 kHz paths handle, read and written d
 At 1 kHz, building and reading message objects costs more Python than the rest of a
 message's handling: a JointState is read straight from the bytes a raw subscription
 delivers (:func:`parse_joint_state_cdr`), and a prediction's JointTrajectory is written
-straight into the bytes ``Publisher.publish`` takes (:func:`joint_trajectory_cdr`).
+straight into the bytes ``Publisher.publish`` takes (:func:`joint_trajectory_cdr`). A
+reference JointTrajectory is read from its bytes too (:func:`joint_trajectory_cdr_size`,
+:func:`parse_joint_trajectory_cdr`): its size is known from its first bytes, before a
+100,000-point message becomes 100,000 Python objects, and malformed bytes never reach
+rclpy's deserializer, which prints a line on stderr for each.
 :mod:`rkgnn_ros.conversions` applies the message rules on top; tests hold both directions
 equal to rclpy's own serialization. No ROS import: the layout is the OMG CDR encoding
 (XCDR1) that every ROS 2 middleware uses for these types.
@@ -31,7 +35,8 @@ from typing import Sequence, Tuple
 
 import numpy as np
 
-__all__ = ['joint_trajectory_cdr', 'parse_joint_state_cdr', 'split_seconds']
+__all__ = ['is_plain_cdr', 'joint_trajectory_cdr', 'joint_trajectory_cdr_size',
+           'parse_joint_state_cdr', 'parse_joint_trajectory_cdr', 'split_seconds']
 
 _CDR_LE = b'\x00\x01\x00\x00'  # CDR encapsulation: plain CDR, little endian
 _NANO = 1_000_000_000
@@ -54,6 +59,11 @@ def split_seconds(seconds: float, what: str) -> Tuple[int, int]:
 _CDR_HEADER = {1: struct.Struct('<iII'), 0: struct.Struct('>iII')}
 _CDR_U32 = {1: struct.Struct('<I'), 0: struct.Struct('>I')}
 _CDR_F8 = {1: np.dtype('<f8'), 0: np.dtype('>f8')}
+
+
+def is_plain_cdr(raw: bytes) -> bool:
+    """Return whether ``raw`` starts with the encapsulation of plain CDR (either order)."""
+    return len(raw) >= 4 and raw[0] == 0 and raw[1] in (0, 1)
 
 
 def parse_joint_state_cdr(raw: bytes):
@@ -127,6 +137,113 @@ def _parse_joint_state_cdr(raw: bytes):
 
 
 _EMPTY = np.zeros(0)
+
+
+class _Reader:
+    """Reads aligned CDR primitives from ``raw``; every read raises ValueError past the end."""
+
+    def __init__(self, raw: bytes, order: int):
+        self.raw, self.size, self.at = raw, len(raw), 4
+        self._u32 = _CDR_U32[order].unpack_from
+        self._f8 = _CDR_F8[order]
+
+    def _align(self, size: int) -> None:
+        self.at += -(self.at - 4) % size
+
+    def u32(self) -> int:
+        self._align(4)
+        if self.at + 4 > self.size:
+            raise ValueError('truncated')
+        (value,) = self._u32(self.raw, self.at)
+        self.at += 4
+        return value
+
+    def count(self, least_bytes: int) -> int:
+        """Read a sequence count whose elements take at least ``least_bytes`` each."""
+        count = self.u32()
+        if count > (self.size - self.at) // least_bytes:
+            raise ValueError('a count beyond the end')
+        return count
+
+    def string(self) -> str:
+        length = self.u32()
+        end = self.at + length
+        if length == 0 or end > self.size or self.raw[end - 1] != 0:
+            raise ValueError('not a string')
+        text = self.raw[self.at:end - 1].decode('utf-8')
+        self.at = end
+        return text
+
+    def doubles(self) -> np.ndarray:
+        count = self.u32()
+        if not count:
+            return _EMPTY
+        self._align(8)
+        if self.at + 8 * count > self.size:
+            raise ValueError('truncated')
+        values = np.frombuffer(self.raw, dtype=self._f8, count=count, offset=self.at)
+        self.at += 8 * count
+        return values
+
+    def stamp(self) -> Tuple[int, int]:
+        sec = self.u32()
+        return sec - (1 << 32) if sec >= 1 << 31 else sec, self.u32()
+
+
+def _trajectory_reader(raw: bytes):
+    """Return a reader past the header and the names: ``(reader, sec, nanosec, names)``."""
+    if len(raw) < 16 or raw[0] != 0 or raw[1] not in (0, 1):
+        raise ValueError('not plain CDR')
+    reader = _Reader(raw, raw[1])
+    sec, nanosec = reader.stamp()
+    reader.string()  # header.frame_id: not used, but must be text
+    names = tuple(reader.string() for _ in range(reader.count(5)))
+    return reader, sec, nanosec, names
+
+
+def joint_trajectory_cdr_size(raw: bytes):
+    """
+    Return ``(joint names, number of points)`` of a JointTrajectory's CDR bytes, or None.
+
+    Reads only the header, the names and the count of points the message claims: what a
+    size budget needs before anything is built from the points (which need not even be
+    there). None when ``raw`` is not plain CDR or its beginning does not hold a
+    JointTrajectory.
+    """
+    try:
+        reader, _, _, names = _trajectory_reader(bytes(raw))
+        return names, reader.u32()  # the count the message claims, the points unread
+    except (UnicodeDecodeError, struct.error, ValueError):
+        return None
+
+
+def parse_joint_trajectory_cdr(raw: bytes):
+    """
+    Read a JointTrajectory from its CDR bytes (XCDR1, either byte order).
+
+    Returns ``(sec, nanosec, names tuple, points)``, each point ``(positions, velocities,
+    seconds)`` (float64 arrays, read-only views of ``raw``; ``seconds`` its
+    ``time_from_start``), or None when ``raw`` is not plain CDR or does not hold a
+    JointTrajectory (truncated, a count beyond the end, a string without its NUL or not
+    UTF-8). Every byte of every point is checked here, so that rclpy's deserializer (which
+    prints a line on stderr for each malformed message) is never handed such bytes.
+
+    Layout after the header and names (as :func:`parse_joint_state_cdr`): points (uint32
+    count; each point positions, velocities, accelerations, effort as float64 sequences,
+    then time_from_start as int32 sec, uint32 nanosec).
+    """
+    try:
+        reader, sec, nanosec, names = _trajectory_reader(bytes(raw))
+        points = []
+        for _ in range(reader.count(24)):
+            positions, velocities = reader.doubles(), reader.doubles()
+            reader.doubles()  # accelerations
+            reader.doubles()  # effort
+            t_sec, t_nanosec = reader.stamp()
+            points.append((positions, velocities, t_sec + t_nanosec * 1e-9))
+        return sec, nanosec, names, points
+    except (UnicodeDecodeError, struct.error, ValueError):
+        return None
 
 
 def joint_trajectory_cdr(sec: int, nanosec: int, names: Sequence[str], times: np.ndarray,

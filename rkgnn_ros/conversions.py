@@ -46,6 +46,15 @@ order, and the first failing one gives the reason:
 
 Any other failure (an object that is not a JointState at all) is ``'malformed'``.
 
+Size budgets
+------------
+Before anything is built from a message, its size is checked against
+:data:`MAX_STATE_BYTES` (a serialized JointState), :data:`MAX_TRAJECTORY_BYTES` and
+:data:`MAX_TRAJECTORY_POINTS` (a reference JointTrajectory), :data:`MAX_MESSAGE_JOINTS`
+(names in either) and :data:`MAX_NAME_BYTES` (one name); a message over any of them is
+``'over_budget'``, first of all the reasons. A real arm's messages are far below them (a
+3-joint JointState is about 150 bytes; a 10 s plan at 100 Hz for 7 joints about 1.3 MB).
+
 The CDR wire form of the two messages the 1 kHz paths handle (a JointState read from raw
 bytes, a prediction written as bytes) is in :mod:`rkgnn_ros.cdr`.
 """
@@ -60,12 +69,15 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from .cdr import joint_trajectory_cdr, parse_joint_state_cdr, split_seconds
+from .cdr import (is_plain_cdr, joint_trajectory_cdr, joint_trajectory_cdr_size,
+                  parse_joint_state_cdr, parse_joint_trajectory_cdr, split_seconds)
 
 __all__ = [
     'REJECTION_REASONS', 'Rejection', 'JointSample', 'TrajectorySample',
+    'MAX_MESSAGE_JOINTS', 'MAX_NAME_BYTES', 'MAX_STATE_BYTES', 'MAX_TRAJECTORY_BYTES',
+    'MAX_TRAJECTORY_POINTS',
     'joint_state_to_arrays', 'joint_state_cdr_to_arrays', 'parse_joint_state_cdr',
-    'joint_trajectory_to_arrays', 'make_joint_state',
+    'joint_trajectory_to_arrays', 'joint_trajectory_cdr_to_arrays', 'make_joint_state',
     'make_joint_trajectory', 'make_float64_multiarray', 'stamp_to_seconds',
     'seconds_to_stamp', 'duration_to_seconds', 'seconds_to_duration',
 ]
@@ -83,7 +95,15 @@ REJECTION_REASONS = (
     'missing_effort',    # effort needed but empty or NaN
     'non_increasing_time',  # trajectory time_from_start negative or not increasing
     'malformed',         # not the expected message at all
+    'over_budget',       # larger than a size budget (bytes, points, joints, name bytes)
 )
+
+#: Size budgets of input messages (see *Size budgets* above).
+MAX_MESSAGE_JOINTS = 256
+MAX_NAME_BYTES = 256
+MAX_STATE_BYTES = 64 * 1024
+MAX_TRAJECTORY_POINTS = 10_000
+MAX_TRAJECTORY_BYTES = 8 * 1024 * 1024
 
 
 class Rejection(NamedTuple):
@@ -194,6 +214,28 @@ def _name_index(names: Tuple[str, ...], joints: Tuple[str, ...]):
     return np.asarray(index, dtype=np.intp), None
 
 
+def _bytes_rejection(raw, limit: int, what: str) -> Optional[Rejection]:
+    size = len(raw)
+    if size > limit:
+        return Rejection('over_budget', f'{what} of {size} bytes is over the budget of '
+                                        f'{limit} bytes')
+    return None
+
+
+@lru_cache(maxsize=64)
+def _names_rejection(names: Tuple[str, ...]) -> Optional[Rejection]:
+    """Return the rejection of joint names over the budgets, else None (cached as above)."""
+    if len(names) > MAX_MESSAGE_JOINTS:
+        return Rejection('over_budget', f'{len(names)} joint names are over the budget of '
+                                        f'{MAX_MESSAGE_JOINTS}')
+    for name in names:
+        size = len(name.encode('utf-8', 'surrogatepass'))
+        if size > MAX_NAME_BYTES:
+            return Rejection('over_budget', f'a joint name of {size} bytes is over the budget '
+                                            f'of {MAX_NAME_BYTES} bytes')
+    return None
+
+
 def _stamp_rejection(seconds: float) -> Optional[Rejection]:
     if seconds == 0.0:
         return Rejection('zero_stamp', 'stamp is zero (no clock yet under use_sim_time?)')
@@ -272,9 +314,13 @@ def joint_state_cdr_to_arrays(
 
     Returns None when ``raw`` is not plain CDR this parser reads (another encoding, or
     bytes that do not form a JointState); the caller then deserializes it the ordinary way
-    (``rclpy.serialization.deserialize_message``), which decides what it is.
+    (``rclpy.serialization.deserialize_message``), which decides what it is. Bytes over
+    :data:`MAX_STATE_BYTES` are ``'over_budget'`` without being read.
     """
     try:
+        rejection = _bytes_rejection(raw, MAX_STATE_BYTES, 'a JointState')
+        if rejection is not None:
+            return rejection
         parsed = parse_joint_state_cdr(raw)
     except Exception:  # noqa: B902 - never raises; unreadable here means "ask rclpy"
         return None
@@ -291,6 +337,9 @@ def joint_state_cdr_to_arrays(
 def _joint_sample(names, position, velocity, effort, sec, nanosec, joints, need_velocity,
                   need_effort) -> Union[JointSample, Rejection]:
     """Apply the JointState rules of the module docstring to fields already read."""
+    rejection = _names_rejection(names)
+    if rejection is not None:
+        return rejection
     if not names or position.size == 0:
         return Rejection(
             'empty', f'empty JointState: {len(names)} names, {position.size} positions')
@@ -352,72 +401,132 @@ def joint_trajectory_to_arrays(
         non-increasing ``time_from_start`` (``'non_increasing_time'``, naming the point),
         NaN/inf in a used position or inf in a used velocity (``'non_finite'``). Velocities
         that are empty in every point, or NaN anywhere, are returned as None (missing);
-        empty in some points only is ``'size_mismatch'``. Never raises on message content.
+        empty in some points only is ``'size_mismatch'``. More than
+        :data:`MAX_TRAJECTORY_POINTS` points or a name over the budgets is
+        ``'over_budget'``, checked first. Never raises on message content.
 
     """
     try:
-        joints = tuple(joints)
-        names = tuple(msg.joint_names)
-        points = list(msg.points)
-        if not names or not points:
-            return Rejection(
-                'empty', f'empty JointTrajectory: {len(names)} joint names, '
-                f'{len(points)} points')
-        index, rejection = _name_index(names, joints)
-        if rejection is not None:
+        rejection = _points_rejection(len(msg.points))
+        if rejection is not None:  # before a point is read
             return rejection
-        t0 = stamp_to_seconds(msg.header.stamp)
-        if t0 == 0.0 and now is not None:
-            t0 = float(now)
-        rejection = _stamp_rejection(t0)
-        if rejection is not None:
-            return rejection
-        n_names = len(names)
-        times = np.empty(len(points))
-        positions = np.empty((len(points), len(joints)))
-        velocities = np.empty((len(points), len(joints)))
-        velocity_sizes = set()
-        for k, point in enumerate(points):
-            pos = np.asarray(point.positions, dtype=float)
-            vel = np.asarray(point.velocities, dtype=float)
-            if pos.ndim != 1 or pos.size != n_names:
-                return Rejection(
-                    'size_mismatch',
-                    f'point {k} has {pos.size} positions for {n_names} joint names')
-            if vel.ndim != 1 or vel.size not in (0, n_names):
-                return Rejection(
-                    'size_mismatch',
-                    f'point {k} has {vel.size} velocities for {n_names} joint names')
-            velocity_sizes.add(vel.size)
-            times[k] = duration_to_seconds(point.time_from_start)
-            if not (times[k] >= 0.0 and (k == 0 or times[k] > times[k - 1])):
-                previous = f' after {times[k - 1]} s' if k else ''
-                return Rejection(
-                    'non_increasing_time',
-                    f'point {k} has time_from_start {times[k]} s{previous}; times must be '
-                    '>= 0 and strictly increasing')
-            positions[k] = pos[index]
-            if vel.size:
-                velocities[k] = vel[index]
-        if len(velocity_sizes) > 1:
-            return Rejection(
-                'size_mismatch', 'velocities are given in some points and empty in others')
-        finite = np.isfinite(positions)
-        if not finite.all():
-            k, j = np.argwhere(~finite)[0]
-            return Rejection(
-                'non_finite',
-                f'point {k} position is {positions[k, j]} for joint {joints[j]!r}')
-        if velocity_sizes == {0} or np.isnan(velocities).any():
-            velocities = None
-        elif not np.isfinite(velocities).all():
-            k, j = np.argwhere(~np.isfinite(velocities))[0]
-            return Rejection(
-                'non_finite',
-                f'point {k} velocity is {velocities[k, j]} for joint {joints[j]!r}')
-        return TrajectorySample(t0, times, positions, velocities)
+        points = [(np.asarray(point.positions, dtype=float),
+                   np.asarray(point.velocities, dtype=float),
+                   duration_to_seconds(point.time_from_start)) for point in msg.points]
+        stamp = msg.header.stamp
+        return _trajectory_sample(tuple(msg.joint_names), stamp.sec, stamp.nanosec, points,
+                                  tuple(joints), now)
     except Exception as error:  # last resort: parsing must never raise
         return Rejection('malformed', f'cannot read JointTrajectory: {error!r}')
+
+
+def joint_trajectory_cdr_to_arrays(
+        raw: bytes, joints: Sequence[str],
+        now: Optional[float] = None) -> Union[TrajectorySample, Rejection, None]:
+    """
+    Do what :func:`joint_trajectory_to_arrays` does, from the serialized JointTrajectory.
+
+    The size budgets come first and cost nothing per point: bytes over
+    :data:`MAX_TRAJECTORY_BYTES` are not read, and the number of points and the names are
+    read from the message's first bytes (:func:`~rkgnn_ros.cdr.joint_trajectory_cdr_size`).
+    Then the same rules, reasons and results as :func:`joint_trajectory_to_arrays` on the
+    deserialized message (a property test holds the two equal). Plain CDR that does not
+    form a JointTrajectory is ``'malformed'``; None means another encoding, which the
+    caller deserializes the ordinary way (then checks the budgets on the message).
+    """
+    try:
+        rejection = _bytes_rejection(raw, MAX_TRAJECTORY_BYTES, 'a JointTrajectory')
+        if rejection is not None:
+            return rejection
+        raw = bytes(raw)
+        if not is_plain_cdr(raw):
+            return None
+        size = joint_trajectory_cdr_size(raw)
+        if size is not None:
+            rejection = _names_rejection(size[0]) or _points_rejection(size[1])
+            if rejection is not None:
+                return rejection
+        parsed = parse_joint_trajectory_cdr(raw)
+        if parsed is None:
+            return Rejection('malformed', f'{len(raw)} bytes of CDR that do not form a '
+                                          'JointTrajectory')
+        sec, nanosec, names, points = parsed
+        return _trajectory_sample(names, sec, nanosec, points, tuple(joints), now)
+    except Exception as error:  # last resort: parsing must never raise
+        return Rejection('malformed', f'cannot read JointTrajectory: {error!r}')
+
+
+def _points_rejection(count: int) -> Optional[Rejection]:
+    if count > MAX_TRAJECTORY_POINTS:
+        return Rejection('over_budget', f'{count} points are over the budget of '
+                                        f'{MAX_TRAJECTORY_POINTS}')
+    return None
+
+
+def _trajectory_sample(names, sec, nanosec, points, joints, now):
+    """
+    Apply the JointTrajectory rules to fields already read.
+
+    ``points`` is a sequence of ``(positions, velocities, time_from_start seconds)``.
+    """
+    rejection = _names_rejection(names) or _points_rejection(len(points))
+    if rejection is not None:
+        return rejection
+    if not names or not points:
+        return Rejection(
+            'empty', f'empty JointTrajectory: {len(names)} joint names, '
+            f'{len(points)} points')
+    index, rejection = _name_index(names, joints)
+    if rejection is not None:
+        return rejection
+    t0 = _seconds(sec, nanosec)
+    if t0 == 0.0 and now is not None:
+        t0 = float(now)
+    rejection = _stamp_rejection(t0)
+    if rejection is not None:
+        return rejection
+    n_names = len(names)
+    times = np.empty(len(points))
+    positions = np.empty((len(points), len(joints)))
+    velocities = np.empty((len(points), len(joints)))
+    velocity_sizes = set()
+    for k, (pos, vel, t) in enumerate(points):
+        if pos.ndim != 1 or pos.size != n_names:
+            return Rejection(
+                'size_mismatch',
+                f'point {k} has {pos.size} positions for {n_names} joint names')
+        if vel.ndim != 1 or vel.size not in (0, n_names):
+            return Rejection(
+                'size_mismatch',
+                f'point {k} has {vel.size} velocities for {n_names} joint names')
+        velocity_sizes.add(vel.size)
+        times[k] = t
+        if not (times[k] >= 0.0 and (k == 0 or times[k] > times[k - 1])):
+            previous = f' after {times[k - 1]} s' if k else ''
+            return Rejection(
+                'non_increasing_time',
+                f'point {k} has time_from_start {times[k]} s{previous}; times must be '
+                '>= 0 and strictly increasing')
+        positions[k] = pos[index]
+        if vel.size:
+            velocities[k] = vel[index]
+    if len(velocity_sizes) > 1:
+        return Rejection(
+            'size_mismatch', 'velocities are given in some points and empty in others')
+    finite = np.isfinite(positions)
+    if not finite.all():
+        k, j = np.argwhere(~finite)[0]
+        return Rejection(
+            'non_finite',
+            f'point {k} position is {positions[k, j]} for joint {joints[j]!r}')
+    if velocity_sizes == {0} or np.isnan(velocities).any():
+        velocities = None
+    elif not np.isfinite(velocities).all():
+        k, j = np.argwhere(~np.isfinite(velocities))[0]
+        return Rejection(
+            'non_finite',
+            f'point {k} velocity is {velocities[k, j]} for joint {joints[j]!r}')
+    return TrajectorySample(t0, times, positions, velocities)
 
 
 def _stamp(stamp) -> Time:

@@ -21,10 +21,19 @@ rules of the online search in :mod:`rkgnn_ros.core.fitting.online`.
 
 Interface
 ---------
-Subscribed (best effort, depth 100: matches best-effort and reliable publishers alike)
-    ``joint_states`` (sensor_msgs/JointState): θ, θ̇ and, in case 'torque', τ (effort).
-    ``joint_commands`` (sensor_msgs/JointState): θd (position), θ̇d (velocity).
-    ``reference_trajectory`` (trajectory_msgs/JointTrajectory, optional): the plan.
+Subscribed (best effort: matches best-effort and reliable publishers alike)
+    ``joint_states`` (sensor_msgs/JointState, depth 100): θ, θ̇ and, in case 'torque', τ
+    (effort).
+    ``joint_commands`` (sensor_msgs/JointState, depth 100): θd (position), θ̇d (velocity).
+    ``reference_trajectory`` (trajectory_msgs/JointTrajectory, optional, depth 1: only the
+    newest plan is used): the plan.
+    Size budgets (:mod:`rkgnn_ros.conversions`): a JointState of at most 64 KiB, a
+    JointTrajectory of at most 8 MiB and 10,000 points, at most 256 joint names of at most
+    256 bytes each; a message over any is dropped, counted as ``over_budget``. A stamp far
+    from its stream (more than 1 s) is dropped as ``stamp_outlier`` unless three in a row
+    show that the stream itself moved (a clock jump, :mod:`rkgnn_ros.stream_buffer`); the
+    node clock jumping back by more than 1 s (``/clock`` under ``use_sim_time``) clears the
+    buffer too.
 Published
     ``~/model`` (std_msgs/String, reliable, transient local, depth 1): the model YAML
     (``RKGNNModel.to_yaml``) when the best improves, at most every
@@ -69,6 +78,8 @@ import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
+from rclpy.clock import JumpThreshold
+from rclpy.duration import Duration
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -90,6 +101,8 @@ from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['EVOLUTION_LABELS', 'ConfigurationError', 'IdentifierNode', 'main']
+
+CLOCK_JUMP_S = 1.0  # a node clock jumping back by more clears the buffer
 
 
 class IdentifierNode(Node):
@@ -166,14 +179,25 @@ class IdentifierNode(Node):
         command_sub = self.create_subscription(
             JointState, 'joint_commands', lambda raw: None, stream_qos,
             callback_group=polled, event_callbacks=sub_events, raw=True)
+        # raw: a plan's size budget is checked on its bytes, before its points become
+        # objects; depth 1: only the newest plan is used, and the middleware keeps a buffer
+        # as large as the largest message per history slot
+        reference_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                                   reliability=ReliabilityPolicy.BEST_EFFORT,
+                                   durability=DurabilityPolicy.VOLATILE)
         self.create_subscription(JointTrajectory, 'reference_trajectory', self._on_reference,
-                                 stream_qos, event_callbacks=sub_events)
+                                 reference_qos, event_callbacks=sub_events, raw=True)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_model', self._on_save_model)
         self.create_service(SetBool, '~/pause', self._on_pause)
         self._prediction_timer = None
         self._make_prediction_timer()
         self.create_timer(1.0, self._publishing.publish_diagnostics)
+        # /clock reset under use_sim_time: the buffered data belong to the old timeline
+        self._clock_jumps = self.get_clock().create_jump_callback(
+            JumpThreshold(min_forward=None, min_backward=Duration(seconds=-CLOCK_JUMP_S),
+                          on_clock_change=False),
+            post_callback=self._on_clock_jump)
 
         self._worker.start()
         self._predictor.start()
@@ -186,7 +210,8 @@ class IdentifierNode(Node):
 
     def _load_model_file(self, config):
         model, lines = load_model_file(config['model_file'], self._ingestion.joints,
-                                       config.case, lambda n: network_spec(config.values, n))
+                                       config.case, lambda n: network_spec(config.values, n),
+                                       config['model_step'])
         for level, text in lines:
             self._outbox.log(level, text)
         if model is not None and self._ingestion.joints is None:
@@ -222,8 +247,14 @@ class IdentifierNode(Node):
         if rate > 0.0:
             self._prediction_timer = self.create_timer(1.0 / rate, self._predictor.request)
 
-    def _on_reference(self, msg: JointTrajectory) -> None:
-        self._ingestion.handle_reference(msg, self.get_clock().now().nanoseconds * 1e-9)
+    def _on_reference(self, raw: bytes) -> None:
+        self._ingestion.handle_reference(raw, self.get_clock().now().nanoseconds * 1e-9)
+
+    def _on_clock_jump(self, jump) -> None:
+        try:
+            self._ingestion.clock_reset(-jump.delta.nanoseconds * 1e-9)
+        except Exception:  # noqa: B902 - a callback must never raise
+            self._ingestion.internal_error('clock')
 
     def _on_reset(self, request, response):
         self._ingestion.clear()  # first: whatever the worker takes from now on is new

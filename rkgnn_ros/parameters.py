@@ -17,9 +17,15 @@ Parameter tables: one row per node parameter, saying what it is and what a chang
 
 Both nodes list their parameters as :class:`ParameterSpec` rows. A row is the one place for
 a parameter's declaration (type, description, the range rclpy enforces, read-only), the
-checks rclpy cannot make (open bounds, NaN, choices, array elements: :meth:`ParameterSpec.check`)
-and its :class:`Change`: what setting it at run time does. A node applies a set of
-parameters by the union of their changes, so adding a parameter is adding a row.
+checks rclpy cannot make (open bounds, NaN, choices, array elements and lengths, text
+sizes: :meth:`ParameterSpec.check`) and its :class:`Change`: what setting it at run time
+does. A node applies a set of parameters by the union of their changes, so adding a
+parameter is adding a row.
+
+Every value a row accepts must be one its node can run with: a range says what is useful
+(a rate of 1e-300 Hz passes ``> 0`` but makes no timer), not only what is positive, and
+arrays and strings have a size budget (``max_items``, ``max_bytes``) so that no accepted
+value makes an allocation fail.
 """
 
 from dataclasses import dataclass
@@ -72,6 +78,14 @@ class ParameterSpec:
         ``low`` itself is excluded (checked by :meth:`check`, not by rclpy).
     choices : tuple of str
         The allowed values of a string.
+    off_below : float, optional
+        0 switches the feature off; any other value must be at least this (e.g. a rate:
+        0 or >= 0.1 Hz). Checked by :meth:`check`; the descriptor's range is then ``[0,
+        high]``.
+    max_items : int, optional
+        Arrays: at most this many elements.
+    max_bytes : int, optional
+        Strings and string arrays: at most this many UTF-8 bytes per string, and no NUL.
 
     """
 
@@ -85,6 +99,9 @@ class ParameterSpec:
     ptype: Optional[Parameter.Type] = None
     low_open: bool = False
     choices: Tuple[str, ...] = ()
+    off_below: Optional[float] = None
+    max_items: Optional[int] = None
+    max_bytes: Optional[int] = None
 
     @property
     def kind(self) -> Parameter.Type:
@@ -102,6 +119,8 @@ class ParameterSpec:
 
     def bound_text(self) -> str:
         """Return the bound as text, e.g. ``in (0.0, 10.0]``."""
+        if self.off_below is not None:
+            return f'0 (off) or in [{self.off_below}, {self.high}]'
         if self.low is None and self.high is None:
             return ''
         if self.high is None:
@@ -113,6 +132,12 @@ class ParameterSpec:
         extra = [self.constraints] if self.constraints else []
         if self.low_open:
             extra.insert(0, f'> {self.low}')
+        if self.off_below is not None:
+            extra.insert(0, f'0 (off) or >= {self.off_below}')
+        if self.max_items is not None:
+            extra.append(f'at most {self.max_items} elements')
+        if self.max_bytes is not None:
+            extra.append(f'at most {self.max_bytes} bytes per string')
         if self.choices:
             extra.insert(0, 'one of ' + ', '.join(self.choices))
         kind = self.kind
@@ -167,29 +192,60 @@ class ParameterSpec:
         """Return why ``value`` is invalid (None if valid); the reason names the parameter."""
         name, kind = self.name, self.kind
         if not _type_ok(kind, value):
-            return (f'{name} must be a {_TYPE_NAMES.get(kind, kind)}, got {value!r} '
+            return (f'{name} must be a {_TYPE_NAMES.get(kind, kind)}, got {_shown(value)} '
                     f'({type(value).__name__})')
         if kind == _T.DOUBLE:
-            lo_bad = self.low is not None and (value <= self.low if self.low_open
-                                               else value < self.low)
-            hi_bad = self.high is not None and value > self.high
-            if not math.isfinite(value) or lo_bad or hi_bad:
+            if not math.isfinite(value) or not self._number_ok(value):
                 return f'{name} must be a finite number {self.bound_text()}, got {value!r}'
         elif kind == _T.INTEGER:
-            if (self.low is not None and value < self.low) or (self.high is not None
-                                                               and value > self.high):
+            if not self._number_ok(value):
                 return f'{name} must be an integer {self.bound_text()}, got {value}'
-        elif kind == _T.STRING and self.choices and value not in self.choices:
-            return f'{name} must be one of {", ".join(self.choices)}, got {value!r}'
+        elif kind == _T.STRING:
+            reason = self._text_reason(value)
+            if reason:
+                return f'{name} {reason}'
+            if self.choices and value not in self.choices:
+                return f'{name} must be one of {", ".join(self.choices)}, got {_shown(value)}'
+        elif kind in _ARRAYS and self.max_items is not None and len(value) > self.max_items:
+            return f'{name} must hold at most {self.max_items} elements, got {len(value)}'
         elif kind == _T.DOUBLE_ARRAY:
             if not all(math.isfinite(v) and (self.low is None or v >= self.low)
-                       for v in value):
-                bound = '' if self.low is None else f' >= {self.low}'
-                return f'{name} must hold finite values{bound}, got {list(value)}'
-        elif kind == _T.STRING_ARRAY:
+                       and (self.high is None or v <= self.high) for v in value):
+                bound = self.bound_text()
+                return f'{name} must hold finite values{" " + bound if bound else ""}, got ' \
+                       f'{_shown(list(value))}'
+        if kind == _T.STRING_ARRAY:
             if any(not v for v in value) or len(set(value)) != len(value):
-                return f'{name} must hold non-empty, distinct names, got {list(value)}'
+                return f'{name} must hold non-empty, distinct names, got {_shown(list(value))}'
+            for v in value:
+                reason = self._text_reason(v)
+                if reason:
+                    return f'{name}: a name {reason}'
         return None
+
+    def _number_ok(self, value) -> bool:
+        if self.off_below is not None and value == 0:
+            return True
+        low = self.low if self.off_below is None else self.off_below
+        if low is not None and (value <= low if self.low_open else value < low):
+            return False
+        return self.high is None or value <= self.high
+
+    def _text_reason(self, text: str) -> Optional[str]:
+        if self.max_bytes is None:
+            return None
+        if '\x00' in text:
+            return 'must not contain a NUL character'
+        size = len(text.encode('utf-8', 'surrogatepass'))
+        if size > self.max_bytes:
+            return f'must be at most {self.max_bytes} bytes, got {size}'
+        return None
+
+
+def _shown(value, limit: int = 80) -> str:
+    """Return ``repr(value)``, cut to ``limit`` characters (a reason quotes what it got)."""
+    text = repr(value)
+    return text if len(text) <= limit else f'{text[:limit]}... ({len(text)} characters)'
 
 
 def _type_ok(kind, value) -> bool:

@@ -46,14 +46,22 @@ Order, duplicates, bursts
     Samples older than the window (plus ``gap_threshold``) are evicted; ``'overflow'``
     (the hard cap ``max_samples`` reached inside the window) stays 0 unless that cap is
     set below the rate bound.
-Clock jumps
-    A stamp older than its stream's newest by more than ``clock_jump_threshold`` means the
-    clock went backwards (a simulator reset): every buffer and the reference are cleared,
-    the sample starts the new timeline, ``'clock_jump'`` is counted and the result has
-    ``clock_jump=True`` so the caller logs one warning. A stamp newer than everything
-    buffered by more than ``window + gap_threshold`` (a forward jump, or both streams
-    paused) clears the same way, counted as ``'clock_jump_forward'``, since nothing
-    buffered could still be used.
+Clock jumps and stamp outliers
+    A stamp more than ``clock_jump_threshold`` before its stream's newest, or after the
+    newest of every stream, is an outlier: dropped and counted as ``'stamp_outlier'``, the
+    buffer untouched. A publisher interleaving stamps from elsewhere with good data (one a
+    second, or any number that do not follow each other) therefore clears nothing. Only
+    when the stream itself moves, ``jump_samples`` consecutive samples of one stream each
+    beyond the threshold and following each other (increasing, at most the threshold
+    apart), is it a jump (a simulator reset, a bag replayed from its start). Those samples
+    then start the new timeline (the earlier ones were counted as outliers when they came)
+    and the result of the last has ``clock_jump=True`` so the caller logs one warning. A
+    jump back clears every buffer and the reference, counted as ``'clock_jump'``; a jump
+    forward clears the same way, counted as ``'clock_jump_forward'``, when the new
+    timeline starts more than ``window + gap_threshold`` after everything buffered
+    (nothing buffered could still be used), and is a gap otherwise.
+    :meth:`StreamBuffer.clock_reset` clears at once, counted as ``'clock_jump'`` (the
+    node's own clock jumped back: ``/clock`` reset under ``use_sim_time``).
 Gaps
     Consecutive state samples farther apart than ``gap_threshold`` end a segment; no
     segment crosses a gap. Grid points the command stream does not cover (below) end a
@@ -94,8 +102,9 @@ __all__ = ['DROP_REASONS', 'AddResult', 'Capture', 'PlannedReference', 'Snapshot
 #: and 'resample_failed' (a segment a snapshot could not build; should stay 0).
 DROP_REASONS = (
     'bad_stamp', 'bad_shape', 'non_finite', 'out_of_range', 'missing_tau', 'out_of_order',
-    'duplicate_stamp', 'rate_limited', 'overflow', 'clock_jump', 'clock_jump_forward',
-    'no_command', 'non_increasing_time', 'resample_failed',
+    'duplicate_stamp', 'rate_limited', 'overflow', 'stamp_outlier', 'clock_jump',
+    'clock_jump_forward', 'no_command', 'non_increasing_time', 'over_budget',
+    'resample_failed',
 )
 
 STREAMS = ('state', 'command', 'reference')
@@ -217,6 +226,12 @@ class StreamBuffer:
         Larger magnitudes are rejected as ``'out_of_range'`` (default 1e6).
     max_samples : int, optional
         Hard cap per stream; default from the rate bound above, at most 2**20.
+    jump_samples : int
+        Consecutive samples beyond ``clock_jump_threshold`` that make a clock jump
+        (default 3; 1 declares a jump on any such sample).
+    max_reference_points : int
+        Longer references are dropped as ``'over_budget'`` (default 10,000), which bounds
+        what is kept of the reference stream to ``max_reference_points * 2n`` floats.
 
     """
 
@@ -224,7 +239,8 @@ class StreamBuffer:
                  gap_threshold: float, need_tau: bool, need_desired: bool,
                  max_rate_hz: float = 2000.0, reorder_tolerance: float = 0.01,
                  clock_jump_threshold: float = 1.0, pair_tolerance: Optional[float] = None,
-                 max_abs_value: float = 1e6, max_samples: Optional[int] = None):
+                 max_abs_value: float = 1e6, max_samples: Optional[int] = None,
+                 jump_samples: int = 3, max_reference_points: int = 10_000):
         self.joints = tuple(str(joint) for joint in joints)
         if not self.joints or len(set(self.joints)) != len(self.joints):
             raise ValueError(f'joints must be non-empty and unique, got {self.joints}')
@@ -260,6 +276,10 @@ class StreamBuffer:
         self.max_samples = int(max_samples)
         if self.max_samples < 2:
             raise ValueError(f'max_samples must be >= 2, got {self.max_samples}')
+        self.max_reference_points = int(max_reference_points)
+        self.jump_samples = int(jump_samples)
+        if not 1 <= self.jump_samples <= 100:
+            raise ValueError(f'jump_samples must be in [1, 100], got {jump_samples}')
         n = len(self.joints)
         self._n = n
         self._lock = threading.Lock()
@@ -273,6 +293,8 @@ class StreamBuffer:
         self._epoch = 0
         self._settled = -math.inf  # states up to this relative time are paired or counted
         self._reference = None
+        # per stream: the outliers in a row that follow each other, (absolute stamp, row)
+        self._outliers = {stream: [] for stream in self._series}
 
     # ------------------------------------------------------------------ adding samples
 
@@ -342,27 +364,61 @@ class StreamBuffer:
 
     def _insert_locked(self, stream: str, t_abs: float, row: np.ndarray) -> AddResult:
         series = self._series[stream]
-        drops = self._drops[stream]
-        jump = False
         if self._origin is None:
             self._origin = float(math.floor(t_abs))
         rel = t_abs - self._origin
+        newest, newest_any = series.last_t(), self._newest_locked()
+        if (newest is not None and rel < newest - self.clock_jump_threshold) or \
+                (newest_any is not None and rel > newest_any + self.clock_jump_threshold):
+            return self._outlier_locked(stream, t_abs, row)
+        self._outliers[stream].clear()
+        jump = False
+        if newest_any is not None and rel > newest_any + self.window + self.gap_threshold:
+            self._restart_locked(t_abs, 'clock_jump_forward', stream)  # a window < threshold
+            jump = True
+        return self._place_locked(stream, t_abs, row, jump)
+
+    def _outlier_locked(self, stream: str, t_abs: float, row: np.ndarray) -> AddResult:
+        """Count an outlier, or declare the jump that ``jump_samples`` of them in a row make."""
+        run = self._outliers[stream]
+        if run and not 0.0 < t_abs - run[-1][0] <= self.clock_jump_threshold:
+            run.clear()  # does not follow the previous outlier: a new run
+        run.append((t_abs, row))
+        if len(run) < self.jump_samples:
+            self._drops[stream]['stamp_outlier'] += 1
+            return AddResult(False, 'stamp_outlier')
+        samples = list(run)
+        run.clear()
+        start = samples[0][0] - self._origin
+        cleared = True
+        newest = self._series[stream].last_t()
+        if newest is not None and start < newest:
+            self._restart_locked(samples[0][0], 'clock_jump', stream)
+        elif start > self._newest_locked() + self.window + self.gap_threshold:
+            self._restart_locked(samples[0][0], 'clock_jump_forward', stream)
+        else:
+            cleared = False  # forward within the window: a gap, the data kept
+        result = _ACCEPTED
+        for t, values in samples:  # the new timeline from its first sample
+            result = self._place_locked(stream, t, values)
+        return AddResult(result.accepted, result.reason, cleared)
+
+    def _restart_locked(self, t_abs: float, reason: str, stream: str) -> None:
+        """Clear everything and start the time base at ``t_abs``; count ``reason``."""
+        self._clear_locked()
+        self._drops[stream][reason] += 1
+        self._origin = float(math.floor(t_abs))
+
+    def _place_locked(self, stream: str, t_abs: float, row: np.ndarray,
+                      jump: bool = False) -> AddResult:
+        """Insert a sample on the current timeline (order, duplicates, rate, window)."""
+        series = self._series[stream]
+        drops = self._drops[stream]
+        rel = t_abs - self._origin
         newest = series.last_t()
         if newest is not None and rel < newest - self.reorder_tolerance:
-            if rel >= newest - self.clock_jump_threshold:
-                drops['out_of_order'] += 1
-                return AddResult(False, 'out_of_order')
-            self._clear_locked()
-            drops['clock_jump'] += 1
-            jump = True
-        newest_any = self._newest_locked()
-        if newest_any is not None and rel > newest_any + self.window + self.gap_threshold:
-            self._clear_locked()
-            drops['clock_jump_forward'] += 1
-            jump = True
-        if jump:
-            self._origin = float(math.floor(t_abs))
-            rel = t_abs - self._origin
+            drops['out_of_order'] += 1
+            return AddResult(False, 'out_of_order', jump)
         stamps = series.t
         size = stamps.size
         if size == 0 or rel > stamps[-1]:
@@ -401,6 +457,8 @@ class StreamBuffer:
     def _clear_locked(self):
         for series in self._series.values():
             series.clear()
+        for run in self._outliers.values():
+            run.clear()
         self._reference = None
         self._origin = None
         self._settled = -math.inf
@@ -410,6 +468,18 @@ class StreamBuffer:
         """Forget every sample and the reference (counters are kept)."""
         with self._lock:
             self._clear_locked()
+
+    def clock_reset(self) -> bool:
+        """
+        Clear as a jump back does, counted as ``'clock_jump'`` (the node's clock jumped).
+
+        Returns whether anything was buffered.
+        """
+        with self._lock:
+            had = any(len(series) for series in self._series.values())
+            self._clear_locked()
+            self._drops['state']['clock_jump'] += 1
+            return had
 
     # ------------------------------------------------------------------ reference
 
@@ -421,7 +491,8 @@ class StreamBuffer:
         (``np.gradient``; zero for a single point). Replaces the previous reference.
         """
         reference, reason = PlannedReference.checked(t0, times, positions, velocities,
-                                                     self._n, self.max_abs_value)
+                                                     self._n, self.max_abs_value,
+                                                     self.max_reference_points)
         if reference is None:
             return self._drop('reference', reason)
         with self._lock:

@@ -120,15 +120,22 @@ class PlannedReference:
             array.flags.writeable = False
 
     @classmethod
-    def checked(cls, t0, times, positions, velocities, n: int, max_abs_value: float):
+    def checked(cls, t0, times, positions, velocities, n: int, max_abs_value: float,
+                max_points: int = 10_000):
         """
         Return ``(reference, None)`` from raw arrays, or ``(None, drop reason)``.
 
         ``times`` (K,) from ``t0``, ``positions`` (K, n) θd, ``velocities`` (K, n) θ̇d or
         None to estimate them from the positions (``np.gradient``; zero for one point).
-        Reasons: 'bad_shape', 'bad_stamp', 'non_finite', 'out_of_range' (beyond
-        ``max_abs_value``), 'non_increasing_time'.
+        Reasons: 'over_budget' (more than ``max_points`` points, not copied), 'bad_shape',
+        'bad_stamp', 'non_finite', 'out_of_range' (beyond ``max_abs_value``),
+        'non_increasing_time'.
         """
+        try:
+            if np.size(times) > max_points:
+                return None, 'over_budget'
+        except Exception:  # noqa: B902 - whatever it is, it is not a reference
+            return None, 'bad_shape'
         try:
             t0 = float(t0)
             times = np.array(times, dtype=float).reshape(-1)

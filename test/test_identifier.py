@@ -341,7 +341,7 @@ def test_set_parameters_changes_the_running_search_and_rejects_bad_values(rig):
     rejected(Parameter('es.population_size', value=0), 'es.population_size', '>= 2')
     rejected(Parameter('es.population_size', value=1), 'es.population_size')
     rejected(Parameter('es.crossover_rate', value=1.5), 'es.crossover_rate', '1.0')
-    rejected(Parameter('es.sigma', value=0.0), 'es.sigma', '(0.0, 10.0]')
+    rejected(Parameter('es.sigma', value=0.0), 'es.sigma', '1e-06')
     rejected(Parameter('es.sigma', value=-1.0), 'es.sigma')
     rejected(Parameter('es.sigma', Parameter.Type.DOUBLE, math.nan), 'es.sigma')
     rejected(Parameter('es.sigma', value=1), 'Wrong parameter type')  # an int for a double

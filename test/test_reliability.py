@@ -13,7 +13,11 @@
 # limitations under the License.
 
 """
-The 27 faults of ``shared/guide/reliability.md``: one named test each.
+The 27 faults of ``shared/guide/reliability.md``, and the hostile inputs beyond them.
+
+One named test each: ``test_item_NN_*`` for the guide's items, ``test_hostile_*`` for what
+an adversarial pass found (model files that are not small plain files, float extremes,
+huge and malformed messages, stamp outliers, a ``/clock`` reset: README, *Reliability*).
 
 Each test feeds its exact fault where it lands and asserts the documented outcome: nothing
 raises, the reason is counted (``drops.<reason>`` in ``/diagnostics``) and logged (once per
@@ -51,7 +55,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
-from rkgnn_ros.core.fitting.identify import Evolution
+from rkgnn_ros.core.fitting.identify import Evolution, precompile
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification
 from rkgnn_ros.core.fitting.optimizers import make_optimizer
 from rkgnn_ros.core.model.model import RKGNNModel
@@ -289,7 +293,8 @@ def test_item_04_non_finite_values_are_rejected(streams, field, bad):
 
 def test_item_05_extra_joints_ignored_missing_joint_dropped(streams, data):
     s = streams
-    k = 300
+    k = 250  # within a second of the newest sample: a stamp farther ahead is held as an
+    # outlier until the stream confirms it (hostile input, README)
     names = ['gripper', 'j3', 'j1', 'j2']
     order = [2, 0, 1]
     before = s.buffered()
@@ -303,7 +308,7 @@ def test_item_05_extra_joints_ignored_missing_joint_dropped(streams, data):
 
 def test_item_06_joint_order_is_mapped_by_name(streams, data):
     s = streams
-    k = 301
+    k = 251
     perm = [2, 0, 1]
     names = [JOINTS[i] for i in perm]
     s.state(_js(names, data.theta[k][perm], data.theta_dot[k][perm], data.tau[k][perm],
@@ -589,7 +594,10 @@ def test_item_15_a_10khz_burst_stays_bounded_and_services_answer(data):
 
 @pytest.mark.parametrize('name, bad, good, bound', [
     ('es.population_size', -1, 4, '0'),
-    ('es.sigma', 0.0, 1e-9, '0'),
+    ('es.sigma', 0.0, 1e-6, '1e-06'),
+    ('es.sigma', 5e-324, 1e-6, '1e-06'),  # subnormal: CMA-ES asserts on it
+    ('prediction.rate', 1e-300, 0.1, '0.1'),  # the timer period would overflow
+    ('prediction.rate', 1e-9, 0.0, '0.1'),  # accepted, it would publish nothing
     ('es.crossover_rate', 1.5, 1.0, '1'),
     ('es.crossover_rate', -0.1, 0.0, '0'),
     ('es.sigma', math.nan, 0.5, 'sigma'),
@@ -937,3 +945,336 @@ def test_any_joint_trajectory_is_taken_or_rejected_never_raised(streams, names, 
     before = streams.drops()['internal_error']
     streams.ingestion.handle_reference(msg, T0)
     assert streams.drops()['internal_error'] == before
+
+
+# ------------------------------------------------- hostile input (README, *Reliability*)
+#
+# Beyond the guide's 27 items: what an adversarial pass found could crash, hang, bloat or
+# starve the identifier. One named test per break, asserting the node stays up (or starts
+# fresh), no traceback, memory bounded, nothing replaced, outputs finite.
+
+def _rss_mb():
+    """Return this process's resident memory (MB)."""
+    with open('/proc/self/status') as f:
+        for line in f:
+            if line.startswith('VmRSS:'):
+                return int(line.split()[1]) / 1024.0
+    return math.nan
+
+
+def _tracebacks(r):
+    return r.rosout.lines(r.logger, 'Traceback')
+
+
+def _model_text(model, **changes):
+    """Return the model's YAML with some entries replaced (``integration__substeps=...``)."""
+    import yaml
+    d = model.to_dict()
+    for key, value in changes.items():
+        *path, last = key.split('__')
+        node = d
+        for part in path:
+            node = node[part]
+        node[last] = value
+    return yaml.safe_dump(d, sort_keys=False)
+
+
+def _alias_bomb(width=9, depth=9):
+    """Return a 2.5 kB YAML document that expands to ``width ** depth`` strings."""
+    lines = ['a0: &a0 ["bomb", "bomb", "bomb", "bomb", "bomb", "bomb", "bomb", "bomb", "bomb"]']
+    for k in range(1, depth):
+        lines.append(f'a{k}: &a{k} [' + ', '.join([f'*a{k - 1}'] * width) + ']')
+    return '\n'.join(lines) + '\n'
+
+
+def _special_file(tmp_path, kind):
+    """Make a FIFO or (as root) a character device like /dev/null; return its path."""
+    path = tmp_path / kind
+    if kind == 'fifo':
+        os.mkfifo(path)
+    else:
+        try:
+            os.mknod(path, 0o666 | __import__('stat').S_IFCHR, os.makedev(1, 3))
+        except PermissionError:
+            pytest.skip('making a device node needs root')
+    return path
+
+
+@pytest.mark.parametrize('break_, reason', [
+    ('fifo', 'FIFO'),                   # hung the constructor: services never answered
+    ('dev_zero', 'character device'),   # grew the process past 3 GB in 11 s
+    ('directory', 'directory'),
+    ('alias_bomb', 'YAML anchors'),     # 2.5 kB: past 5 GB in 50 s
+    ('huge_substeps', 'substeps'),      # 10^9 substeps: loaded, then past 5 GB in 12 s
+    ('nan_info', 'info.generation'),    # published .nan, then died at start (exit 1)
+    ('string_info', 'info.cost'),
+    ('huge_weights', 'genome'),         # 1e308 weights: three CMA-ES tracebacks
+])
+def test_hostile_model_file_is_refused_and_the_node_starts_fresh(model, tmp_path, break_,
+                                                                 reason):
+    path = tmp_path / 'model.yaml'
+    if break_ == 'fifo':
+        path = _special_file(tmp_path, 'fifo')
+    elif break_ == 'dev_zero':
+        path = '/dev/zero'
+    elif break_ == 'directory':
+        path = tmp_path
+    elif break_ == 'alias_bomb':
+        path.write_text(_alias_bomb())
+    elif break_ == 'huge_substeps':
+        path.write_text(_model_text(model, integration__substeps=10 ** 9))
+    elif break_ == 'nan_info':
+        path.write_text(_model_text(model, info__generation=math.nan, info__cost=math.inf))
+    elif break_ == 'string_info':
+        path.write_text(_model_text(model, info__cost='cheap'))
+    else:
+        genome = model.genome.tolist()
+        genome[::3] = [1e308] * len(genome[::3])
+        path.write_text(_model_text(model, genome=genome))
+    precompile()  # kernels in memory before the baseline (cached: loaded, not compiled)
+    before = _rss_mb()
+    r = NodeRig(dict(BASE, model_file=str(path)))  # returns: nothing blocks
+    try:
+        assert r.call(r.pause_client, SetBool.Request(data=True)).success  # it answers
+        lines = wait_for(lambda: r.rosout.lines(r.logger, 'cannot use model_file',
+                                                str(path).rstrip('/'), reason,
+                                                'starting fresh', level='error'), PATIENCE)
+        assert len(lines) == 1, r.rosout.lines(r.logger)
+        assert math.isnan(r.get('identified.cost')) and r.models == []  # nothing published
+        assert _rss_mb() - before < 300.0  # a node's own allocations, never gigabytes
+        assert not _tracebacks(r)
+    finally:
+        r.close()
+    if break_ == 'fifo':
+        assert os.path.exists(path) and __import__('stat').S_ISFIFO(os.stat(path).st_mode)
+
+
+@pytest.mark.parametrize('kind', ['fifo', 'device', 'directory'])
+def test_hostile_save_over_a_special_file_replaces_nothing(model_path, tmp_path, kind):
+    import stat as st_
+    target = tmp_path if kind == 'directory' else _special_file(tmp_path, kind)
+    mode = os.stat(target).st_mode
+    r = NodeRig(dict(BASE, model_file=str(model_path)))
+    try:
+        assert wait_for(lambda: r.models, PATIENCE), 'the good model was not published'
+        assert r.set_one('model_file', str(target)).successful
+        response = r.call(r.save_client, Trigger.Request())
+        assert not response.success
+        assert 'nothing was replaced' in response.message and str(target) in response.message
+        assert os.stat(target).st_mode == mode
+        assert not _tracebacks(r)
+    finally:
+        r.close()  # saves to model_file at shutdown: refused the same way
+    assert os.stat(target).st_mode == mode
+    assert not st_.S_ISREG(mode)
+
+
+def test_hostile_save_where_the_node_may_not_write_says_so(model_path, tmp_path):
+    r = NodeRig(dict(BASE, model_file=str(model_path)))
+    try:
+        assert wait_for(lambda: r.models, PATIENCE)
+        assert r.set_one('model_file', '/proc/rkgnn_no_such_folder/model.yaml').successful
+        response = r.call(r.save_client, Trigger.Request())
+        assert not response.success and 'cannot save' in response.message
+        if os.geteuid() != 0:  # root may write a read-only file: only others can be refused
+            locked = tmp_path / 'locked.yaml'
+            locked.write_bytes(model_path.read_bytes())
+            locked.chmod(0o444)
+            assert r.set_one('model_file', str(locked)).successful
+            response = r.call(r.save_client, Trigger.Request())
+            assert not response.success and 'may not write' in response.message
+            assert locked.read_bytes() == model_path.read_bytes()
+    finally:
+        assert r.set_one('model_file', '').successful  # nothing to save at shutdown
+        r.close()
+
+
+@pytest.mark.parametrize('name, value, words', [
+    ('prediction.rate', 1e-300, ['0.1']),   # create_timer raised OverflowError
+    ('prediction.rate', 1e-9, ['0.1']),     # accepted, then published nothing
+    ('prediction.rate', 5e-324, ['0.1']),
+    ('es.sigma', 5e-324, ['1e-06']),        # CMA-ES asserted three times
+    ('es.sigma', 1e-300, ['1e-06']),
+    ('es.population_size', 2 ** 62, ['10000']),
+    ('kp', [1e308, 1.0, 1.0], ['1000000.0']),
+    ('prediction.horizon', 60.0, ['10000', 'model_step']),  # with model_step 0.001 below
+    ('joints', ['j' * 300], ['256 bytes']),
+    ('model_file', '/tmp/' + 'd' * 5000, ['4096']),
+    ('', 1, ['not a parameter']),           # returned success
+])
+def test_hostile_float_extremes_are_refused_at_set_time(rig, name, value, words):
+    horizon = rig.get('prediction.horizon')
+    if name == 'prediction.horizon':
+        assert rig.set_one('prediction.horizon', 2.0).successful
+        assert rig.set_one('model_step', 0.001).successful
+    try:
+        stored = rig.get(name) if name else None
+        result = rig.set_one(name, value)
+        assert not result.successful
+        assert all(w in result.reason for w in words), result.reason
+        if name:
+            assert rig.get(name) == stored
+    finally:
+        if name == 'prediction.horizon':
+            assert rig.set_one('model_step', 0.01).successful
+            assert rig.set_one('prediction.horizon', horizon).successful
+    assert not _tracebacks(rig)
+    assert rig.call(rig.pause_client, SetBool.Request(data=True)).success
+
+
+def test_hostile_optimizer_assertion_keeps_the_best_without_a_traceback(data, monkeypatch):
+    import cma
+    s = Search(case='pd_gains', kp=KP, kd=KD)
+    s.feed(data, 0, 300)
+    assert s.status.state == 'evolving' and s.status.generation > 0, s.status
+    original = cma.CMAEvolutionStrategy.tell
+    calls = []
+
+    def asserting_tell(self, *args, **kwargs):  # what pycma does on a subnormal sigma
+        calls.append(1)
+        if len(calls) <= 3:
+            raise AssertionError()
+        return original(self, *args, **kwargs)
+    monkeypatch.setattr(cma.CMAEvolutionStrategy, 'tell', asserting_tell)
+    generation = s.status.generation
+    s.feed(data, 300, 600)
+    assert len(calls) > 3  # the failing generations ran, and later ones too
+    assert s.status.state == 'evolving' and s.status.generation > generation + 3
+    assert s.ingestion.drop_counts()['worker_error'] == 0
+    lines = s.log_lines('failed numerically', 'restarted around the best genome')
+    assert 1 <= len(lines) <= 3 and not s.log_lines('Traceback')
+    assert not s.log_lines('restarting the search')
+
+
+def test_hostile_reference_flood_keeps_memory_flat(data):
+    """100,000-point references at 2 Hz for a minute: refused, counted, RSS flat."""
+    r = NodeRig(dict(BASE, **{'prediction.rate': 0.0}))
+    try:
+        assert r.call(r.pause_client, SetBool.Request(data=True)).success
+        huge, fits = JointTrajectory(joint_names=list(JOINTS)), JointTrajectory(
+            joint_names=list(JOINTS))
+        huge.header.stamp.sec = fits.header.stamp.sec = int(T0)
+        for k in range(100_000):
+            point = JointTrajectoryPoint(positions=[0.1, 0.2, 0.3],
+                                         velocities=[0.0, 0.0, 0.0])
+            point.time_from_start.sec, point.time_from_start.nanosec = divmod(k, 100)
+            point.time_from_start.nanosec *= 10_000_000
+            huge.points.append(point)
+            if k < 10_000:  # the largest reference within the budget: kept
+                fits.points.append(point)
+        huge, fits = serialize_message(huge), serialize_message(fits)
+        pub = r.client.create_publisher(JointTrajectory, 'reference_trajectory', QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        assert wait_for(lambda: pub.get_subscription_count() >= 1, PATIENCE)
+        rss = []
+        start = time.monotonic()
+        for k in range(120):  # 60 s at 2 Hz
+            pub.publish(fits if k % 10 == 9 else huge)
+            if k in (20, 119):
+                rss.append(_rss_mb())
+            time.sleep(max(0.0, start + 0.5 * (k + 1) - time.monotonic()))
+        values = r.diagnostic(lambda v: int(v['drops.over_budget']) > 0, PATIENCE)
+        assert values and int(values['drops.internal_error']) == 0
+        assert rss[1] <= 1.1 * rss[0], rss  # flat after the first 10 s
+        assert r.rosout.lines(r.logger, 'reference_trajectory', 'over_budget')
+        assert not _tracebacks(r)
+    finally:
+        r.close()
+
+
+def test_hostile_one_stamp_outlier_a_second_never_empties_the_buffer(data, model):
+    s = Streams(model)
+    counts = []
+    for second in range(8):  # 8 s of 100 Hz data, a rogue stamp far away every second
+        k0 = 100 * second
+        s.feed(data, k0 % 500, k0 % 500 + 100, t0=T0 + k0 * 0.01 - data.t[k0 % 500])
+        rogue = T0 + k0 * 0.01 + 3 * 3600.0 if second % 2 else 50.0 + second  # ahead, behind
+        s.state(make_joint_state(rogue, JOINTS, data.theta[0], data.theta_dot[0],
+                                 data.tau[0]))
+        counts.append(s.buffered())
+    window = int(BASE['window'] / 0.01)
+    assert counts[:4] == [100, 200, 300, 400] and all(c >= window for c in counts[4:])
+    drops = s.drops()
+    assert drops['stamp_outlier'] == 8 and drops['clock_jump'] == 0
+    assert drops['clock_jump_forward'] == 0
+    assert s.log_lines('joint_states', 'stamp_outlier')
+    s.predict_finite()
+
+
+def test_hostile_malformed_raw_cdr_prints_nothing_on_stderr(streams, capfd):
+    good = serialize_message(_js(JOINTS, [0.1, 0.2, 0.3], [0, 0, 0], [1, 1, 1]))
+    bad = [good[:20] + b'\xff\xff\xff\x7f' + good[24:],  # a count beyond the end
+           good[:len(good) // 3], b'\x00\x01\x00\x00' + b'\xff' * 40]
+    capfd.readouterr()
+    before = streams.drops()['malformed']
+    for raw in bad * 10:
+        streams.ingestion.handle_state(raw)
+        streams.ingestion.handle_reference(raw, T0)
+    assert streams.drops()['malformed'] == before + 60
+    err = capfd.readouterr().err
+    assert 'sequence size' not in err and 'deserialize' not in err, err[:500]
+
+
+@pytest.mark.parametrize('case', ['joints', 'name_bytes', 'state_bytes', 'points',
+                                  'points_raw'])
+def test_hostile_over_budget_messages_are_rejected_and_counted(streams, case):
+    s = streams
+    if case == 'joints':
+        names = list(JOINTS) + [f'extra{k}' for k in range(300)]
+        _fault(s, 'over_budget', lambda: s.state(_js(names, [0.1] * len(names))))
+    elif case == 'name_bytes':
+        names = list(JOINTS) + ['x' * 10_000]
+        _fault(s, 'over_budget', lambda: s.state(_js(names, [0.1] * 4)))
+    elif case == 'state_bytes':
+        msg = _js(JOINTS, [0.1, 0.2, 0.3], [0, 0, 0], [1, 1, 1])
+        msg.header.frame_id = 'f' * 70_000
+        _fault(s, 'over_budget', lambda: s.state(msg))
+    else:
+        msg = _trajectory(np.arange(10_001) * 0.01, [[0.1, 0.2, 0.3]] * 10_001)
+        if case == 'points_raw':
+            msg = serialize_message(msg)
+        _fault(s, 'over_budget', lambda: s.ingestion.handle_reference(msg, T0),
+               topic='reference_trajectory')
+
+
+def test_hostile_clock_reset_clears_the_buffer(data):
+    r = NodeRig(dict(BASE, use_sim_time=True))
+    try:
+        from rosgraph_msgs.msg import Clock as ClockMsg
+        clock = r.client.create_publisher(ClockMsg, '/clock', 10)
+        assert wait_for(lambda: clock.get_subscription_count() >= 1, PATIENCE)
+
+        def tick(seconds):
+            msg = ClockMsg()
+            msg.clock.sec = seconds
+            clock.publish(msg)
+        for second in range(1000, 1005):
+            tick(second)
+            time.sleep(0.1)
+        with r.lock:
+            start = len(r.diagnostics)
+        end = time.monotonic() + PATIENCE
+        second = 10  # the simulation restarted: /clock runs on from 10 s
+        while time.monotonic() < end and not (
+                r.rosout.lines(r.logger, 'node clock jumped back', 'buffered data cleared')
+                and any(int(v['drops.clock_jump']) >= 1 for v in r.diagnostics[start:])):
+            tick(second)  # the diagnostics timer runs on the node clock
+            second += 1
+            time.sleep(0.1)
+        assert r.rosout.lines(r.logger, 'node clock jumped back', 'buffered data cleared')
+        with r.lock:
+            values = [v for v in r.diagnostics[start:] if int(v['drops.clock_jump']) >= 1]
+        assert values and int(values[-1]['drops.internal_error']) == 0
+        assert not _tracebacks(r)
+    finally:
+        r.close()
+
+
+def test_hostile_too_many_joints_to_learn_are_refused(data):
+    s = Streams(joints=[])
+    names = [f'j{k}' for k in range(70)]  # within the message budget, beyond the node's
+    s.state(_js(names, [0.1] * 70, [0.0] * 70, [0.0] * 70))
+    assert s.drops()['over_budget'] == 1 and s.ingestion.joints is None
+    assert s.log_lines('joint_states', 'over_budget', 'set the joints parameter')
+    s.feed(data, 0, 10)  # an arm's own stream is learned as before
+    assert s.ingestion.joints == JOINTS and s.buffered() == 10

@@ -205,13 +205,17 @@ def test_item13_clock_jump_back_clears_counts_and_continues():
     feed_states(buffer, times)
     feed_commands(buffer, times)
     epoch = buffer.snapshot().epoch
-    result = buffer.add_state(T0 - 100.0, *theta_of(T0 - 100.0))  # simulator reset
+    first = grid(-100.0, -99.98, 0.01)  # a simulator reset: the stream moves, 3 samples
+    for t in first[:2]:  # outliers until the third confirms the jump
+        result = buffer.add_state(t, *theta_of(t))
+        assert result.reason == 'stamp_outlier' and buffer.stats()['state_samples'] == 201
+    result = buffer.add_state(first[2], *theta_of(first[2]))
     assert result.accepted and result.clock_jump
     assert buffer.counters['clock_jump'] == 1
     stats = buffer.stats()
-    assert stats['state_samples'] == 1 and stats['command_samples'] == 0
+    assert stats['state_samples'] == 3 and stats['command_samples'] == 0
     assert buffer.stream_status(T0 - 100.0, 1.0) == 'waiting'
-    restart = grid(-100.0 + 0.01, -99.0, 0.01)
+    restart = grid(-100.0 + 0.03, -99.0, 0.01)
     feed_states(buffer, restart)
     feed_commands(buffer, np.concatenate([[T0 - 100.0], restart]))
     snapshot = buffer.snapshot()
@@ -374,11 +378,13 @@ def test_clear_forgets_data_keeps_counters():
 def test_forward_jump_clears_and_rebases():
     buffer = make_buffer(window=2.0)
     feed_states(buffer, grid(0.0, 1.0, 0.01))
-    result = buffer.add_state(1.7e9, [0.0, 0.0], [0.0, 0.0])
+    for t in (1.7e9, 1.7e9 + 0.01):  # outliers until a third sample confirms the jump
+        assert buffer.add_state(t, [0.0, 0.0], [0.0, 0.0]).reason == 'stamp_outlier'
+    result = buffer.add_state(1.7e9 + 0.02, [0.0, 0.0], [0.0, 0.0])
     assert result and result.clock_jump
     assert buffer.counters['clock_jump_forward'] == 1
     assert buffer.time_origin == 1.7e9
-    assert buffer.stats()['state_samples'] == 1
+    assert buffer.stats()['state_samples'] == 3
 
 
 def test_reference_interpolates_and_holds_at_rest():

@@ -41,11 +41,14 @@ import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.serialization import deserialize_message
+from rkgnn_ros.cdr import is_plain_cdr
 from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arrays,
-                                   joint_trajectory_to_arrays, parse_joint_state_cdr,
-                                   Rejection, REJECTION_REASONS)
+                                   joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
+                                   parse_joint_state_cdr, Rejection, REJECTION_REASONS)
+from rkgnn_ros.identification.parameters import MAX_JOINTS
 from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
 from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['NODE_REASONS', 'INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'StateSample']
 
@@ -291,14 +294,19 @@ class Ingestion:
             self.internal_error('joint_commands')
 
     def handle_reference(self, msg, now: float) -> None:
-        """Take one reference_trajectory message (a zero stamp means ``now``, in s)."""
+        """
+        Take one reference_trajectory message (a zero stamp means ``now``, in s).
+
+        ``msg`` is its CDR bytes (the node's subscription is raw: the size budgets are
+        checked before anything is built from the points) or a JointTrajectory.
+        """
         try:
             joints = self._joints
             if joints is None:
                 self.reject('reference_trajectory', 'reference', 'no_joints',
                             'joints not known yet (waiting for joint_states)')
                 return
-            sample = joint_trajectory_to_arrays(msg, joints, now=now)
+            sample = self._trajectory_sample(msg, joints, now)
             if not sample.ok:
                 self.reject('reference_trajectory', 'reference', sample.reason,
                             sample.message)
@@ -311,11 +319,33 @@ class Ingestion:
             self.internal_error('reference_trajectory')
 
     @staticmethod
+    def _trajectory_sample(msg, joints, now: float):
+        """Read a reference (CDR bytes or a message): our CDR reader, else rclpy's."""
+        if not isinstance(msg, (bytes, bytearray, memoryview)):
+            return joint_trajectory_to_arrays(msg, joints, now=now)
+        sample = joint_trajectory_cdr_to_arrays(msg, joints, now=now)
+        if sample is None:  # another encoding (within the byte budget): rclpy decides
+            try:
+                msg = deserialize_message(bytes(msg), JointTrajectory)
+            except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
+                return Rejection('malformed', f'cannot read JointTrajectory: {error!r}')
+            sample = joint_trajectory_to_arrays(msg, joints, now=now)
+        return sample
+
+    @staticmethod
     def _joint_sample(raw: bytes, joints, need_effort: bool):
-        """Read a raw JointState: the CDR fast path, else rclpy's deserialization."""
+        """
+        Read a raw JointState: the CDR fast path, else rclpy's deserialization.
+
+        Plain CDR our reader refuses is malformed (rclpy's deserializer would print a line
+        on stderr for each such message); only another encoding goes to rclpy.
+        """
         sample = joint_state_cdr_to_arrays(raw, joints, need_velocity=True,
                                            need_effort=need_effort)
-        if sample is None:  # not plain CDR we read: let rclpy decide what it is
+        if sample is None and is_plain_cdr(raw):
+            return Rejection('malformed', f'{len(raw)} bytes of CDR that do not form a '
+                                          'JointState')
+        if sample is None:  # not plain CDR: let rclpy decide what it is
             try:
                 msg = deserialize_message(raw, JointState)
             except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
@@ -331,6 +361,8 @@ class Ingestion:
             parsed = parse_joint_state_cdr(raw)
             if parsed is not None:
                 return parsed[2]
+            if is_plain_cdr(raw):
+                return None  # malformed: the sample's own reading says so
             return tuple(deserialize_message(raw, JointState).name)
         except Exception:  # noqa: B902 - the sample's own reading reports why
             return None
@@ -342,6 +374,9 @@ class Ingestion:
         if joints is None:
             names = self._message_names(raw) or ()
             sample = self._joint_sample(raw, names, need_tau)
+            if sample.ok and len(names) > MAX_JOINTS:
+                sample = Rejection('over_budget', f'{len(names)} joints to learn, more than '
+                                                  f'{MAX_JOINTS}: set the joints parameter')
             if not sample.ok:
                 self.reject('joint_states', 'state', sample.reason, sample.message)
                 return
@@ -354,10 +389,7 @@ class Ingestion:
         result = self._buffer.add_state(sample.stamp, sample.position, sample.velocity,
                                         sample.effort if need_tau else None)
         if result.clock_jump:
-            self.warn_throttled(('joint_states', 'clock_jump'),
-                                f'joint_states: the clock jumped (stamp {sample.stamp:.3f} s): '
-                                'buffered data cleared, identification continues on the new '
-                                'timeline')
+            self._warn_jump('joint_states', sample.stamp)
         if not result.accepted:
             self.log_drop('joint_states', result.reason,
                           f'stamp {sample.stamp:.6f} s rejected by the buffer')
@@ -370,6 +402,29 @@ class Ingestion:
             self._last_state_prediction = now
             self._on_state()
 
+    def _warn_jump(self, topic: str, stamp: float) -> None:
+        self.warn_throttled((topic, 'clock_jump'),
+                            f'{topic}: the clock jumped (the stream moved to stamp '
+                            f'{stamp:.3f} s): buffered data cleared, identification continues '
+                            'on the new timeline')
+
+    def clock_reset(self, seconds: float) -> None:
+        """
+        Clear the buffer: the node's clock jumped back by ``seconds`` (``/clock`` reset).
+
+        Counted as ``clock_jump``; what is buffered belongs to the old timeline.
+        """
+        with self.lock:
+            buffer = self._buffer
+            if buffer is None:
+                return
+            buffer.clock_reset()
+            self.latest_state = None
+            self.latest_command = None
+        self.warn_throttled(('clock', 'clock_jump'),
+                            f'the node clock jumped back by {seconds:.3f} s: buffered data '
+                            'cleared, identification continues on the new timeline')
+
     def _handle_command(self, raw: bytes) -> None:
         joints = self._joints
         if joints is None:
@@ -381,6 +436,8 @@ class Ingestion:
             self.reject('joint_commands', 'command', sample.reason, sample.message)
             return
         result = self._buffer.add_command(sample.stamp, sample.position, sample.velocity)
+        if result.clock_jump:
+            self._warn_jump('joint_commands', sample.stamp)
         if not result.accepted:
             self.log_drop('joint_commands', result.reason,
                           f'stamp {sample.stamp:.6f} s rejected by the buffer')

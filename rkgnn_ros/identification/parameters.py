@@ -33,6 +33,7 @@ from typing import Dict, Mapping, Optional, Sequence, Tuple
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
+from rkgnn_ros.conversions import MAX_NAME_BYTES
 from rkgnn_ros.core.fitting.identify import normalize_case
 from rkgnn_ros.core.fitting.online import OnlineSettings
 from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
@@ -42,6 +43,15 @@ from rkgnn_ros.parameters import Change, ParameterSpec
 __all__ = ['PARAMETERS', 'OUTPUTS', 'Config', 'ConfigurationError', 'IdentifierParameters',
            'check_parameters', 'make_config',
            'network_spec', 'optimizer_settings', 'online_settings']
+
+#: What an accepted value may be, beyond the rows' own ranges (README, *Reliability*).
+MAX_JOINTS = 64              # joints (and gains per joint) a parameter may list
+MAX_GAIN = 1e6               # kp, kd: N m/rad and N m s/rad; larger overflow the rollouts
+MAX_POPULATION = 10_000      # candidates per generation (and tournament size)
+MIN_SIGMA = CMAES.SIGMA_FLOOR  # es.sigma, genome units
+MIN_PREDICTION_RATE = 0.1    # Hz, when prediction.rate is not 0 (off)
+MAX_PREDICTION_POINTS = 10_000  # prediction.horizon / model_step
+MAX_PATH_BYTES = 4096        # model_file (PATH_MAX on Linux)
 
 _T = Parameter.Type
 _RESTART = Change.RESTART
@@ -57,13 +67,16 @@ PARAMETERS = (
                   'accepted. Changing it clears the buffer and restarts the search.',
                   choices=CASES, change=_REBUILD),
     ParameterSpec('kp', (), "Known proportional gains per joint (case 'pd_gains'). "
-                  + _RESTARTS, low=0.0, ptype=_T.DOUBLE_ARRAY, change=_RESTART),
+                  + _RESTARTS, low=0.0, high=MAX_GAIN, ptype=_T.DOUBLE_ARRAY,
+                  max_items=MAX_JOINTS, change=_RESTART),
     ParameterSpec('kd', (), "Known derivative gains per joint (case 'pd_gains'). "
-                  + _RESTARTS, low=0.0, ptype=_T.DOUBLE_ARRAY, change=_RESTART),
+                  + _RESTARTS, low=0.0, high=MAX_GAIN, ptype=_T.DOUBLE_ARRAY,
+                  max_items=MAX_JOINTS, change=_RESTART),
     ParameterSpec('joints', (),
                   'Joint names, in model column order; empty: the names of the first '
                   'joint_states message (or of the loaded model_file). Changing it clears the '
-                  'buffer and restarts the search.', ptype=_T.STRING_ARRAY, change=_REBUILD),
+                  'buffer and restarts the search.', ptype=_T.STRING_ARRAY,
+                  max_items=MAX_JOINTS, max_bytes=MAX_NAME_BYTES, change=_REBUILD),
     ParameterSpec('window', 20.0,
                   'Seconds of newest data the search uses (training plus validation). '
                   'Changing it rebuilds the buffer.', 1.0, 600.0, change=Change.BUFFER),
@@ -118,11 +131,11 @@ PARAMETERS = (
                   choices=OPTIMIZERS, change=Change.ES),
     ParameterSpec('es.population_size', 0,
                   "Candidates per generation; 0 (at start only): the algorithm's default "
-                  '(cmaes: 4 + 3 ln N, paper: 100). ' + _ES_NOTE, 0, 100000,
+                  '(cmaes: 4 + 3 ln N, paper: 100). ' + _ES_NOTE, 0, MAX_POPULATION,
                   constraints='0 (at start) or >= 2; >= es.tournament_size (paper)',
                   change=Change.ES),
     ParameterSpec('es.tournament_size', PaperEA.DEFAULTS['tournament_size'],
-                  'paper: contestants per tournament.', 1, 100000,
+                  'paper: contestants per tournament.', 1, MAX_POPULATION,
                   constraints='<= es.population_size (paper)', change=Change.ES),
     ParameterSpec('es.crossover_rate', PaperEA.DEFAULTS['crossover_rate'],
                   'paper: probability that a parent pair is replaced by BLX-alpha children.',
@@ -130,8 +143,9 @@ PARAMETERS = (
     ParameterSpec('es.mutation_rate', PaperEA.DEFAULTS['mutation_rate'],
                   'paper: fraction of offspring mutated.', 0.0, 1.0, change=Change.ES),
     ParameterSpec('es.sigma', CMAES.DEFAULTS['sigma'],
-                  'Step size (cmaes) or initial mutation spread (paper), in genome units.',
-                  0.0, 10.0, low_open=True, change=Change.ES),
+                  'Step size (cmaes) or initial mutation spread (paper), in genome units '
+                  '(elements of order 1): a step below 1e-6 moves no weight measurably, and '
+                  'subnormal steps break CMA-ES.', MIN_SIGMA, 10.0, change=Change.ES),
     ParameterSpec('es.sigma_min', PaperEA.DEFAULTS['sigma_min'],
                   'paper: floor of the mutation spread.', 0.0, 10.0,
                   constraints='<= es.sigma (paper)', change=Change.ES),
@@ -141,15 +155,19 @@ PARAMETERS = (
                   "Seed of the optimizer's random generator, used when a search (re)starts.",
                   0, 2 ** 31 - 1),
     ParameterSpec('prediction.horizon', 2.0, 'Seconds predicted on ~/prediction.', 0.01, 60.0,
-                  constraints='>= model_step'),
-    ParameterSpec('prediction.rate', 10.0, 'Rate (Hz) of ~/prediction (0: only on_state).',
-                  0.0, 1000.0),
+                  constraints=f'>= model_step; at most {MAX_PREDICTION_POINTS} model_steps'),
+    ParameterSpec('prediction.rate', 10.0,
+                  'Rate (Hz) of ~/prediction (0: only on_state; otherwise at least '
+                  f'{MIN_PREDICTION_RATE} Hz, one prediction every 10 s).', 0.0, 1000.0,
+                  off_below=MIN_PREDICTION_RATE),
     ParameterSpec('prediction.on_state', False,
                   'Also predict on every accepted joint_states sample (at most once per '
                   'model_step).'),
     ParameterSpec('model_file', '',
                   'Model YAML: loaded at start if present (published, start genome), written '
-                  'atomically on ~/save_model and at shutdown; empty: no file.'),
+                  'atomically on ~/save_model and at shutdown; empty: no file. Only a regular '
+                  'file (or a new path) is read or written: a directory, a device or a FIFO '
+                  'is refused with the reason.', max_bytes=MAX_PATH_BYTES),
 )
 
 OUTPUTS = (
@@ -259,6 +277,10 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
     if values['prediction.horizon'] < values['model_step']:
         return (f"prediction.horizon ({values['prediction.horizon']}) must be >= model_step "
                 f"({values['model_step']})")
+    if values['prediction.horizon'] > MAX_PREDICTION_POINTS * values['model_step']:
+        return (f"prediction.horizon ({values['prediction.horizon']}) must be at most "
+                f"{MAX_PREDICTION_POINTS} model_steps ({values['model_step']} s each): a "
+                'longer prediction is too large a message')
     joints = values['joints']
     try:
         network_spec(values, max(1, len(joints)))
@@ -356,6 +378,11 @@ class IdentifierParameters:
             changed = []
             for param in params:
                 name = param.name
+                if not isinstance(name, str) or not name:
+                    # rclpy's check of undeclared names lets '' through (any() of the names)
+                    return SetParametersResult(
+                        successful=False,
+                        reason=f'parameter name {name!r} is not a parameter of the identifier')
                 if name in _OUTPUT_NAMES:
                     if not internal:
                         return SetParametersResult(

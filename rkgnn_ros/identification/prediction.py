@@ -32,6 +32,7 @@ instead showed no lower latency in paired runs; the README's *Responsiveness* ha
 """
 
 from collections import deque
+import math
 import threading
 import time
 from typing import Callable, NamedTuple, Optional, Tuple
@@ -45,6 +46,7 @@ from rkgnn_ros.core.model.model import RKGNNModel
 __all__ = ['LATENCY_WINDOW', 'Prediction', 'Predictor']
 
 LATENCY_WINDOW = 1000  # predictions whose latency the diagnostics summarise
+MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's bound)
 JOIN_TIMEOUT_S = 10.0
 
 
@@ -171,7 +173,10 @@ class Predictor:
         if inputs is None:
             return False
         x0 = np.concatenate([latest.theta, latest.theta_dot])
-        states = model.simulate(x0, t, **inputs)  # (k+1, 2n)
+        # at most MAX_SUBSTEPS RKG steps per model_step, whatever step the model was made
+        # with (model_step may have grown since): the rollout's memory stays bounded
+        substeps = min(MAX_SUBSTEPS, math.ceil(step * model.substeps / model.dt - 1e-9))
+        states = model.simulate(x0, t, substeps=max(1, substeps), **inputs)  # (k+1, 2n)
         n = len(joints)
         positions = np.array(states[:, :n])
         velocities = np.array(states[:, n:2 * n])

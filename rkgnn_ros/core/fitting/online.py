@@ -250,6 +250,7 @@ class OnlineIdentification:
         self._last_stats = -math.inf
         self._stale_warned = False
         self._had_finite = False
+        self._failures = None  # (optimizer, its numerical failures) last seen
 
     @property
     def generation(self) -> int:
@@ -510,6 +511,14 @@ class OnlineIdentification:
         optimizer = self._evo.optimizer
         if math.isfinite(optimizer.best_cost):
             self._had_finite = True
+        failures = (id(optimizer), optimizer.failures)
+        if optimizer.failures and failures != self._failures:
+            self._log_throttled('optimizer', 'warning',
+                                f'{self._algorithm} failed numerically '
+                                f'({optimizer.last_failure}): restarted around the best genome '
+                                f'(J {optimizer.best_cost:.4g}; {optimizer.failures} time(s) in '
+                                'this search)')
+        self._failures = failures
         key = (self._data_version, optimizer.best_x.tobytes())
         if (self._validation and key != self._val_key and math.isfinite(optimizer.best_cost)
                 and self._generation - self._last_val_generation >= VALIDATION_EVERY):

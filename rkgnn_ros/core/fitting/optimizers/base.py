@@ -151,6 +151,9 @@ class Optimizer(ABC):
         :meth:`restart` with a cost); ``x0`` until then.
     best_cost : float
         Its cost (``inf`` until a finite cost is told or seeded); see :meth:`rescore`.
+    failures : int
+        Numerical failures of the algorithm it recovered from by restarting around
+        ``best_x`` (CMA-ES: pycma's assertions); ``last_failure`` says the latest.
     history : list of dict
         One entry per generation: ``generation``, ``best_cost`` (best ever),
         ``min_cost`` (best of the generation, may be inf), ``mean_cost`` (mean of the
@@ -176,6 +179,8 @@ class Optimizer(ABC):
         self.evaluations = 0
         self.best_x = self.x0.copy()
         self.best_cost = math.inf
+        self.failures = 0
+        self.last_failure = ''
         self.history = []
 
     # -- the interface ------------------------------------------------------------------

@@ -17,6 +17,9 @@ CMA-ES through pycma's ask/tell, driven by our own random generator.
 
 pycma samples from the global numpy state and cannot change its population size or
 restart in place; :class:`CMAES` hides both behind the interface of :class:`.Optimizer`.
+pycma also asserts on numbers it cannot handle (a subnormal step size, genomes near the
+largest float); such a failure restarts the strategy around the best genome instead of
+ending the search (:attr:`.Optimizer.failures` counts them).
 """
 
 import math
@@ -27,6 +30,9 @@ import numpy as np
 from .base import _check_int, _check_real, finite_costs, Optimizer
 
 __all__ = ['CMAES', 'SEPARABLE_ABOVE']
+
+#: What pycma raises when its state stops being numbers (checked finite by assertions).
+_NUMERIC_FAILURES = (AssertionError, ArithmeticError, ValueError, np.linalg.LinAlgError)
 
 #: Genome length above which :class:`CMAES` defaults to the separable (diagonal) variant.
 #: Full CMA-ES keeps an N x N covariance matrix and decomposes it every few generations,
@@ -67,6 +73,13 @@ class CMAES(Optimizer):
     the ``population_size`` candidates), so the genome a search starts from is always
     evaluated and never lost; a resize does not (its mean was never a candidate).
 
+    When pycma fails numerically in ``ask`` or ``tell`` (its assertions that its state is
+    finite, an overflow, a singular decomposition), the generation's costs are still
+    recorded, the strategy restarts around ``best_x`` (its centre if nothing finite was
+    told yet) with the ``sigma`` setting (at least :attr:`SIGMA_FLOOR`), and
+    :attr:`failures` / :attr:`last_failure` say so: the search keeps its best and goes on,
+    nothing is raised.
+
     Settings
     --------
     population_size : int >= 2 or None, default None
@@ -82,6 +95,9 @@ class CMAES(Optimizer):
 
     name = 'cmaes'
     DEFAULTS = {'population_size': None, 'sigma': 0.5, 'separable': None}
+    #: The smallest step a recovery restarts with: far below any useful step in genome
+    #: units (elements of order 1), far above what pycma fails on (subnormal numbers).
+    SIGMA_FLOOR = 1e-6
 
     def __init__(self, dim, x0=None, rng=None, *, history_maxlen=10_000, **settings):
         super().__init__(dim, x0, rng, history_maxlen=history_maxlen, **settings)
@@ -159,9 +175,29 @@ class CMAES(Optimizer):
         """
         if self._pending is None:
             self._apply_request()
-            solutions = self._es.ask()
+            try:
+                solutions = self._sample()
+            except _NUMERIC_FAILURES as exc:
+                self._recover(exc)
+                solutions = self._sample()
             self._pending = (solutions, np.array(solutions, dtype=float))
         return self._pending[1].copy()
+
+    def _sample(self) -> list:
+        with np.errstate(all='ignore'):
+            solutions = self._es.ask()
+        if not np.isfinite(solutions).all():
+            raise FloatingPointError('pycma sampled non-finite candidates')
+        return solutions
+
+    def _recover(self, exc: BaseException) -> None:
+        """Restart the strategy around the best genome after a numerical failure of pycma."""
+        self.failures += 1
+        self.last_failure = f'{type(exc).__name__}: {exc}'.rstrip(': ')
+        centre = self._restart_centre(None)
+        self._es = self._new_es(self.x0 if centre is None else centre,
+                                max(self._settings['sigma'], self.SIGMA_FLOOR),
+                                evaluate_centre=True)
 
     def tell(self, X, costs) -> None:
         """
@@ -189,8 +225,14 @@ class CMAES(Optimizer):
             raise ValueError(f'X must have the asked shape {asked.shape}, got {X.shape}')
         if not np.array_equal(X, asked):
             solutions = list(X)
-        self._es.tell(solutions, finite_costs(f).tolist())
         self._pending = None
+        try:
+            with np.errstate(all='ignore'):
+                self._es.tell(solutions, finite_costs(f).tolist())
+        except _NUMERIC_FAILURES as exc:
+            self._record(X, f)  # the costs are sound: the best is kept
+            self._recover(exc)
+            return
         self._record(X, f)
 
     def _apply_request(self) -> None:
