@@ -50,7 +50,7 @@ exists.
 from collections import deque
 from dataclasses import dataclass, field
 import math
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Dict, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -216,6 +216,14 @@ class _Series:
         return out
 
 
+class Verdict(NamedTuple):
+    """A candidate model's trial against the model in use, on the same targets."""
+
+    better: bool        # the candidate's error is at most the model's
+    candidate: float    # its windowed error, mean over the scored horizons
+    model: float        # the model's on the same targets (NaN: there was none)
+
+
 class SelfCheck:
     """
     Continuous scoring of predictions against the baselines, and the publish decision.
@@ -224,6 +232,13 @@ class SelfCheck:
     (:meth:`add_reference`: ``joint_commands`` samples or the plan's points) and every
     prediction (:meth:`add_prediction`); ask :meth:`scores`, :meth:`decide` and
     :meth:`uncertainty`. Times are the node's clock in seconds; nothing here reads a clock.
+
+    A second model, the *candidate*, can be scored beside the model in use on the same
+    starts (:meth:`add_prediction`'s ``candidate``): :meth:`trial` compares the two once the
+    candidate has ``min_scored`` scored predictions at every horizon it reaches, and
+    :meth:`promote` makes it the model (its scores come with it) or
+    :meth:`discard_candidate` forgets it. So a new model is judged on what it predicted
+    before anything it predicts is published.
 
     Parameters
     ----------
@@ -238,7 +253,7 @@ class SelfCheck:
         The model is published while its error is at most (1 + margin) × the better
         baseline's at every horizon.
     min_scored : int
-        Scored predictions needed at every horizon before the model can be published.
+        Scored predictions needed at every horizon a predictor reaches before it is judged.
 
     """
 
@@ -259,13 +274,17 @@ class SelfCheck:
         self.min_scored = max(1, int(min_scored))
         self._states = _Series()
         self._reference = _Series()
-        # per prediction: start, predicted θ at each horizon (H, n), published source
+        # per prediction: start, θ at each horizon (H, n) of the model, of the candidate and
+        # of what was published (NaN: none), and the published source
         self._t0: deque = deque()
-        self._pred: deque = deque()
+        self._model: deque = deque()
+        self._candidate: deque = deque()
+        self._published_at: deque = deque()
         self._published: deque = deque()
         self._low = np.full(self.n, np.inf)
         self._high = np.full(self.n, -np.inf)
         self._demoted = False      # a baseline is published because the model scored worse
+        self._cache = None         # the table of the recorded data, until they change
         #: per-reason counts of samples that were not taken
         self.rejected = {'non_finite': 0, 'out_of_order': 0, 'wrong_shape': 0}
 
@@ -289,6 +308,7 @@ class SelfCheck:
         if not self._states.append(float(t), row):
             self.rejected['out_of_order'] += 1
             return
+        self._cache = None
         self._low = np.minimum(self._low, row)
         self._high = np.maximum(self._high, row)
         self._prune(float(t))
@@ -311,6 +331,7 @@ class SelfCheck:
         times, rows = times[good], rows[good]
         if times.size == 0:
             return
+        self._cache = None
         if np.any(np.diff(times) <= 0.0):
             self.rejected['out_of_order'] += 1
             return
@@ -320,29 +341,65 @@ class SelfCheck:
             return
         self._reference.replace_from(times, rows)
 
-    def add_prediction(self, t0: float, offsets, theta, source: str = 'model') -> None:
-        """
-        Record a prediction from time ``t0``: θ (K, n) at ``offsets`` (K,) after it.
-
-        ``source`` is what was published for it (one of :data:`SOURCES`), so that the
-        published stream is scored too. Horizons past the prediction's end are not scored.
-        """
-        if source not in SOURCES:
-            raise ValueError(f'source must be one of {SOURCES}, got {source!r}')
-        offsets = np.asarray(offsets, dtype=float).reshape(-1)
+    def _at_horizons(self, offsets: np.ndarray, theta) -> Optional[np.ndarray]:
+        """Return θ (K, n) at the horizons (H, n), NaN past its end; None if unusable."""
+        if theta is None:
+            return np.full((len(self.horizons), self.n), np.nan)
         theta = np.asarray(theta, dtype=float)
-        if theta.shape != (offsets.size, self.n) or offsets.size < 2:
+        if theta.shape != (offsets.size, self.n):
             self.rejected['wrong_shape'] += 1
-            return
-        if not (math.isfinite(t0) and np.all(np.isfinite(theta))):
+            return None
+        if not np.all(np.isfinite(theta)):
             self.rejected['non_finite'] += 1
-            return
+            return None
         at = np.full((len(self.horizons), self.n), np.nan)
         for i, h in enumerate(self.horizons):
             if offsets[0] - 1e-9 <= h <= offsets[-1] + 1e-9:
                 at[i] = [np.interp(h, offsets, theta[:, j]) for j in range(self.n)]
+        return at
+
+    def add_prediction(self, t0: float, offsets, theta, source: str = 'model',
+                       candidate=None, published=None) -> None:
+        """
+        Record the predictions made from time ``t0``, each θ (K, n) at ``offsets`` (K,).
+
+        Horizons past a prediction's end are not scored.
+
+        Parameters
+        ----------
+        t0 : float
+            The start (the measured state's time).
+        offsets : array_like, shape (K,)
+            Times after ``t0``, increasing, at least two.
+        theta : array_like, shape (K, n), or None
+            The model's prediction (None: the model made none).
+        source : str
+            What was published (one of :data:`SOURCES`), so the published stream is
+            scored too.
+        candidate : array_like, shape (K, n), optional
+            A candidate model's prediction from the same start (see :meth:`trial`).
+        published : array_like, shape (K, n), optional
+            The baseline's θ as published (e.g. the plan's θd); default: the baseline is
+            scored from the recorded states and commands.
+
+        """
+        if source not in SOURCES:
+            raise ValueError(f'source must be one of {SOURCES}, got {source!r}')
+        offsets = np.asarray(offsets, dtype=float).reshape(-1)
+        if offsets.size < 2 or not math.isfinite(t0):
+            self.rejected['wrong_shape' if offsets.size < 2 else 'non_finite'] += 1
+            return
+        model = self._at_horizons(offsets, theta)
+        other = None if model is None else self._at_horizons(offsets, candidate)
+        shown = (model.copy() if source == 'model' and model is not None
+                 else self._at_horizons(offsets, published))
+        if model is None or other is None or shown is None:
+            return
+        self._cache = None
         self._t0.append(float(t0))
-        self._pred.append(at)
+        self._model.append(model)
+        self._candidate.append(other)
+        self._published_at.append(shown)
         self._published.append(source)
 
     def _prune(self, now: float) -> None:
@@ -350,9 +407,9 @@ class SelfCheck:
         self._states.prune(keep_from)
         self._reference.prune(keep_from)
         while self._t0 and self._t0[0] < keep_from:
-            self._t0.popleft()
-            self._pred.popleft()
-            self._published.popleft()
+            for store in (self._t0, self._model, self._candidate, self._published_at,
+                          self._published):
+                store.popleft()
 
     # -- scoring --------------------------------------------------------------------------
 
@@ -362,14 +419,26 @@ class SelfCheck:
         span = self._high - self._low
         return np.where(np.isfinite(span), span, np.nan)
 
-    def _errors(self) -> Dict[float, Dict[str, np.ndarray]]:
-        """Return horizon -> predictor -> errors (M_h, n) on the common targets."""
-        out = {h: {} for h in self.horizons}
+    def _table(self) -> Dict[float, Optional[Dict[str, np.ndarray]]]:
+        """
+        Return horizon -> predictor -> errors (M_h, n) on the scored targets, or None.
+
+        The rows are the predictions whose target lies in the window and whose start and
+        target the measured states cover; a predictor without a value for a row has NaN
+        there (the model made none, no θd known, ...).
+        """
+        if self._cache is None:
+            self._cache = self._compute_table()
+        return self._cache
+
+    def _compute_table(self) -> Dict[float, Optional[Dict[str, np.ndarray]]]:
+        out: Dict[float, Optional[Dict[str, np.ndarray]]] = dict.fromkeys(self.horizons)
         if len(self._states) < 2 or not self._t0:
             return out
         latest = self._states.t[-1]
         t0 = np.fromiter(self._t0, float, len(self._t0))
-        pred = np.array(self._pred)                                      # (M, H, n)
+        stacks = {'model': np.array(self._model), 'candidate': np.array(self._candidate),
+                  'shown': np.array(self._published_at)}                  # (M, H, n)
         published = np.array(self._published)
         start = self._states.interp(t0)                                  # (M, n)
         have_reference = len(self._reference) >= 2
@@ -379,84 +448,111 @@ class SelfCheck:
             if not np.any(select):
                 continue
             truth = self._states.interp(target[select])
-            predicted = pred[select, i]
-            follow = (self._reference.interp(target[select]) if have_reference
+            valid = np.all(np.isfinite(truth), axis=1) & np.all(
+                np.isfinite(start[select]), axis=1)
+            truth = truth[valid]
+            follow = (self._reference.interp(target[select][valid]) if have_reference
                       else np.full(truth.shape, np.nan))
-            candidates = {'model': predicted, 'hold_last': start[select],
-                          'follow_reference': follow}
-            common = np.all(np.isfinite(truth), axis=1)
-            for name, value in candidates.items():
-                if name == 'follow_reference' and not have_reference:
-                    continue
-                common &= np.all(np.isfinite(value), axis=1)
-            errors = {name: value[common] - truth[common]
-                      for name, value in candidates.items()
-                      if name != 'follow_reference' or have_reference}
-            chosen = published[select][common]
-            pub = np.empty_like(errors['model'])
-            for name in SOURCES:
-                rows = chosen == name
-                if np.any(rows) and name in errors:
-                    pub[rows] = errors[name][rows]
-            missing = ~np.isin(chosen, list(errors))
-            errors['published'] = pub[~missing]
+            errors = {'model': stacks['model'][select, i][valid] - truth,
+                      'candidate': stacks['candidate'][select, i][valid] - truth,
+                      'follow_reference': follow - truth,
+                      'hold_last': start[select][valid] - truth}
+            shown = stacks['shown'][select, i][valid] - truth
+            chosen = published[select][valid]
+            recorded = np.all(np.isfinite(shown), axis=1)
+            for name in BASELINES:       # a baseline published without its θ: as recorded
+                rows = (chosen == name) & ~recorded
+                shown[rows] = errors[name][rows]
+            errors['published'] = shown
             out[h] = errors
         return out
+
+    def _nrmse(self, errors: np.ndarray, rows: np.ndarray) -> float:
+        return range_normalised_rmse(errors[rows], self.theta_range) if np.any(rows) \
+            else math.nan
 
     def scores(self) -> Dict[float, Dict[str, float]]:
         """
         Return horizon -> predictor -> windowed range-normalised RMSE, and the counts.
 
-        Predictors are ``model``, ``follow_reference`` (when θd is known), ``hold_last``
-        and ``published`` (what was actually published); ``count`` is the number of scored
-        predictions at that horizon. Empty for a horizon with nothing scored yet.
+        Predictors are ``model``, ``follow_reference`` (when θd is known), ``hold_last``,
+        ``published`` (what was actually published) and ``candidate`` (while one is
+        scored); ``count`` and ``candidate_count`` are the numbers of scored predictions
+        of the model and of the candidate at that horizon. The baselines are scored on the
+        model's targets once it has some. Empty for a horizon with nothing scored yet.
         """
-        theta_range = self.theta_range
         out = {}
-        for h, errors in self._errors().items():
-            if not errors:
+        for h, errors in self._table().items():
+            if errors is None or not errors['hold_last'].shape[0]:
                 out[h] = {}
                 continue
-            row = {name: range_normalised_rmse(e, theta_range) for name, e in errors.items()}
-            row['count'] = int(errors['model'].shape[0])
+            has_model = _finite_rows(errors['model'])
+            count = int(has_model.sum())
+            base = has_model if count else np.ones(has_model.shape, dtype=bool)
+            row = {'model': self._nrmse(errors['model'], has_model), 'count': count}
+            for name in BASELINES:
+                rows = base & _finite_rows(errors[name])
+                if np.any(rows):
+                    row[name] = self._nrmse(errors[name], rows)
+            shown = _finite_rows(errors['published'])
+            row['published'] = self._nrmse(errors['published'], shown)
+            has_candidate = _finite_rows(errors['candidate'])
+            if np.any(has_candidate):
+                row['candidate'] = self._nrmse(errors['candidate'], has_candidate)
+                row['candidate_count'] = int(has_candidate.sum())
             out[h] = row
         return out
 
     def rmse(self, predictor: str = 'published') -> Dict[float, np.ndarray]:
         """Return horizon -> windowed RMSE per joint (rad) of one predictor (NaN if none)."""
         out = {}
-        for h, errors in self._errors().items():
-            e = errors.get(predictor)
+        for h, errors in self._table().items():
+            e = None if errors is None else errors.get(predictor)
+            if e is not None:
+                e = e[_finite_rows(e)]
             out[h] = (np.sqrt(np.mean(np.square(e), axis=0)) if e is not None and e.size
                       else np.full(self.n, np.nan))
         return out
 
+    def _reached(self, store: deque) -> Tuple[float, ...]:
+        """Return the horizons that at least one stored prediction of ``store`` reaches."""
+        if not store:
+            return ()
+        reach = np.any(np.all(np.isfinite(np.array(store)), axis=2), axis=0)     # (H,)
+        return tuple(h for h, hit in zip(self.horizons, reach) if hit)
+
     # -- decisions ------------------------------------------------------------------------
 
-    def decide(self) -> Decision:
-        """Return what to publish now, with the reason (see the module docstring)."""
+    def decide(self, publishable: Sequence[str] = BASELINES) -> Decision:
+        """
+        Return what to publish now, with the reason (see the module docstring).
+
+        ``publishable`` are the baselines that can be published now (following the
+        reference needs the plan over the horizon); holding the last state always can.
+        """
         scores = self.scores()
-        counts = [scores[h].get('count', 0) for h in self.horizons]
-        baselines = [b for b in BASELINES
-                     if all(b in scores[h] and math.isfinite(scores[h][b])
-                            for h in self.horizons if scores[h])]
-        if min(counts) < self.min_scored:
-            if any(scores[h] for h in self.horizons) and baselines:
-                best = min(baselines, key=lambda b: np.mean(
-                    [scores[h][b] for h in self.horizons if scores[h]]))
+        allowed = [b for b in BASELINES if b in publishable or b == 'hold_last']
+        scored = [b for b in allowed if any(b in scores[h] for h in self.horizons)]
+        reached = self._reached(self._model)
+        counts = [scores[h].get('count', 0) for h in reached]
+        if not reached or min(counts) < self.min_scored:
+            if scored:
+                best = min(scored, key=lambda b: _mean_score(scores, b, self.horizons))
             else:
-                best = 'follow_reference' if len(self._reference) >= 2 else 'hold_last'
-            return Decision(best, f'the model has not been scored yet ({min(counts)} of '
-                            f'{self.min_scored} predictions at every horizon): publishing '
-                            f'{best}', False, scores)
-        best = min(baselines, key=lambda b: np.mean([scores[h][b] for h in self.horizons]))
+                best = ('follow_reference' if 'follow_reference' in allowed
+                        and len(self._reference) >= 2 else 'hold_last')
+            have = min(counts) if counts else 0
+            return Decision(best, f'the model has not been scored yet ({have} of '
+                            f'{self.min_scored} predictions at every horizon it reaches): '
+                            f'publishing {best}', False, scores)
+        best = min(scored, key=lambda b: _mean_score(scores, b, reached))
         on_baseline = self._demoted
         limit = 1.0 if on_baseline else 1.0 + self.margin
-        worse = [(h, b) for h in self.horizons for b in baselines
-                 if scores[h]['model'] > limit * scores[h][b]]
+        worse = [(h, b) for h in reached for b in scored
+                 if b in scores[h] and scores[h]['model'] > limit * scores[h][b]]
         if not worse:
             self._demoted = False
-            why = ('the model is at least as good as both baselines at every horizon again'
+            why = ('the model is at least as good as the baselines at every horizon again'
                    if on_baseline else 'the model is not worse than the baselines')
             return Decision('model', why, True, scores)
         h, b = max(worse, key=lambda hb: scores[hb[0]]['model']
@@ -467,6 +563,54 @@ class SelfCheck:
             f"{scores[h]['model']:.2%} of the range against {scores[h][b]:.2%} for {b}"
             f'{"" if not on_baseline else " (it must match the baselines to return)"}: '
             f'publishing {best}', True, scores)
+
+    def trial(self) -> Optional[Verdict]:
+        """
+        Return the candidate's verdict, or None while it has too few scored predictions.
+
+        The candidate is judged once it has ``min_scored`` scored predictions at every
+        horizon it reaches: better when its error, averaged over those horizons, is at most
+        the model's on the same targets (always, when the model made no prediction there).
+        """
+        reached = self._reached(self._candidate)
+        if not reached:
+            return None
+        table = self._table()
+        mine, theirs = [], []
+        for h in reached:
+            errors = table[h]
+            if errors is None:
+                return None
+            has = _finite_rows(errors['candidate'])
+            if has.sum() < self.min_scored:
+                return None
+            common = has & _finite_rows(errors['model'])
+            mine.append(self._nrmse(errors['candidate'], common if np.any(common) else has))
+            theirs.append(self._nrmse(errors['model'], common))
+        candidate = float(np.mean(mine))
+        model = float(np.mean(theirs)) if all(math.isfinite(v) for v in theirs) else math.nan
+        return Verdict(not candidate > model or not math.isfinite(model), candidate, model)
+
+    def promote(self) -> None:
+        """Make the candidate the model: its recorded predictions replace the model's."""
+        self._model = self._candidate
+        self._candidate = deque(np.full((len(self.horizons), self.n), np.nan)
+                                for _ in self._model)
+        self._demoted = False
+        self._cache = None
+
+    def discard_candidate(self) -> None:
+        """Forget the candidate's predictions."""
+        for at in self._candidate:
+            at[:] = np.nan
+        self._cache = None
+
+    def forget_model(self) -> None:
+        """Forget the model's predictions (a model that replaced it untried)."""
+        for at in self._model:
+            at[:] = np.nan
+        self._demoted = False
+        self._cache = None
 
     def uncertainty(self, offsets, predictor: str = 'published') -> np.ndarray:
         """
@@ -487,6 +631,35 @@ class SelfCheck:
             slope = (values[-1, j] - values[-2, j]) / (knots[-1] - knots[-2])
             out[past, j] = values[-1, j] + max(slope, 0.0) * (offsets[past] - knots[-1])
         return out
+
+    def error_integral(self, t_from: float, t_to: float) -> Optional[np.ndarray]:
+        """
+        Return ∫ (θd − θ) dt (n,) from ``t_from`` to ``t_to`` over the recorded streams.
+
+        What a servo's integral term accumulated; the trapezoid rule on the measured
+        states' times, θd interpolated at them. None when the states do not reach back to
+        ``t_from`` or no θd is recorded.
+        """
+        if len(self._states) < 2 or len(self._reference) < 2 or not t_to >= t_from:
+            return None
+        t = np.fromiter(self._states.t, float, len(self._states))
+        if t_from < t[0] - 1e-9:
+            return None
+        inner = t[(t > t_from) & (t < t_to)]
+        times = np.concatenate([[t_from], inner, [t_to]])
+        e = self._reference.interp(times) - self._states.interp(times)
+        if not np.all(np.isfinite(e)):
+            return None
+        return np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(times)[:, None], axis=0)
+
+
+def _finite_rows(errors: np.ndarray) -> np.ndarray:
+    return np.all(np.isfinite(errors), axis=1)
+
+
+def _mean_score(scores, name: str, horizons) -> float:
+    values = [scores[h][name] for h in horizons if name in scores[h]]
+    return float(np.mean(values)) if values else math.inf
 
 
 def baseline(source: str, offsets, theta0, theta_d=None,

@@ -35,13 +35,22 @@ The rules (the identifier node's documentation states them for users):
   a changed best is validated every :data:`VALIDATION_EVERY` generations and before every
   publication (θ-NRMSE of the open-loop prediction from each segment's first state).
 - The best model is published when it changed, at most every ``model_publish_period``.
-- Case 'torque': the arm controller's PD law is fitted from effort and commands at each
-  refresh; while it explains the torque the search runs in closed loop (a case-2 search
-  with the fitted gains) and the published case-1 model carries the law; the search
-  restarts when the law appears, stops explaining the torque or moves by more than
-  :data:`LAW_GAIN_RTOL`.
-- A stream silent for ``stale_timeout`` pauses the search (one warning), a reset or a change
-  of the settings' ``version`` restarts it, ``max_generations`` ends it.
+- Case 'torque': the arm's servo law is learned from effort and commands at each refresh
+  (:mod:`.case_one`: PD, integral and θ-terms, robust to encoder noise; the commands are
+  ``joint_commands`` or the plan sampled at the states). While it explains the torque
+  (residual below :data:`MAX_LAW_FIT_RATIO`) the search runs in closed loop (a case-2
+  search with the law's gains on θd shifted by its other terms), the published case-1
+  model is the arm's (the law in its ``info``) and predictions roll the searched closed
+  loop out; the search restarts when the law appears or stops explaining the torque, and
+  goes on from its best genome (an arm model whatever the gains) with the new law when
+  the gains move by more than :data:`LAW_GAIN_RTOL`. Without a usable law the search runs on
+  the measured torque and no model prediction is possible (the predictor publishes a
+  baseline, see :mod:`rkgnn_ros.core.selfcheck`).
+- θ̇ is taken from the driver, or, when the observation says the velocity is estimated,
+  recomputed on the buffered data by the lag-free centred derivative of θ.
+- A stream silent for ``stale_timeout`` pauses the search (one warning); a reset, a change
+  of the settings' ``version`` or of the case (``case: auto`` follows the streams) restarts
+  it; ``max_generations`` ends it.
 """
 
 from collections import deque
@@ -52,7 +61,8 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .controller import closed_loop_model, fit_pd_law, open_loop_model, PDLaw
+from .case_one import arm_model, fit_law, prediction_loop, search_segments
+from .controller import closed_loop, ControllerLaw
 from .identify import Evolution, RKGNNModel
 from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
                              ModelUpdate, Observation, OnlineSettings, Status, StepResult,
@@ -61,6 +71,7 @@ from .optimizers import make_optimizer
 from .refine import refine_equation_error
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
 from ..data import Dataset
+from ..differentiate import centred_derivative
 
 __all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCapture', 'Status',
            'ClosedLoop', 'ModelUpdate', 'LoopUpdate', 'GenerationStats', 'LogLine',
@@ -70,7 +81,8 @@ DATA_REFRESH_S = 1.0        # at most one set_data per second
 WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
 MIN_LAW_SAMPLES = 50        # case 'torque': paired samples before a controller law is fitted
 MAX_LAW_FIT_RATIO = 0.1     # ... and its RMS residual must stay below this share of RMS τ
-LAW_GAIN_RTOL = 0.1         # a refit moving the gains more than this restarts the search
+LAW_GAIN_RTOL = 0.02        # a refit moving the gains more than this rebuilds the search
+LAW_THETA_SAMPLES = 2000    # θ samples kept to project a law's θ-terms on a model's units
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
 WARM_START_S = 5.0          # computation budget of one equation-error fit (real seconds)
@@ -81,12 +93,20 @@ MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search resta
 LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
 
 
-def _close_loop(model: RKGNNModel, law: PDLaw, closed=None) -> Optional[ClosedLoop]:
-    """Return ``model`` closed with ``law`` (``closed``: already built), None if it cannot be."""
-    if law.kp.size != model.n_joints:
+def _close_loop(model: RKGNNModel, law: ControllerLaw, theta, when: float,
+                closed: Optional[RKGNNModel] = None) -> Optional[ClosedLoop]:
+    """
+    Return the case-1 ``model`` closed with ``law`` for prediction (None if it cannot be).
+
+    ``closed`` is the closed-loop search's own model (rolled out as it was searched); else
+    the law's θ-terms are projected on the model's units over ``theta`` (S, n). ``when`` is
+    the stamp time (s, as the messages') the law's integral term refers to.
+    """
+    if law.n_joints != model.n_joints or not np.all(law.kp > 0.0):
         return None
-    closed = closed_loop_model(model, law) if closed is None else closed
-    return ClosedLoop(model, closed, law.shift())
+    if closed is not None:
+        return ClosedLoop(model, prediction_loop(closed, law), when)
+    return ClosedLoop(model, closed_loop(model, law, theta_samples=theta), when)
 
 
 def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: int):
@@ -144,23 +164,49 @@ def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[
     return None
 
 
-def _law_log_line(new: Optional[PDLaw], old: Optional[PDLaw],
-                  fresh: PDLaw) -> Optional[LogLine]:
+def _law_log_line(new: Optional[ControllerLaw], old: Optional[ControllerLaw],
+                  fresh: ControllerLaw) -> Optional[LogLine]:
     """Return the line saying that the law the search uses changed (None: it did not)."""
     if new is not None and not new.close_to(old, LAW_GAIN_RTOL):
         return LogLine('info',
-                       'controller law fitted from effort and joint_commands: the search and '
-                       'the predictions run in closed loop along the reference with Kp '
-                       f'{np.round(new.kp, 3).tolist()}, Kd {np.round(new.kd, 3).tolist()} '
+                       f'controller law learned from effort and the commands ({new.describe()}'
+                       f'): the search and the predictions run in closed loop along the '
+                       f'plan with Kp {np.round(new.kp, 3).tolist()}, Kd '
+                       f'{np.round(new.kd, 3).tolist()}, Ki {np.round(new.ki, 3).tolist()} '
                        f'(residual {np.round(100 * new.fit_ratio, 2).tolist()} % of the '
                        'torque)')
     if new is None and old is not None:
         return LogLine('warning',
-                       'joint_commands no longer explain the measured torque as a PD law '
+                       'the commands no longer explain the measured torque as a servo law '
                        f'(residual {np.round(100 * fresh.fit_ratio, 1).tolist()} %): the '
-                       'search runs on the measured torque and predictions hold the latest '
-                       'torque')
+                       'search runs on the measured torque and no model prediction is '
+                       'possible (a baseline is published)')
     return None
+
+
+def _same_form(running: ControllerLaw, new: ControllerLaw) -> bool:
+    """Return whether a refit ``new`` keeps the running search valid (gains and form)."""
+    return new.close_to(running, LAW_GAIN_RTOL) and new.theta_input == running.theta_input
+
+
+def _advance(law: ControllerLaw, segments, origin: float, since: float,
+             until: float) -> ControllerLaw:
+    """Return ``law`` with its integral term moved on from stamp ``since`` to ``until`` (s)."""
+    if not np.any(law.ki != 0.0) or not math.isfinite(since):
+        return law
+    for seg in segments:
+        t = origin + seg.t
+        keep = (t > since) & (t <= until)
+        if np.any(keep):
+            law = law.advance_integral(seg.theta[keep], seg.theta_d[keep], seg.dt)
+    return law
+
+
+def _with_velocity(segments, estimate: bool) -> List[Dataset]:
+    """Return ``segments``, θ̇ recomputed from θ by the centred derivative if ``estimate``."""
+    if not estimate:
+        return list(segments)
+    return [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt)) for seg in segments]
 
 
 def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
@@ -170,7 +216,7 @@ def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
             and (model.case == spec.case or model.case == case))
 
 
-def _search_structure(settings: OnlineSettings, law: Optional[PDLaw], joints):
+def _search_structure(settings: OnlineSettings, law: Optional[ControllerLaw], joints):
     """
     Return ``(spec, kp, kd)`` of a new search.
 
@@ -226,14 +272,18 @@ class OnlineIdentification:
         self._published_genome = None if published is None else published.genome.copy()
         self._last_model_pub = -math.inf if published is None else clock()
         self._start_model = published
-        # case 'torque': the law fitted from torque and commands, and the published model
-        # closed with it
-        self._law: Optional[PDLaw] = None
+        self._resume = None  # (genome, scales) a rebuilt search goes on from
+        # case 'torque': the law learned from torque and commands (its integral term at
+        # stamp time _law_time, the θ it was fitted on), the published model closed with it
+        self._law: Optional[ControllerLaw] = None
+        self._law_time = math.nan
+        self._law_theta: Optional[np.ndarray] = None
         self._loop: Optional[ClosedLoop] = None
         # the search
         self._evo: Optional[Evolution] = None
         self._evo_version = -1
-        self._evo_law: Optional[PDLaw] = None  # the law a closed-loop search runs with
+        self._evo_case = ''
+        self._evo_law: Optional[ControllerLaw] = None  # the law a closed-loop search runs with
         self._warm_seconds = math.inf  # seconds of data at the last equation-error fit
         self._algorithm = ''
         self._generation = 0
@@ -295,6 +345,8 @@ class OnlineIdentification:
             self._start_model = None
         if self._evo is not None and self._evo_version != settings.version:
             self._drop_search('structural parameters changed')
+        if self._evo is not None and self._evo_case != settings.case:
+            self._drop_search(f'the case is now {settings.case} (the streams changed)')
         if self._evo is not None:
             self._maybe_publish_model(settings, obs.joints)
         if obs.paused:
@@ -312,7 +364,7 @@ class OnlineIdentification:
         since = self._clock() - self._last_refresh
         due = since >= DATA_REFRESH_S or (self._evo is None and since >= WAITING_REFRESH_S)
         if due and obs.data is not None:
-            if not self._refresh_data(settings, obs.data, obs.joints):
+            if not self._refresh_data(settings, obs.data, obs.joints, obs.estimate_velocity):
                 return False
         elif self._evo is None:  # waiting for enough data: look again in a moment
             return False
@@ -327,7 +379,8 @@ class OnlineIdentification:
     def _searching(self, obs: Observation) -> bool:
         """Return whether a search will be running after the restarts of ``obs``."""
         return (self._evo is not None and not obs.reset
-                and self._evo_version == obs.settings.version)
+                and self._evo_version == obs.settings.version
+                and self._evo_case == obs.settings.case)
 
     def _finished(self, settings: OnlineSettings, searching: bool) -> bool:
         limit = settings.max_generations
@@ -352,13 +405,20 @@ class OnlineIdentification:
         self._set_status('stale', f'{topic} silent for {age:.1f} s')
         return False
 
-    def _refresh_data(self, settings: OnlineSettings, capture, joints) -> bool:
+    def _refresh_data(self, settings: OnlineSettings, capture, joints,
+                      estimate_velocity: bool = False) -> bool:
         """Take the captured data; build the search or hand it the new data."""
         self._last_refresh = self._clock()
-        law = self._update_law(capture) if settings.case == 'torque' else None
-        segments = list(capture.segments(MIN_SEGMENT_SAMPLES, law is not None))
-        if law is not None:  # fold the law's constant torque into θd (see controller)
-            segments = [replace(seg, theta_d=seg.theta_d + law.shift()) for seg in segments]
+        law = None
+        if settings.case == 'torque':
+            paired = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, True),
+                                    estimate_velocity)
+            law = self._update_law(paired, capture.time_origin)
+        if law is not None:  # the closed-loop search: θd shifted by the law's other terms
+            segments = search_segments(paired, law)
+        else:
+            segments = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, False),
+                                      estimate_velocity)
         train, validation, seconds = split_validation(
             segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)
         if seconds < settings.min_window or not train:
@@ -382,34 +442,55 @@ class OnlineIdentification:
         self._data_version += 1
         return True
 
-    def _update_law(self, capture) -> Optional[PDLaw]:
+    def _update_law(self, segments: List[Dataset], origin: float) -> Optional[ControllerLaw]:
         """
-        Case 'torque': refit the controller law; return the law the search runs with.
+        Case 'torque': learn the servo law again; return the law the search runs with.
 
-        Too few paired samples (no commands, or just after a reset) change nothing.
+        ``segments`` carry the commands paired with the states (``origin``: the stamp time
+        of their t = 0). Too few paired samples (no commands, or just after a reset) change
+        nothing. A refit keeps where the running law's θ-terms are evaluated, unless it no
+        longer explains the torque.
         """
-        pairs = capture.controller_samples()
-        fresh = None if pairs is None else fit_pd_law(**pairs, min_samples=MIN_LAW_SAMPLES)
         searching = self._evo is not None
         running = self._evo_law if searching else None
+        fresh = fit_law(segments, running.theta_input if running is not None else 'auto',
+                        MIN_LAW_SAMPLES) if segments else None
+        if fresh is not None and running is not None and not fresh.usable(MAX_LAW_FIT_RATIO):
+            fresh = fit_law(segments, 'auto', MIN_LAW_SAMPLES)
         if fresh is None:
             return running
         new = fresh if fresh.usable(MAX_LAW_FIT_RATIO) else None
+        end = origin + float(segments[-1].t[-1])
         if searching:
-            if running is not None and new is not None and running.close_to(new,
-                                                                            LAW_GAIN_RTOL):
-                return running
+            if running is not None and new is not None and _same_form(running, new):
+                # the search goes on with its law; only the integral moves on to now
+                law = _advance(running, segments, origin, self._law_time, end)
+                self._evo_law = self._law = law
+                self._law_time = end
+                return law
             if running is None and new is None:
                 return None
-            self._drop_search('the controller law changed')
+            if running is not None and new is not None:  # moved: the arm model carries over
+                resume = (self._evo.optimizer.best_x.copy(), self._evo.scales)
+                self._drop_search('the controller law moved (Kp '
+                                  f'{np.round(new.kp, 2).tolist()}, Kd '
+                                  f'{np.round(new.kd, 2).tolist()}); it goes on from its best '
+                                  'genome')
+                self._resume = resume
+            else:
+                self._drop_search('the controller law changed')
+        if new is not None:
+            self._law_time = end
+            theta = np.concatenate([seg.theta for seg in segments])
+            self._law_theta = theta[::max(1, theta.shape[0] // LAW_THETA_SAMPLES)]
         line = _law_log_line(new, self._law, fresh)
         if line is not None:
             self._events.append(line)
         self._law = new
         model = self._model
-        if model is not None:
-            self._loop = (_close_loop(model, new)
-                          if new is not None and model.case == 'torque' else None)
+        if model is not None and model.case == 'torque':
+            self._loop = (None if new is None else
+                          _close_loop(model, new, self._law_theta, self._law_time))
             self._events.append(LoopUpdate(model, self._loop))
         return new
 
@@ -422,13 +503,20 @@ class OnlineIdentification:
         if _fits(self._start_model, joints, spec, settings.case):
             x0, scales, origin = self._start_model.genome, self._start_model.scales, \
                 'the loaded model'
+        elif self._resume is not None and self._resume[0].size == spec.genome_size:
+            (x0, scales), origin = self._resume, 'the best genome before the law moved'
+        self._resume = None
         self._evo_law = law if spec.case != settings.case else None
+        self._evo_case = settings.case
         self._evo = Evolution(spec, train, optimizer=algorithm,
                               settings=dict(settings.optimizer_settings), seed=settings.seed,
                               kp=kp, kd=kd, substeps=settings.substeps or None, scales=scales,
                               x0=x0)
         if x0 is None:
             origin = self._warm_start(train, kp, kd, origin)
+        elif origin.startswith('the best genome'):
+            optimizer = self._evo.optimizer
+            _restart_around(optimizer, x0, float(self._evo.problem.cost(x0[None])[0]))
         self._start_model = None
         self._evo_version = settings.version
         self._algorithm = algorithm
@@ -484,6 +572,7 @@ class OnlineIdentification:
             self._log('info', f'restarting the search after generation {self._generation}: '
                               f'{why}')
         self._evo = None
+        self._resume = None
         self._generation = 0
         self._evaluations = 0
         self._gen_times.clear()
@@ -554,16 +643,17 @@ class OnlineIdentification:
         law = self._law
         closed = None
         if model.case == 'pd_gains' and settings.case == 'torque' and law is not None:
-            # a closed-loop search (case 'torque' with the fitted law): publish the arm model
+            # a closed-loop search (case 'torque' with the learned law): publish the arm
             closed = model
-            model = open_loop_model(closed, info=dict(closed.info, controller_law=law.to_dict()))
+            model = arm_model(closed, law, self._law_theta,
+                              info=dict(closed.info, controller_law=law.to_dict()))
         gains = model.implied_gains()
         loop = None
         if model.case == 'torque' and law is not None:
             gains = (law.kp, law.kd)
-            loop = _close_loop(model, law, closed)
+            loop = _close_loop(model, law, self._law_theta, self._law_time, closed)
         self._model, self._loop = model, loop
-        self._published_genome = model.genome.copy()
+        self._published_genome = (closed or model).genome.copy()
         self._last_model_pub = self._clock()
         self._events.append(model_update(model, loop, gains))
 
