@@ -29,13 +29,18 @@ predictors **on the same targets**:
 - ``follow_reference``: θd at the target time (the arm will be where it was told to go);
 - ``hold_last``: θ at the start (the arm will stay where it is).
 
-:meth:`SelfCheck.decide` says what to publish: the model while its windowed error is not
-worse than the better baseline's by more than ``margin`` at any horizon, else that
-baseline, marked, with the reason. Once set aside for its score the model must be at least
-as good as the baselines at every horizon to return (hysteresis, so the choice does not
-flap).
-Until the model has ``min_scored`` scored predictions at every horizon the best-scoring
-baseline is published: trust is earned, never assumed.
+:meth:`SelfCheck.decide` says what to publish, the model or the better baseline (marked,
+with the reason). Trust is earned, never assumed, and lost at once:
+
+- until the model has ``min_scored`` scored predictions at every horizon it reaches, the
+  best-scoring baseline is published;
+- the model is published once its error is at least ``margin`` below each baseline's at
+  every horizon, over the window and over its last ``recent`` seconds;
+- it is set aside as soon as it is worse than a baseline at any horizon, over either span.
+
+A score can only come a horizon after the prediction, so a model that turns bad is
+published for at least that long; the short span and the margin keep such stretches short
+and rare, the band between the two thresholds keeps the choice from flapping.
 
 Uncertainty. :meth:`SelfCheck.uncertainty` is the published predictor's recent RMSE per
 horizon and joint, interpolated between the scored horizons (0 at the start, which is a
@@ -250,28 +255,35 @@ class SelfCheck:
         Rolling window (s): predictions whose target time lies in the last ``window``
         seconds of measured states are scored.
     margin : float
-        The model is published while its error is at most (1 + margin) × the better
-        baseline's at every horizon.
+        How much better than each baseline (a share of its error) the model must be to be
+        published; it is set aside when worse (see the module docstring).
     min_scored : int
-        Scored predictions needed at every horizon a predictor reaches before it is judged.
+        Scored predictions needed at every horizon a predictor reaches before it is judged
+        (and in the last ``recent`` seconds, for that span to count).
+    recent : float
+        The short span (s) of the newest targets, judged beside the window.
 
     """
 
     def __init__(self, n_joints: int, horizons: Sequence[float] = HORIZONS,
-                 window: float = 10.0, margin: float = 0.05, min_scored: int = 5):
+                 window: float = 10.0, margin: float = 0.2, min_scored: int = 10,
+                 recent: float = 2.0):
         horizons = tuple(float(h) for h in horizons)
         if not horizons or any(not (math.isfinite(h) and h > 0.0) for h in horizons) or \
                 list(horizons) != sorted(set(horizons)):
             raise ValueError(f'horizons must be positive and increasing, got {horizons}')
         if not (math.isfinite(window) and window > 0.0):
             raise ValueError(f'window must be positive, got {window}')
-        if not (math.isfinite(margin) and margin >= 0.0):
-            raise ValueError(f'margin must be >= 0, got {margin}')
+        if not (math.isfinite(margin) and 0.0 <= margin < 1.0):
+            raise ValueError(f'margin must be in [0, 1), got {margin}')
+        if not (math.isfinite(recent) and 0.0 < recent <= window):
+            raise ValueError(f'recent must be in (0, window], got {recent}')
         self.n = int(n_joints)
         self.horizons = horizons
         self.window = float(window)
         self.margin = float(margin)
         self.min_scored = max(1, int(min_scored))
+        self.recent = float(recent)
         self._states = _Series()
         self._reference = _Series()
         # per prediction: start, θ at each horizon (H, n) of the model, of the candidate and
@@ -283,7 +295,7 @@ class SelfCheck:
         self._published: deque = deque()
         self._low = np.full(self.n, np.inf)
         self._high = np.full(self.n, -np.inf)
-        self._demoted = False      # a baseline is published because the model scored worse
+        self._on_model = False     # the model is published (it earned it and kept it)
         self._cache = None         # the table of the recorded data, until they change
         #: per-reason counts of samples that were not taken
         self.rejected = {'non_finite': 0, 'out_of_order': 0, 'wrong_shape': 0}
@@ -464,6 +476,7 @@ class SelfCheck:
                 rows = (chosen == name) & ~recorded
                 shown[rows] = errors[name][rows]
             errors['published'] = shown
+            errors['target'] = target[select][valid]
             out[h] = errors
         return out
 
@@ -546,23 +559,48 @@ class SelfCheck:
                             f'{self.min_scored} predictions at every horizon it reaches): '
                             f'publishing {best}', False, scores)
         best = min(scored, key=lambda b: _mean_score(scores, b, reached))
-        on_baseline = self._demoted
-        limit = 1.0 if on_baseline else 1.0 + self.margin
-        worse = [(h, b) for h in reached for b in scored
-                 if b in scores[h] and scores[h]['model'] > limit * scores[h][b]]
+        recent = self._recent_scores(reached)
+        checks = [(h, b, row['model'], row[b], span)
+                  for span, table in ((f'last {self.window:g} s', scores),
+                                      (f'last {self.recent:g} s', recent))
+                  for h, row in table.items() if h in reached
+                  for b in scored if b in row and math.isfinite(row.get('model', math.nan))]
+        was_on_model = self._on_model
+        limit = 1.0 if was_on_model else 1.0 - self.margin
+        worse = [c for c in checks if not c[2] <= limit * c[3]]
         if not worse:
-            self._demoted = False
-            why = ('the model is at least as good as the baselines at every horizon again'
-                   if on_baseline else 'the model is not worse than the baselines')
+            self._on_model = True
+            why = ('the model is not worse than the baselines' if was_on_model else
+                   f'the model is at least {self.margin:.0%} better than the baselines at '
+                   'every horizon')
             return Decision('model', why, True, scores)
-        h, b = max(worse, key=lambda hb: scores[hb[0]]['model']
-                   / max(scores[hb[0]][hb[1]], 1e-300))
-        self._demoted = True
+        self._on_model = False
+        h, b, mine, theirs, span = max(worse, key=lambda c: c[2] / max(c[3], 1e-300))
         return Decision(
-            best, f"the model's {h:g} s-ahead error over the last {self.window:g} s is "
-            f"{scores[h]['model']:.2%} of the range against {scores[h][b]:.2%} for {b}"
-            f'{"" if not on_baseline else " (it must match the baselines to return)"}: '
-            f'publishing {best}', True, scores)
+            best, f"the model's {h:g} s-ahead error over the {span} is {mine:.2%} of the "
+            f'range against {theirs:.2%} for {b}'
+            + ('' if was_on_model else f' (it must be {self.margin:.0%} better)')
+            + f': publishing {best}', True, scores)
+
+    def _recent_scores(self, horizons) -> Dict[float, Dict[str, float]]:
+        """Return the model's and the baselines' errors on the targets of the last ``recent`` s."""
+        out = {}
+        if not len(self._states):
+            return out
+        since = self._states.t[-1] - self.recent
+        for h in horizons:
+            errors = self._table()[h]
+            if errors is None:
+                continue
+            rows = _finite_rows(errors['model']) & (errors['target'] >= since - 1e-9)
+            if rows.sum() < self.min_scored:
+                continue
+            out[h] = {'model': self._nrmse(errors['model'], rows)}
+            for name in BASELINES:
+                both = rows & _finite_rows(errors[name])
+                if np.any(both):
+                    out[h][name] = self._nrmse(errors[name], both)
+        return out
 
     def trial(self) -> Optional[Verdict]:
         """
@@ -596,7 +634,6 @@ class SelfCheck:
         self._model = self._candidate
         self._candidate = deque(np.full((len(self.horizons), self.n), np.nan)
                                 for _ in self._model)
-        self._demoted = False
         self._cache = None
 
     def discard_candidate(self) -> None:
@@ -609,7 +646,7 @@ class SelfCheck:
         """Forget the model's predictions (a model that replaced it untried)."""
         for at in self._model:
             at[:] = np.nan
-        self._demoted = False
+        self._on_model = False
         self._cache = None
 
     def uncertainty(self, offsets, predictor: str = 'published') -> np.ndarray:

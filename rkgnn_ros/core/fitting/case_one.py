@@ -60,8 +60,8 @@ INTEGRAL_MIN_RESIDUAL = 1e-3
 AGREEMENT_RTOL = 0.1
 
 
-def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto',
-            min_samples: int = 50) -> Optional[ControllerLaw]:
+def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples: int = 50,
+            max_fit_ratio: float = 0.1) -> Optional[ControllerLaw]:
     """
     Return the servo law fitted on ``segments`` (with ``tau``, ``theta_d``, ``theta_d_dot``).
 
@@ -72,16 +72,17 @@ def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto',
     (:func:`_needs_integral`), and its gain is set to zero on joints where it is below
     :data:`KI_ZERO` × Kp.
 
-    A law is returned only when the data determine it: the same form fitted on the newest
-    half of the data must have the same gains within :data:`AGREEMENT_RTOL`. With the 78
-    θ-terms of a 3-joint arm a few seconds of encoder noise fit almost any gains (on the
-    paper's arm with 1e-4 rad of noise, 3 s gave Kp1 off by a factor 5, 8 s by 1 %), and
-    the residual alone does not show it. None: too few samples, an error that never
-    varied, or gains not determined yet.
+    A law that explains the torque (residual at most ``max_fit_ratio``) is returned only
+    when the data determine it: the same form fitted on the newest half of the data must
+    have the same gains within :data:`AGREEMENT_RTOL`. With the 78 θ-terms of a 3-joint arm
+    a few seconds of encoder noise fit almost any gains (on the paper's arm with 1e-4 rad
+    of noise, 3 s gave Kp1 off by a factor 5, 8 s by 1 %), and the residual alone does not
+    show it. A law that does not explain the torque is returned as it is (not usable).
+    None: too few samples, an error that never varied, or gains not determined yet.
     """
     law = _fit(segments, theta_input, min_samples, None)
-    if law is None:
-        return None
+    if law is None or not law.usable(max_fit_ratio):
+        return law
     half = _fit(_newest_half(segments), law.theta_input, min_samples,
                 bool(np.any(law.ki != 0.0)))
     if half is None or not law.close_to(half, AGREEMENT_RTOL):

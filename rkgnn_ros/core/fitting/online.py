@@ -454,9 +454,9 @@ class OnlineIdentification:
         searching = self._evo is not None
         running = self._evo_law if searching else None
         fresh = fit_law(segments, running.theta_input if running is not None else 'auto',
-                        MIN_LAW_SAMPLES) if segments else None
+                        MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO) if segments else None
         if fresh is not None and running is not None and not fresh.usable(MAX_LAW_FIT_RATIO):
-            fresh = fit_law(segments, 'auto', MIN_LAW_SAMPLES)
+            fresh = fit_law(segments, 'auto', MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO)
         if fresh is None:
             return running
         new = fresh if fresh.usable(MAX_LAW_FIT_RATIO) else None
