@@ -18,8 +18,8 @@ import math
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.differentiate import (CAUSAL_WINDOW, causal_coefficients,
-                                          causal_derivative, causal_slope,
+from rkgnn_ros.core.differentiate import (causal_coefficients, causal_derivative,
+                                          causal_slope, CAUSAL_WINDOW,
                                           centred_derivative, derivative_response,
                                           gaussian_kernels, noise_gain)
 

@@ -48,7 +48,8 @@ from .controller import ClosedLoop, ControllerLaw, fit_controller, open_loop_mod
 from .identify import RKGNNModel
 from ..data import Dataset
 
-__all__ = ['AGREEMENT_RTOL', 'KI_ZERO', 'fit_law', 'search_segments', 'arm_model', 'prediction_loop']
+__all__ = ['AGREEMENT_RTOL', 'KI_ZERO', 'fit_law', 'search_segments', 'arm_model',
+           'prediction_loop']
 
 #: An integral gain below this share of Kp (1/s) is a fitted zero.
 KI_ZERO = 1e-3
