@@ -340,17 +340,36 @@ class Ingestion:
             self.internal_error('reference_trajectory')
 
     @staticmethod
-    def _joint_sample(raw: bytes, joints, need_effort: bool):
+    def _read(raw: bytes, joints, need_velocity: bool, need_effort: bool):
         """Read a raw JointState: the CDR fast path, else rclpy's deserialization."""
-        sample = joint_state_cdr_to_arrays(raw, joints, need_velocity=False,
-                                           need_effort=need_effort)
+        sample = joint_state_cdr_to_arrays(raw, joints, need_velocity, need_effort)
         if sample is None:  # not plain CDR we read: let rclpy decide what it is
             try:
                 msg = deserialize_message(raw, JointState)
             except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
                 return Rejection('malformed', f'cannot read JointState: {error!r}')
-            sample = joint_state_to_arrays(msg, joints, need_velocity=False,
-                                           need_effort=need_effort)
+            sample = joint_state_to_arrays(msg, joints, need_velocity, need_effort)
+        return sample
+
+    @classmethod
+    def _joint_sample(cls, raw: bytes, joints, need_effort: bool):
+        """
+        Read a raw JointState whose velocity and effort may be missing (empty or NaN).
+
+        A missing field comes back as None; inf in a field it has is 'non_finite'. Read
+        strictly first (the usual message: one pass), then without the missing field.
+        """
+        sample = cls._read(raw, joints, True, True)
+        if sample.ok:
+            return sample
+        if sample.reason == 'missing_velocity':
+            sample = cls._read(raw, joints, False, True)
+            if not sample.ok and sample.reason == 'missing_effort':
+                sample = cls._read(raw, joints, False, False)
+        elif sample.reason == 'missing_effort':
+            sample = cls._read(raw, joints, True, False)
+        if sample.ok and need_effort and sample.effort is None:
+            return Rejection('missing_effort', 'effort is empty or NaN (case torque)')
         return sample
 
     @staticmethod

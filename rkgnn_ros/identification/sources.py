@@ -23,9 +23,10 @@ predictions:
 Case (``case: auto``)
     Effort in joint_states (n finite values) -> 'torque'; else ``kp`` and ``kd`` given ->
     'pd_gains'; else 'unknown'. The first message decides at once. Afterwards a switch
-    needs :data:`AUTO_SWITCH_S` seconds (node clock) in which every message said the other
-    thing: one message without effort (a driver's glitch) does not restart anything; a
-    driver that stops publishing effort for good switches a second later. A switch
+    needs :data:`AUTO_SWITCH_S` seconds (node clock) and :data:`AUTO_SWITCH_MESSAGES`
+    messages in which every message said the other thing: a few messages without effort (a
+    driver's glitch) restart nothing; a driver that stops publishing effort for good
+    switches a second later. A switch
     rebuilds the buffer (its layout depends on the case) and restarts the search. A set
     case is kept whatever the streams do (messages it cannot use are dropped and counted).
 Velocity
@@ -52,9 +53,10 @@ import numpy as np
 from rkgnn_ros.core.differentiate import CAUSAL_ORDER, causal_slope, CAUSAL_WINDOW
 from rkgnn_ros.identification.parameters import auto_case
 
-__all__ = ['AUTO_SWITCH_S', 'MIN_HISTORY', 'Sources']
+__all__ = ['AUTO_SWITCH_MESSAGES', 'AUTO_SWITCH_S', 'MIN_HISTORY', 'Sources']
 
-AUTO_SWITCH_S = 1.0  # s of contrary messages before case 'auto' switches
+AUTO_SWITCH_S = 1.0  # s of contrary messages before case 'auto' switches ...
+AUTO_SWITCH_MESSAGES = 10  # ... and at least this many of them
 MIN_HISTORY = CAUSAL_ORDER + 2  # θ samples before an estimated θ̇ starts a prediction
 
 
@@ -75,6 +77,7 @@ class Sources:
         self.case: Optional[str] = None      # the case in effect (None: 'auto', undecided)
         self.case_reason = ''
         self._contrary_since: Optional[float] = None
+        self._contrary = 0
         self._history: deque = deque(maxlen=CAUSAL_WINDOW)   # (t, θ (n,)) of the newest
         self.velocity_estimated = False
         self._last_command = -math.inf       # node clock of the last joint_commands
@@ -89,7 +92,7 @@ class Sources:
             self.case, self.case_reason = wanted, 'set by the case parameter'
         elif self.case_reason == 'set by the case parameter':
             self.case, self.case_reason = None, ''
-        self._contrary_since = None
+        self._contrary_since, self._contrary = None, 0
         self._history.clear()
 
     @property
@@ -107,14 +110,16 @@ class Sources:
             return None
         wanted = auto_case(effort, self._config.values)
         if wanted == self.case:
-            self._contrary_since = None
+            self._contrary_since, self._contrary = None, 0
             return None
         if self.case is not None:
             if self._contrary_since is None:
                 self._contrary_since = now
-            if now - self._contrary_since < AUTO_SWITCH_S:
+            self._contrary += 1
+            if (now - self._contrary_since < AUTO_SWITCH_S
+                    or self._contrary < AUTO_SWITCH_MESSAGES):
                 return None
-        self._contrary_since = None
+        self._contrary_since, self._contrary = None, 0
         self.case = wanted
         self.case_reason = ('effort in joint_states' if effort else
                             'no effort in joint_states, ' + (
