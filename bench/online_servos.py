@@ -88,7 +88,8 @@ class Commands:
         self.lock = threading.Lock()
         self.t, self.theta_d = [], []
         self.sources = {}
-        self.first = None  # (monotonic time, frame_id) of the first prediction
+        self.by_stamp = {}  # stamp (s) -> frame_id source of every prediction
+        self.first = None  # (stamp, frame_id) of the first prediction
         node.create_subscription(JointState, 'joint_commands', self._on_command,
                                  qos_profile_sensor_data)
         node.create_subscription(JointTrajectory, 'identifier/prediction', self._on_prediction,
@@ -103,8 +104,10 @@ class Commands:
 
     def _on_prediction(self, msg):
         source = msg.header.frame_id.split(';')[0] or 'unmarked'
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self.lock:
             self.sources[source] = self.sources.get(source, 0) + 1
+            self.by_stamp[stamp] = source
             if self.first is None:
                 self.first = (msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
                               msg.header.frame_id)
@@ -121,8 +124,13 @@ def _interp(t, times, values):
     return np.stack([np.interp(t, times, values[:, j]) for j in range(values.shape[1])], 1)
 
 
-def score(snapshot, commands, horizon, duration):
-    """Return the cell's figures from the recorded streams."""
+def score(snapshot, commands, horizon, duration, sources=None):
+    """
+    Return the cell's figures from the recorded streams.
+
+    ``sources`` maps a prediction's stamp to what it was ('model', 'baseline:...'): the
+    worst self-check window then says what was published in it.
+    """
     meas_t, meas_theta, t0s, offs, thetas, evolution, _ = snapshot
     order = np.argsort(meas_t)
     meas_t, meas_theta = meas_t[order], meas_theta[order]
@@ -149,16 +157,26 @@ def score(snapshot, commands, horizon, duration):
             curve.append([float(end)] + [nrmse(e[sel]) for e in errors.values()])
     at60 = next((row for row in curve if abs(row[0] - 60.0) < 1e-9), None)
     # the self-check's criterion: every 10 s window after the first published prediction
-    ratios = []
+    ratios, worst = [], None
     if pt0.size:
         for a in np.arange(pt0[0], pt0[-1] - WINDOW + 1e-9, 1.0):
             sel = (pt0 >= a) & (pt0 < a + WINDOW)
             best = min(nrmse(errors['follow_reference'][sel]), nrmse(errors['hold_last'][sel]))
             ratios.append(nrmse(errors['prediction'][sel]) / max(best, 1e-12))
+            if ratios[-1] >= max(ratios):
+                worst = (a, sel)
+    window = None
+    if worst is not None:
+        a, sel = worst
+        shown = [(sources or {}).get(float(t), '?') for t in pt0[sel]]
+        window = {'start_s': float(a - start), 'published': {
+            name: shown.count(name) for name in sorted(set(shown))}}
+        window.update({name: nrmse(e[sel]) for name, e in errors.items()})
     cell = {'prediction_nrmse_60s': at60[1] if at60 else None,
             'follow_reference_nrmse': at60[2] if at60 else None,
             'hold_last_nrmse': at60[3] if at60 else None,
             'self_check_ratio': max(ratios) if ratios else None,
+            'self_check_worst_window': window,
             'curve': {'t_end': [row[0] for row in curve],
                       'prediction': [row[1] for row in curve],
                       'follow_reference': [row[2] for row in curve],
@@ -207,7 +225,7 @@ def run_cell(servo, sensors, case, duration, horizon, domain, log_dir):
         codes = nodes.stop()
     if len(snap[0]) < 2 or cmd[0].size < 2:
         return {'error': 'no states or no commands recorded', 'exit_codes': codes}
-    cell = score(snap, cmd, horizon, duration)
+    cell = score(snap, cmd, horizon, duration, dict(commands.by_stamp))
     cell['exit_codes'] = codes
     cell['load_average'] = [round(load, 2), round(os.getloadavg()[0], 2)]
     cell['published_sources'] = dict(commands.sources)

@@ -108,15 +108,17 @@ def test_the_model_must_earn_publication_and_loses_it_at_once():
 
 def test_without_commands_hold_last_is_the_only_baseline():
     check = SelfCheck(N)
-    for k in range(1500):
+    for k in range(1500):                                   # no plan, no command
         t = k / RATE
         check.add_state(t, motion(t))
         if k % 10 == 0:
             wrong = motion(t + OFFSETS) + 2.0               # worse than standing still
-            check.add_prediction(t, OFFSETS, wrong, check.decide().source)
-    decision = check.decide()
+            check.add_prediction(t, OFFSETS, wrong, check.decide(publishable=()).source)
+    decision = check.decide(publishable=())
     assert decision.source == 'hold_last'
     assert 'follow_reference' not in check.scores()[1.0]
+    # a plan, but no command recorded yet to score it: following it is preferred
+    assert SelfCheck(N).decide().source == 'follow_reference'
 
 
 def test_uncertainty_is_the_recent_error_per_horizon():

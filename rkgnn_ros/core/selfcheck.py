@@ -152,16 +152,12 @@ class SelfCheck(PredictionRecord):
         reached = self._reached(self._model)
         counts = [scores[h].get('count', 0) for h in reached]
         if not reached or min(counts) < self.min_scored:
-            if scored:
-                best = min(scored, key=lambda b: _mean_score(scores, b, self.horizons))
-            else:
-                best = ('follow_reference' if 'follow_reference' in allowed
-                        and len(self._reference) >= 2 else 'hold_last')
+            best = _best_baseline(scores, allowed, self.horizons)
             have = min(counts) if counts else 0
             return Decision(best, f'the model has not been scored yet ({have} of '
                             f'{self.min_scored} predictions at every horizon it reaches): '
                             f'publishing {best}', False, scores)
-        best = min(scored, key=lambda b: _mean_score(scores, b, reached))
+        best = _best_baseline(scores, allowed, reached)
         recent = self._recent_scores(reached)
         checks = [(h, b, row['model'], row[b], span)
                   for span, table in ((f'last {self.window:g} s', scores),
@@ -271,6 +267,20 @@ class SelfCheck(PredictionRecord):
             slope = (values[-1, j] - values[-2, j]) / (knots[-1] - knots[-2])
             out[past, j] = values[-1, j] + max(slope, 0.0) * (offsets[past] - knots[-1])
         return out
+
+
+def _best_baseline(scores, allowed, horizons) -> str:
+    """
+    Return the publishable baseline with the smaller mean score over ``horizons``.
+
+    Following the reference, when publishable and not scored yet (no command recorded),
+    is preferred to holding the last state: an arm under a servo follows its plan.
+    """
+    if 'follow_reference' not in allowed:
+        return 'hold_last'
+    if not any('follow_reference' in scores[h] for h in horizons):
+        return 'follow_reference'
+    return min(allowed, key=lambda b: _mean_score(scores, b, horizons))
 
 
 def _mean_score(scores, name: str, horizons) -> float:
