@@ -165,10 +165,11 @@ PARAMETERS = (
                   'Seconds of recent predictions scored against the motion that followed '
                   '(the model, following the reference, holding the last state).',
                   1.0, 600.0),
-    ParameterSpec('selfcheck.margin', 0.05,
-                  'The model is published while its error is at most (1 + margin) x the '
-                  "better baseline's at every scored horizon; else that baseline, marked.",
-                  0.0, 10.0),
+    ParameterSpec('selfcheck.margin', 0.2,
+                  'How much better than each baseline (a share of its error, over the window '
+                  'and the last 2 s) the model must be to be published; it is set aside as '
+                  'soon as it is worse than one, and the better baseline published, marked.',
+                  0.0, 0.9),
     ParameterSpec('velocity.estimate', 'missing',
                   "When theta-dot is estimated from theta: 'missing' (only when joint_states "
                   "has no velocity, or NaN) or 'always' (a driver that differences noisy "

@@ -26,8 +26,8 @@ What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
 
 - Every prediction is scored against what the arm then did, beside following the reference
   (the plan) and holding the last state, per horizon (a quarter, half and all of
-  ``prediction.horizon``), over the last ``selfcheck.window`` seconds. While the model has
-  not earned it, or has done worse than a baseline by more than ``selfcheck.margin``, the
+  ``prediction.horizon``), over the last ``selfcheck.window`` seconds. Until the model is
+  ``selfcheck.margin`` better than each baseline, and as soon as it is worse than one, the
   better baseline is published instead, and the switch is logged with its reason.
 - A new model from the search is a *candidate*: it predicts beside the model in use, and
   replaces it only once its own scored predictions are at least as good on the same
