@@ -25,7 +25,7 @@ import math
 import numpy as np
 import pytest
 from rkgnn_ros.core.differentiate import centred_derivative
-from rkgnn_ros.core.fitting import online as online_module
+from rkgnn_ros.core.fitting import case_one
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Observation, OnlineIdentification, OnlineSettings,
@@ -290,12 +290,12 @@ def test_a_law_that_moved_rebuilds_the_search_from_its_best_genome(data, monkeyp
     rig = Rig(buffer_with(data, 3.0, case='torque'), settings(case='torque'))
     rig.run(3)
     best = rig.policy._evo.optimizer.best_x.copy()
-    fit = online_module.fit_law
+    fit = case_one.fit_law
 
     def stiffer(segments, *args):  # the servo's Kp grew 5 %
         law = fit(segments, *args)
         return None if law is None else replace(law, kp=1.05 * law.kp)
-    monkeypatch.setattr(online_module, 'fit_law', stiffer)
+    monkeypatch.setattr(case_one, 'fit_law', stiffer)
     rig.run(1, dt=1.0)
     assert rig.lines('restarting the search', 'the controller law moved')
     assert rig.lines('search started from the best genome before the law moved')

@@ -48,10 +48,9 @@ import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.serialization import deserialize_message
-from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arrays,
-                                   joint_trajectory_to_arrays, parse_joint_state_cdr,
-                                   Rejection, REJECTION_REASONS)
-from rkgnn_ros.identification.sources import Sources
+from rkgnn_ros.conversions import (joint_trajectory_to_arrays, parse_joint_state_cdr,
+                                   REJECTION_REASONS)
+from rkgnn_ros.identification.sources import read_joint_state, Sources
 from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
 from sensor_msgs.msg import JointState
 
@@ -340,39 +339,6 @@ class Ingestion:
             self.internal_error('reference_trajectory')
 
     @staticmethod
-    def _read(raw: bytes, joints, need_velocity: bool, need_effort: bool):
-        """Read a raw JointState: the CDR fast path, else rclpy's deserialization."""
-        sample = joint_state_cdr_to_arrays(raw, joints, need_velocity, need_effort)
-        if sample is None:  # not plain CDR we read: let rclpy decide what it is
-            try:
-                msg = deserialize_message(raw, JointState)
-            except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
-                return Rejection('malformed', f'cannot read JointState: {error!r}')
-            sample = joint_state_to_arrays(msg, joints, need_velocity, need_effort)
-        return sample
-
-    @classmethod
-    def _joint_sample(cls, raw: bytes, joints, need_effort: bool):
-        """
-        Read a raw JointState whose velocity and effort may be missing (empty or NaN).
-
-        A missing field comes back as None; inf in a field it has is 'non_finite'. Read
-        strictly first (the usual message: one pass), then without the missing field.
-        """
-        sample = cls._read(raw, joints, True, True)
-        if sample.ok:
-            return sample
-        if sample.reason == 'missing_velocity':
-            sample = cls._read(raw, joints, False, True)
-            if not sample.ok and sample.reason == 'missing_effort':
-                sample = cls._read(raw, joints, False, False)
-        elif sample.reason == 'missing_effort':
-            sample = cls._read(raw, joints, True, False)
-        if sample.ok and need_effort and sample.effort is None:
-            return Rejection('missing_effort', 'effort is empty or NaN (case torque)')
-        return sample
-
-    @staticmethod
     def _message_names(raw: bytes):
         """Return the joint names of a raw JointState, or None if it has none readable."""
         try:
@@ -390,14 +356,14 @@ class Ingestion:
         joints = self._joints
         if joints is None:
             names = self._message_names(raw) or ()
-            sample = self._joint_sample(raw, names, need_tau)
+            sample = read_joint_state(raw, names, need_tau)
             if not sample.ok:
                 self.reject('joint_states', 'state', sample.reason, sample.message)
                 return
             self._decide_case(sample.effort is not None)
             self.set_joints(names, 'the first joint_states message')
             joints = self._joints
-        sample = self._joint_sample(raw, joints, need_tau)
+        sample = read_joint_state(raw, joints, need_tau)
         if not sample.ok:
             self.reject('joint_states', 'state', sample.reason, sample.message)
             return
@@ -462,7 +428,7 @@ class Ingestion:
             self.reject('joint_commands', 'command', 'no_joints',
                         'joints not known yet (waiting for joint_states)')
             return
-        sample = self._joint_sample(raw, joints, False)
+        sample = read_joint_state(raw, joints, False)
         if not sample.ok:
             self.reject('joint_commands', 'command', sample.reason, sample.message)
             return

@@ -43,6 +43,8 @@ Commands
     ``joint_commands`` when it delivered within ``stale_timeout``; else the plan on
     ``reference_trajectory`` sampled at each state's stamp (θd, θ̇d of the newest plan,
     linear between its points), which is what the servo was following.
+
+:func:`read_joint_state` reads a message whose velocity or effort may be missing.
 """
 
 from collections import deque
@@ -50,10 +52,14 @@ import math
 from typing import Dict, Optional, Tuple
 
 import numpy as np
+from rclpy.serialization import deserialize_message
+from rkgnn_ros.conversions import joint_state_cdr_to_arrays, joint_state_to_arrays, Rejection
 from rkgnn_ros.core.differentiate import CAUSAL_ORDER, causal_slope, CAUSAL_WINDOW
 from rkgnn_ros.identification.parameters import auto_case
+from sensor_msgs.msg import JointState
 
-__all__ = ['AUTO_SWITCH_MESSAGES', 'AUTO_SWITCH_S', 'MIN_HISTORY', 'Sources']
+__all__ = ['AUTO_SWITCH_MESSAGES', 'AUTO_SWITCH_S', 'MIN_HISTORY', 'Sources',
+           'read_joint_state']
 
 AUTO_SWITCH_S = 1.0  # s of contrary messages before case 'auto' switches ...
 AUTO_SWITCH_MESSAGES = 10  # ... and at least this many of them
@@ -176,3 +182,37 @@ class Sources:
                     if self.velocity_estimated else 'joint_states')
         return {'case_in_effect': case, 'velocity_source': velocity,
                 'commands_source': self.commands}
+
+
+def _read(raw: bytes, joints, need_velocity: bool, need_effort: bool):
+    """Read a raw JointState: the CDR fast path, else rclpy's deserialization."""
+    sample = joint_state_cdr_to_arrays(raw, joints, need_velocity, need_effort)
+    if sample is None:  # not plain CDR we read: let rclpy decide what it is
+        try:
+            msg = deserialize_message(raw, JointState)
+        except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
+            return Rejection('malformed', f'cannot read JointState: {error!r}')
+        sample = joint_state_to_arrays(msg, joints, need_velocity, need_effort)
+    return sample
+
+
+def read_joint_state(raw: bytes, joints, need_effort: bool):
+    """
+    Read a raw JointState whose velocity and effort may be missing (empty or NaN).
+
+    A missing field comes back as None; inf in a field it has is 'non_finite'; with
+    ``need_effort`` a missing effort is 'missing_effort'. Read strictly first (the usual
+    message: one pass), then without the missing field.
+    """
+    sample = _read(raw, joints, True, True)
+    if sample.ok:
+        return sample
+    if sample.reason == 'missing_velocity':
+        sample = _read(raw, joints, False, True)
+        if not sample.ok and sample.reason == 'missing_effort':
+            sample = _read(raw, joints, False, False)
+    elif sample.reason == 'missing_effort':
+        sample = _read(raw, joints, True, False)
+    if sample.ok and need_effort and sample.effort is None:
+        return Rejection('missing_effort', 'effort is empty or NaN (case torque)')
+    return sample

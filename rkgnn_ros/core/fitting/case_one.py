@@ -39,17 +39,20 @@ torque; the servo decides that torque from the state it will reach. The online p
 """
 
 from dataclasses import replace
-from typing import List, Optional, Sequence
+import math
+from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .controller import ClosedLoop, ControllerLaw, fit_controller, open_loop_model, \
-    RBFFeatures, TrigFeatures
+from .controller import closed_loop, ClosedLoop, ControllerLaw, fit_controller, \
+    open_loop_model, RBFFeatures, TrigFeatures
 from .identify import RKGNNModel
+from .online_records import ClosedLoop as PredictionLoop
 from ..data import Dataset
 
-__all__ = ['AGREEMENT_RTOL', 'KI_ZERO', 'fit_law', 'search_segments', 'arm_model',
-           'prediction_loop']
+__all__ = ['AGREEMENT_RTOL', 'KI_ZERO', 'LAW_GAIN_RTOL', 'MAX_LAW_FIT_RATIO',
+           'MIN_LAW_SAMPLES', 'fit_law', 'search_segments', 'arm_model', 'prediction_loop',
+           'LawKeeper', 'Refit']
 
 #: An integral gain below this share of Kp (1/s) is a fitted zero.
 KI_ZERO = 1e-3
@@ -59,6 +62,11 @@ INTEGRAL_MIN_RESIDUAL = 1e-3
 
 #: The gains fitted on the whole data and on its newest half must agree this well.
 AGREEMENT_RTOL = 0.1
+
+MIN_LAW_SAMPLES = 50        # filtered rows before a law is fitted
+MAX_LAW_FIT_RATIO = 0.1     # a law explains the torque when its RMS residual is below this
+LAW_GAIN_RTOL = 0.02        # a refit moving the gains more than this moves the law
+LAW_THETA_SAMPLES = 2000    # θ samples kept to project a law's θ-terms on a model's units
 
 
 def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples: int = 50,
@@ -212,3 +220,113 @@ def prediction_loop(closed: RKGNNModel, law: ControllerLaw) -> ClosedLoop:
     """Return the searched closed-loop model and the law as one rollout (no projection)."""
     n = closed.n_joints
     return ClosedLoop(closed, law, np.zeros(n), np.zeros(n))
+
+
+class Refit(NamedTuple):
+    """What a refit did: ``kind`` 'keep', 'moved' (same form, new gains) or 'changed'."""
+
+    kind: str
+    law: Optional[ControllerLaw]          # the law to run with
+    line: Optional[Tuple[str, str]] = None  # (level, text) to log
+
+
+class LawKeeper:
+    """
+    Case 1's law over the refreshes of the data: refitted, kept while its form holds.
+
+    ``law`` is the law in use, ``time`` the stamp (s) its integral term refers to and
+    ``theta`` (S, n) the θ it was fitted on (where a foreign basis is projected).
+    """
+
+    def __init__(self):
+        self.law: Optional[ControllerLaw] = None
+        self.time = math.nan
+        self.theta: Optional[np.ndarray] = None
+
+    def refit(self, segments: Sequence[Dataset], origin: float,
+              running: Optional[ControllerLaw]) -> Refit:
+        """
+        Fit the law on ``segments`` (``origin``: the stamp of their t = 0) and say what to do.
+
+        ``running`` is the law a running search uses. Too few paired samples change
+        nothing ('keep'); a refit of the same form (gains within :data:`LAW_GAIN_RTOL`,
+        θ-terms evaluated alike) keeps the running law, its integral moved on to the data's
+        end ('keep'); new gains are 'moved'; a law that appears or stops explaining the
+        torque is 'changed', with the line that says so.
+        """
+        where = running.theta_input if running is not None else 'auto'
+        fresh = fit_law(segments, where, MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO) \
+            if segments else None
+        if fresh is not None and running is not None and not fresh.usable(MAX_LAW_FIT_RATIO):
+            fresh = fit_law(segments, 'auto', MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO)
+        if fresh is None:
+            return Refit('keep', running)
+        new = fresh if fresh.usable(MAX_LAW_FIT_RATIO) else None
+        end = origin + float(segments[-1].t[-1])
+        if running is not None and new is not None and _same_form(running, new):
+            self.law = _advance(running, segments, origin, self.time, end)
+            self.time = end
+            return Refit('keep', self.law)
+        if running is None and new is None and self.law is None:
+            return Refit('keep', None)
+        line = _law_log_line(new, self.law, fresh)
+        if new is not None:
+            self.time = end
+            theta = np.concatenate([seg.theta for seg in segments])
+            self.theta = theta[::max(1, theta.shape[0] // LAW_THETA_SAMPLES)]
+        self.law = new
+        moved = running is not None and new is not None
+        return Refit('moved' if moved else 'changed', new, line)
+
+    def close(self, model: RKGNNModel,
+              closed: Optional[RKGNNModel] = None) -> Optional[PredictionLoop]:
+        """
+        Return the case-1 ``model`` closed with the law for prediction (None if it cannot be).
+
+        ``closed`` is the closed-loop search's own model (rolled out as it was searched);
+        else the law's θ-terms are projected on the model's units over :attr:`theta`.
+        """
+        law = self.law
+        if law is None or law.n_joints != model.n_joints or not np.all(law.kp > 0.0):
+            return None
+        if closed is not None:
+            return PredictionLoop(model, prediction_loop(closed, law), self.time)
+        return PredictionLoop(model, closed_loop(model, law, theta_samples=self.theta),
+                              self.time)
+
+
+def _same_form(running: ControllerLaw, new: ControllerLaw) -> bool:
+    """Return whether a refit ``new`` keeps the running search valid (gains and form)."""
+    return new.close_to(running, LAW_GAIN_RTOL) and new.theta_input == running.theta_input
+
+
+def _advance(law: ControllerLaw, segments, origin: float, since: float,
+             until: float) -> ControllerLaw:
+    """Return ``law`` with its integral term moved on from stamp ``since`` to ``until`` (s)."""
+    if not np.any(law.ki != 0.0) or not math.isfinite(since):
+        return law
+    for seg in segments:
+        t = origin + seg.t
+        keep = (t > since) & (t <= until)
+        if np.any(keep):
+            law = law.advance_integral(seg.theta[keep], seg.theta_d[keep], seg.dt)
+    return law
+
+
+def _law_log_line(new: Optional[ControllerLaw], old: Optional[ControllerLaw],
+                  fresh: ControllerLaw) -> Optional[Tuple[str, str]]:
+    """Return the (level, text) saying that the law in use changed (None: it did not)."""
+    if new is not None and not new.close_to(old, LAW_GAIN_RTOL):
+        return ('info',
+                f'controller law learned from effort and the commands ({new.describe()}): '
+                'the search and the predictions run in closed loop along the plan with Kp '
+                f'{np.round(new.kp, 3).tolist()}, Kd {np.round(new.kd, 3).tolist()}, Ki '
+                f'{np.round(new.ki, 3).tolist()} (residual '
+                f'{np.round(100 * new.fit_ratio, 2).tolist()} % of the torque)')
+    if new is None and old is not None:
+        return ('warning',
+                'the commands no longer explain the measured torque as a servo law '
+                f'(residual {np.round(100 * fresh.fit_ratio, 1).tolist()} %): the search runs '
+                'on the measured torque and no model prediction is possible (a baseline is '
+                'published)')
+    return None

@@ -38,14 +38,13 @@ The rules (the identifier node's documentation states them for users):
 - Case 'torque': the arm's servo law is learned from effort and commands at each refresh
   (:mod:`.case_one`: PD, integral and θ-terms, robust to encoder noise; the commands are
   ``joint_commands`` or the plan sampled at the states). While it explains the torque
-  (residual below :data:`MAX_LAW_FIT_RATIO`) the search runs in closed loop (a case-2
-  search with the law's gains on θd shifted by its other terms), the published case-1
-  model is the arm's (the law in its ``info``) and predictions roll the searched closed
-  loop out; the search restarts when the law appears or stops explaining the torque, and
-  goes on from its best genome (an arm model whatever the gains) with the new law when
-  the gains move by more than :data:`LAW_GAIN_RTOL`. Without a usable law the search runs on
-  the measured torque and no model prediction is possible (the predictor publishes a
-  baseline, see :mod:`rkgnn_ros.core.selfcheck`).
+  the search runs in closed loop (a case-2 search with the law's gains on θd shifted by
+  its other terms), the published case-1 model is the arm's (the law in its ``info``) and
+  predictions roll the searched closed loop out; the search restarts when the law appears
+  or stops explaining the torque, and goes on from its best genome (an arm model whatever
+  the gains) with the new law when the gains move (:class:`.case_one.LawKeeper`). Without
+  a usable law the search runs on the measured torque and no model prediction is
+  possible (the predictor publishes a baseline, see :mod:`rkgnn_ros.core.selfcheck`).
 - θ̇ is taken from the driver, or, when the observation says the velocity is estimated,
   recomputed on the buffered data by the lag-free centred derivative of θ.
 - A stream silent for ``stale_timeout`` pauses the search (one warning); a reset, a change
@@ -61,8 +60,8 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .case_one import arm_model, fit_law, prediction_loop, search_segments
-from .controller import closed_loop, ControllerLaw
+from .case_one import arm_model, LawKeeper, search_segments
+from .controller import ControllerLaw
 from .identify import Evolution, RKGNNModel
 from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
                              ModelUpdate, Observation, OnlineSettings, Status, StepResult,
@@ -79,10 +78,6 @@ __all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCaptu
 
 DATA_REFRESH_S = 1.0        # at most one set_data per second
 WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
-MIN_LAW_SAMPLES = 50        # case 'torque': paired samples before a controller law is fitted
-MAX_LAW_FIT_RATIO = 0.1     # ... and its RMS residual must stay below this share of RMS τ
-LAW_GAIN_RTOL = 0.02        # a refit moving the gains more than this rebuilds the search
-LAW_THETA_SAMPLES = 2000    # θ samples kept to project a law's θ-terms on a model's units
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
 WARM_START_S = 5.0          # computation budget of one equation-error fit (real seconds)
@@ -93,22 +88,6 @@ MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search resta
 LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
 
 
-def _close_loop(model: RKGNNModel, law: ControllerLaw, theta, when: float,
-                closed: Optional[RKGNNModel] = None) -> Optional[ClosedLoop]:
-    """
-    Return the case-1 ``model`` closed with ``law`` for prediction (None if it cannot be).
-
-    ``closed`` is the closed-loop search's own model (rolled out as it was searched); else
-    the law's θ-terms are projected on the model's units over ``theta`` (S, n). ``when`` is
-    the stamp time (s, as the messages') the law's integral term refers to.
-    """
-    if law.n_joints != model.n_joints or not np.all(law.kp > 0.0):
-        return None
-    if closed is not None:
-        return ClosedLoop(model, prediction_loop(closed, law), when)
-    return ClosedLoop(model, closed_loop(model, law, theta_samples=theta), when)
-
-
 def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: int):
     """Return ``(genome, rollout cost, seconds)`` of the equation-error fit from the best."""
     t0 = time.perf_counter()  # a computation budget: real time, whatever the clock
@@ -116,6 +95,40 @@ def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: in
                                       kd, max_nfev=nfev, deadline=t0 + budget_s)
     cost = float(evo.problem.cost(genome[None])[0])
     return genome, cost, time.perf_counter() - t0
+
+
+def _warm_start(evo: Evolution, train, kp, kd, budget_s: float, nfev: int) -> Optional[str]:
+    """
+    Place the start genome by the equation-error fit (the offline pipeline's first stage).
+
+    Fitting M θ̈ + V + G + F = τ on the buffered samples needs no rollout: within its
+    budget it puts gravity, inertia and friction where the data put them, which a search
+    from the default genome takes many generations to find. Kept only when its rollout on
+    the training data does not diverge (the optimizer then restarts around it); returns
+    what the search starts from, None if not kept.
+    """
+    genome, cost, seconds = _equation_error_fit(evo, train, kp, kd, budget_s, nfev)
+    if not math.isfinite(cost):
+        return None
+    _restart_around(evo.optimizer, genome, cost)
+    return f'the equation-error fit ({seconds:.1f} s, J {cost:.4g})'
+
+
+def _rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) -> str:
+    """
+    Run the equation-error fit again from the best genome, on the grown window.
+
+    Its genome replaces the best (and the optimizer restarts around it) only if its rollout
+    cost on the new data is lower. Returns the line that says what happened.
+    """
+    before = float(evo.optimizer.best_cost)
+    genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd, budget_s, nfev)
+    kept = math.isfinite(cost) and not cost >= before
+    if kept:
+        _restart_around(evo.optimizer, genome, cost)
+    return (f'equation-error fit again on {seconds:.1f} s of data ({took:.1f} s): J '
+            f'{cost:.4g} vs the best {before:.4g}, '
+            + ('restarting around it' if kept else 'kept the best'))
 
 
 def _restart_around(optimizer, genome, cost: float) -> None:
@@ -162,44 +175,6 @@ def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[
         if now - last > obs.settings.stale_timeout:
             return key, now - last
     return None
-
-
-def _law_log_line(new: Optional[ControllerLaw], old: Optional[ControllerLaw],
-                  fresh: ControllerLaw) -> Optional[LogLine]:
-    """Return the line saying that the law the search uses changed (None: it did not)."""
-    if new is not None and not new.close_to(old, LAW_GAIN_RTOL):
-        return LogLine('info',
-                       f'controller law learned from effort and the commands ({new.describe()}'
-                       f'): the search and the predictions run in closed loop along the '
-                       f'plan with Kp {np.round(new.kp, 3).tolist()}, Kd '
-                       f'{np.round(new.kd, 3).tolist()}, Ki {np.round(new.ki, 3).tolist()} '
-                       f'(residual {np.round(100 * new.fit_ratio, 2).tolist()} % of the '
-                       'torque)')
-    if new is None and old is not None:
-        return LogLine('warning',
-                       'the commands no longer explain the measured torque as a servo law '
-                       f'(residual {np.round(100 * fresh.fit_ratio, 1).tolist()} %): the '
-                       'search runs on the measured torque and no model prediction is '
-                       'possible (a baseline is published)')
-    return None
-
-
-def _same_form(running: ControllerLaw, new: ControllerLaw) -> bool:
-    """Return whether a refit ``new`` keeps the running search valid (gains and form)."""
-    return new.close_to(running, LAW_GAIN_RTOL) and new.theta_input == running.theta_input
-
-
-def _advance(law: ControllerLaw, segments, origin: float, since: float,
-             until: float) -> ControllerLaw:
-    """Return ``law`` with its integral term moved on from stamp ``since`` to ``until`` (s)."""
-    if not np.any(law.ki != 0.0) or not math.isfinite(since):
-        return law
-    for seg in segments:
-        t = origin + seg.t
-        keep = (t > since) & (t <= until)
-        if np.any(keep):
-            law = law.advance_integral(seg.theta[keep], seg.theta_d[keep], seg.dt)
-    return law
 
 
 def _with_velocity(segments, estimate: bool) -> List[Dataset]:
@@ -273,11 +248,9 @@ class OnlineIdentification:
         self._last_model_pub = -math.inf if published is None else clock()
         self._start_model = published
         self._resume = None  # (genome, scales) a rebuilt search goes on from
-        # case 'torque': the law learned from torque and commands (its integral term at
-        # stamp time _law_time, the θ it was fitted on), the published model closed with it
-        self._law: Optional[ControllerLaw] = None
-        self._law_time = math.nan
-        self._law_theta: Optional[np.ndarray] = None
+        # case 'torque': the law learned from torque and commands, the published model
+        # closed with it
+        self._laws = LawKeeper()
         self._loop: Optional[ClosedLoop] = None
         # the search
         self._evo: Optional[Evolution] = None
@@ -432,7 +405,8 @@ class OnlineIdentification:
             self._evo.set_data(train)
             if seconds >= REWARM_GROWTH * self._warm_seconds:
                 self._warm_seconds = seconds
-                self._rewarm(train, seconds)
+                self._log('info', _rewarm(self._evo, train, seconds, self._warm_start_seconds,
+                                          self._warm_start_nfev))
             if self._had_finite and not math.isfinite(self._evo.optimizer.best_cost):
                 self._log_throttled(
                     'diverges', 'warning',
@@ -447,55 +421,35 @@ class OnlineIdentification:
         Case 'torque': learn the servo law again; return the law the search runs with.
 
         ``segments`` carry the commands paired with the states (``origin``: the stamp time
-        of their t = 0). Too few paired samples (no commands, or just after a reset) change
-        nothing. A refit keeps where the running law's θ-terms are evaluated, unless it no
-        longer explains the torque.
+        of their t = 0); :meth:`.case_one.LawKeeper.refit` says what the refit means. A law
+        that moved rebuilds the search from its best genome (an arm model whatever the
+        gains), one that appeared or went restarts it.
         """
         searching = self._evo is not None
-        running = self._evo_law if searching else None
-        fresh = fit_law(segments, running.theta_input if running is not None else 'auto',
-                        MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO) if segments else None
-        if fresh is not None and running is not None and not fresh.usable(MAX_LAW_FIT_RATIO):
-            fresh = fit_law(segments, 'auto', MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO)
-        if fresh is None:
-            return running
-        new = fresh if fresh.usable(MAX_LAW_FIT_RATIO) else None
-        end = origin + float(segments[-1].t[-1])
-        if searching:
-            if running is not None and new is not None and _same_form(running, new):
-                # the search goes on with its law; only the integral moves on to now
-                law = _advance(running, segments, origin, self._law_time, end)
-                self._evo_law = self._law = law
-                self._law_time = end
-                return law
-            if running is None and new is None:
-                return None
-            if running is not None and new is not None:  # moved: the arm model carries over
-                resume = (self._evo.optimizer.best_x.copy(), self._evo.scales)
-                self._drop_search('the controller law moved (Kp '
-                                  f'{np.round(new.kp, 2).tolist()}, Kd '
-                                  f'{np.round(new.kd, 2).tolist()}); it goes on from its best '
-                                  'genome')
-                self._resume = resume
-            else:
-                self._drop_search('the controller law changed')
-        if new is not None:
-            self._law_time = end
-            theta = np.concatenate([seg.theta for seg in segments])
-            self._law_theta = theta[::max(1, theta.shape[0] // LAW_THETA_SAMPLES)]
-        line = _law_log_line(new, self._law, fresh)
-        if line is not None:
-            self._events.append(line)
-        self._law = new
+        refit = self._laws.refit(segments, origin, self._evo_law if searching else None)
+        if refit.kind == 'keep':
+            if searching:
+                self._evo_law = refit.law
+            return refit.law
+        if searching and refit.kind == 'moved':
+            resume = (self._evo.optimizer.best_x.copy(), self._evo.scales)
+            self._drop_search(f'the controller law moved (Kp '
+                              f'{np.round(refit.law.kp, 2).tolist()}, Kd '
+                              f'{np.round(refit.law.kd, 2).tolist()}); it goes on from its '
+                              'best genome')
+            self._resume = resume
+        elif searching:
+            self._drop_search('the controller law changed')
+        if refit.line is not None:
+            self._log(*refit.line)
         model = self._model
         if model is not None and model.case == 'torque':
-            self._loop = (None if new is None else
-                          _close_loop(model, new, self._law_theta, self._law_time))
+            self._loop = self._laws.close(model)
             self._events.append(LoopUpdate(model, self._loop))
-        return new
+        return refit.law
 
     def _build_search(self, settings: OnlineSettings, train, joints, seconds: float) -> None:
-        law = self._law
+        law = self._laws.law
         spec, kp, kd = _search_structure(settings, law, joints)
         algorithm = settings.optimizer
         x0 = scales = None
@@ -513,7 +467,9 @@ class OnlineIdentification:
                               kp=kp, kd=kd, substeps=settings.substeps or None, scales=scales,
                               x0=x0)
         if x0 is None:
-            origin = self._warm_start(train, kp, kd, origin)
+            self._set_status('evolving', 'warm start: equation-error fit')
+            origin = _warm_start(self._evo, train, kp, kd, self._warm_start_seconds,
+                                 self._warm_start_nfev) or origin
         elif origin.startswith('the best genome'):
             optimizer = self._evo.optimizer
             _restart_around(optimizer, x0, float(self._evo.problem.cost(x0[None])[0]))
@@ -528,44 +484,6 @@ class OnlineIdentification:
                   f'{spec.genome_size} genome elements, {algorithm} with population '
                   f'{self._evo.optimizer.population_size}, {self._evo.substeps} substeps, '
                   f'{seconds:.1f} s of data')
-
-    def _warm_start(self, train, kp, kd, origin: str) -> str:
-        """
-        Place the start genome by the equation-error fit (the offline pipeline's first stage).
-
-        Fitting M θ̈ + V + G + F = τ on the buffered samples needs no rollout: within its
-        budget it puts gravity, inertia and friction where the data put them, which a
-        search from the default genome takes many generations to find. Kept only when its
-        rollout on the training data does not diverge; the optimizer restarts around it.
-        """
-        self._set_status('evolving', 'warm start: equation-error fit')
-        genome, cost, seconds = _equation_error_fit(self._evo, train, kp, kd,
-                                                    self._warm_start_seconds,
-                                                    self._warm_start_nfev)
-        if not math.isfinite(cost):
-            return origin
-        _restart_around(self._evo.optimizer, genome, cost)
-        return f'the equation-error fit ({seconds:.1f} s, J {cost:.4g})'
-
-    def _rewarm(self, train, seconds: float) -> None:
-        """
-        Run the equation-error fit again from the best genome, on the grown window.
-
-        Its genome replaces the best (and the optimizer restarts around it) only if its
-        rollout cost on the new data is lower.
-        """
-        evo = self._evo
-        before = float(evo.optimizer.best_cost)
-        genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd,
-                                                 self._warm_start_seconds,
-                                                 self._warm_start_nfev)
-        kept = math.isfinite(cost) and not cost >= before
-        if kept:
-            _restart_around(evo.optimizer, genome, cost)
-        self._log('info',
-                  f'equation-error fit again on {seconds:.1f} s of data ({took:.1f} s): J '
-                  f'{cost:.4g} vs the best {before:.4g}, '
-                  + ('restarting around it' if kept else 'kept the best'))
 
     def _drop_search(self, why: str) -> None:
         if self._evo is not None:
@@ -640,18 +558,18 @@ class OnlineIdentification:
         self._publish(model, settings)
 
     def _publish(self, model: RKGNNModel, settings: OnlineSettings) -> None:
-        law = self._law
+        law = self._laws.law
         closed = None
         if model.case == 'pd_gains' and settings.case == 'torque' and law is not None:
             # a closed-loop search (case 'torque' with the learned law): publish the arm
             closed = model
-            model = arm_model(closed, law, self._law_theta,
+            model = arm_model(closed, law, self._laws.theta,
                               info=dict(closed.info, controller_law=law.to_dict()))
         gains = model.implied_gains()
         loop = None
         if model.case == 'torque' and law is not None:
             gains = (law.kp, law.kd)
-            loop = _close_loop(model, law, self._law_theta, self._law_time, closed)
+            loop = self._laws.close(model, closed)
         self._model, self._loop = model, loop
         self._published_genome = (closed or model).genome.copy()
         self._last_model_pub = self._clock()
