@@ -174,8 +174,8 @@ class Ingestion:
 
     @property
     def velocity_estimated(self) -> bool:
-        """Return whether θ̇ is estimated from θ (the newest state's)."""
-        return self.sources.velocity_estimated
+        """Return whether the search's data get θ̇ from θ (``Sources.buffered_estimated``)."""
+        return self.sources.buffered_estimated
 
     def capture(self) -> Optional[Capture]:
         """Return a capture of the buffered streams (None until the joints are known)."""

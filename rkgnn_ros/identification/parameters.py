@@ -52,7 +52,7 @@ PARAMETER_CASES = ('auto',) + CASES
 _RESTARTS = 'Changing it restarts the search.'
 _ES_NOTE = 'Applied between generations.'
 BEYOND_PLAN = ('stop', 'hold')
-VELOCITY_ESTIMATES = ('missing', 'always')
+VELOCITY_ESTIMATES = ('buffered', 'missing', 'always')
 
 PARAMETERS = (
     ParameterSpec('case', 'auto',
@@ -170,11 +170,12 @@ PARAMETERS = (
                   'and the last 2 s) the model must be to be published; it is set aside as '
                   'soon as it is worse than one, and the better baseline published, marked.',
                   0.0, 0.9),
-    ParameterSpec('velocity.estimate', 'missing',
-                  "When theta-dot is estimated from theta: 'missing' (only when joint_states "
-                  "has no velocity, or NaN) or 'always' (a driver that differences noisy "
-                  'encoders): lag-free centred derivative on the buffered data, causal one '
-                  'for the state a prediction starts from.', choices=VELOCITY_ESTIMATES,
+    ParameterSpec('velocity.estimate', 'buffered',
+                  "Where theta-dot is estimated from theta: 'buffered' (the search's data "
+                  'always, by the lag-free centred derivative; the state a prediction starts '
+                  "from only when joint_states has no velocity), 'missing' (only when it has "
+                  "none) or 'always' (the start state too, by the causal fit: a driver that "
+                  'differences noisy encoders). ' + _RESTARTS, choices=VELOCITY_ESTIMATES,
                   change=_RESTART),
     ParameterSpec('model_file', '',
                   'Model YAML: loaded at start if present (published, start genome), written '

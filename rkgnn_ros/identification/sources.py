@@ -30,15 +30,19 @@ Case (``case: auto``)
     rebuilds the buffer (its layout depends on the case) and restarts the search. A set
     case is kept whatever the streams do (messages it cannot use are dropped and counted).
 Velocity
-    With ``velocity.estimate: missing`` the driver's velocity is used when it has one
-    (finite for every joint); else, and always with 'always', θ̇ is estimated from θ: for
-    the state a prediction starts from, :func:`~rkgnn_ros.core.differentiate.causal_slope`
-    (order 2 over the last :data:`~rkgnn_ros.core.differentiate.CAUSAL_WINDOW` samples, on
-    their stamps: at 100 Hz about 4 ms of delay and 7 % more gain at 1 Hz, exact for
-    quadratic motion); the buffered data get the lag-free centred derivative when the
-    search takes them (:mod:`rkgnn_ros.core.fitting.online`). The history restarts at a gap
-    (``gap_threshold``); until it holds :data:`MIN_HISTORY` samples no prediction starts
-    from the state.
+    The search's data get θ̇ from θ, by the lag-free centred derivative
+    (:mod:`rkgnn_ros.core.fitting.online`), unless ``velocity.estimate: missing`` and the
+    driver has a velocity: a differenced velocity's noise (√2 σθ / dt) would otherwise
+    reach the fits (on the paper's arm with 1e-4 rad of encoder noise and a gravity
+    compensating servo, case 3's start predicted 2 s ahead at 1.96 % of the range with the
+    differenced velocity, 0.1 % with the derivative; 2.04 / 1.98 % on exact data). The
+    state a prediction starts from keeps the driver's velocity when it has one (finite for
+    every joint), unless 'always'; else θ̇ is estimated by
+    :func:`~rkgnn_ros.core.differentiate.causal_slope` (order 2 over the last
+    :data:`~rkgnn_ros.core.differentiate.CAUSAL_WINDOW` samples, on their stamps: at 100 Hz
+    about 4 ms of delay and 7 % more gain at 1 Hz, exact for quadratic motion). The history
+    restarts at a gap (``gap_threshold``); until it holds :data:`MIN_HISTORY` samples no
+    prediction starts from the state.
 Commands
     ``joint_commands`` when it delivered within ``stale_timeout``; else the plan on
     ``reference_trajectory`` sampled at each state's stamp (θd, θ̇d of the newest plan,
@@ -155,6 +159,11 @@ class Sources:
         return causal_slope(times, values, CAUSAL_ORDER), True
 
     @property
+    def buffered_estimated(self) -> bool:
+        """Return whether the search's data get θ̇ from θ (see the module docstring)."""
+        return self.velocity_estimated or self._config['velocity.estimate'] != 'missing'
+
+    @property
     def history_ready(self) -> bool:
         """Return whether an estimated θ̇ may start a prediction."""
         return not self.velocity_estimated or len(self._history) >= MIN_HISTORY
@@ -177,9 +186,12 @@ class Sources:
             case = 'auto: waiting for joint_states'
         else:
             case = f"{'auto -> ' if self.auto else ''}{self.case} ({self.case_reason})"
-        velocity = ('estimated from position (causal order-2 fit over the last '
-                    f'{CAUSAL_WINDOW} samples for the start state, centred for the search)'
-                    if self.velocity_estimated else 'joint_states')
+        if self.velocity_estimated:
+            velocity = ('estimated from position (causal order-2 fit over the last '
+                        f'{CAUSAL_WINDOW} samples for the start state, centred for the search)')
+        else:
+            velocity = 'joint_states' + (' (the search: centred derivative of position)'
+                                         if self.buffered_estimated else '')
         return {'case_in_effect': case, 'velocity_source': velocity,
                 'commands_source': self.commands}
 

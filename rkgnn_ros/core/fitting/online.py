@@ -27,7 +27,8 @@ The rules (the identifier node's documentation states them for users):
 
 - A search is built when ``min_window`` seconds of training data are buffered, warm-started
   from a loaded model if it fits the settings, else by the equation-error fit (no rollout
-  needed, a few seconds at most); its rollout must not diverge or the default genome stays.
+  needed, a few seconds at most; case 3 first tries the servo's gains from a linear fit of
+  the closed loop, :mod:`.case_three`); a start whose rollout diverges is not taken.
 - The data are refreshed at most every :data:`DATA_REFRESH_S` (``Evolution.set_data``: the
   optimizer is kept); when the window has grown by :data:`REWARM_GROWTH` since the last
   equation-error fit, the fit runs again and replaces the best genome only if it is better.
@@ -60,6 +61,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
+from . import case_three
 from .case_one import arm_model, LawKeeper, search_segments
 from .controller import ControllerLaw
 from .identify import Evolution, RKGNNModel
@@ -468,8 +470,13 @@ class OnlineIdentification:
                               x0=x0)
         if x0 is None:
             self._set_status('evolving', 'warm start: equation-error fit')
-            origin = _warm_start(self._evo, train, kp, kd, self._warm_start_seconds,
-                                 self._warm_start_nfev) or origin
+            placed = case_three.start_genome(self._evo, train, self._warm_start_seconds,
+                                             self._warm_start_nfev)
+            if placed is not None:
+                _restart_around(self._evo.optimizer, placed.genome, placed.cost)
+            origin = (placed.origin if placed is not None else
+                      _warm_start(self._evo, train, kp, kd, self._warm_start_seconds,
+                                  self._warm_start_nfev) or origin)
         elif origin.startswith('the best genome'):
             optimizer = self._evo.optimizer
             _restart_around(optimizer, x0, float(self._evo.problem.cost(x0[None])[0]))
