@@ -31,8 +31,10 @@ the torque they give along the data has an RMS of 1 (the case-3 network's own un
 a few seconds at most), assembled into a case-3 genome whose torque network is that linear
 PD (its RBF units start at zero weight). The gains are used only when the data determine
 them: the newest half of the data must give the same ratios within
-:data:`AGREEMENT_RTOL` (with encoder noise and a gravity-compensating servo, whose small
-tracking errors excite the gains little, 16 s did not).
+:data:`AGREEMENT_RTOL` (the half's estimate is the noisier: with 1e-4 rad of encoder noise,
+16 s on the paper's arm gave the ratios to 1.5 % and its newest half to 11 %). A PID servo's
+data do not fit this PD closed loop; the two halves then disagree and the search keeps its
+old start.
 """
 
 from dataclasses import replace
@@ -50,7 +52,7 @@ from ..differentiate import centred_derivative
 __all__ = ['AGREEMENT_RTOL', 'Start', 'fit_gains', 'start_genome']
 
 #: The gains fitted on the whole data and on its newest half must agree this well.
-AGREEMENT_RTOL = 0.1
+AGREEMENT_RTOL = 0.15
 
 
 def _linear_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.ndarray]]:
