@@ -247,7 +247,7 @@ def parse_joint_trajectory_cdr(raw: bytes):
 
 
 def joint_trajectory_cdr(sec: int, nanosec: int, names: Sequence[str], times: np.ndarray,
-                         positions: np.ndarray, velocities=None) -> bytes:
+                         positions: np.ndarray, velocities=None, frame_id: str = '') -> bytes:
     """
     Return the CDR bytes of a JointTrajectory (little endian), from checked arrays.
 
@@ -259,7 +259,8 @@ def joint_trajectory_cdr(sec: int, nanosec: int, names: Sequence[str], times: np
     """
     names = tuple(names)
     template, stamp_at, position_bytes, velocity_bytes = _trajectory_layout(
-        names, np.asarray(times, dtype=float).tobytes(), velocities is not None)
+        names, np.asarray(times, dtype=float).tobytes(), velocities is not None,
+        str(frame_id))
     out = template.copy()
     out[stamp_at:stamp_at + 8] = np.frombuffer(struct.pack('<iI', sec, nanosec),
                                                dtype=np.uint8)
@@ -276,7 +277,8 @@ def _le_bytes(values: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=8)
-def _trajectory_layout(names: Tuple[str, ...], times_bytes: bytes, with_velocities: bool):
+def _trajectory_layout(names: Tuple[str, ...], times_bytes: bytes, with_velocities: bool,
+                       frame_id: str = ''):
     """
     Return the CDR bytes of a JointTrajectory with zero stamp and values, and their places.
 
@@ -310,7 +312,7 @@ def _trajectory_layout(names: Tuple[str, ...], times_bytes: bytes, with_velociti
     align(4)
     stamp_at = len(out)
     out.extend(bytes(8))
-    string('')  # frame_id
+    string(frame_id)
     align(4)
     out.extend(struct.pack('<I', n))
     for name in names:

@@ -566,14 +566,15 @@ def make_joint_state(stamp, names: Sequence[str], position,
 
 
 def make_joint_trajectory(stamp, names: Sequence[str], times, positions,
-                          velocities=None) -> JointTrajectory:
+                          velocities=None, frame_id: str = '') -> JointTrajectory:
     """
     Build a JointTrajectory.
 
     ``times`` (K,) are seconds from ``stamp`` (>= 0, strictly increasing), written as
     ``time_from_start`` Durations; ``positions`` and ``velocities`` have shape (K, n).
     ``velocities=None`` leaves each point's velocities empty ("not specified" in the
-    message definition). Raises ValueError on bad shapes or times.
+    message definition). ``frame_id`` goes into the header. Raises ValueError on bad
+    shapes or times.
     """
     names = [str(name) for name in names]
     times = np.asarray(times, dtype=float).reshape(-1)
@@ -590,6 +591,7 @@ def make_joint_trajectory(stamp, names: Sequence[str], times, positions,
         raise ValueError('times must be >= 0 and strictly increasing')
     msg = JointTrajectory()
     msg.header.stamp = _stamp(stamp)
+    msg.header.frame_id = str(frame_id)
     msg.joint_names = names
     points = []
     for k in range(times.size):
@@ -604,7 +606,7 @@ def make_joint_trajectory(stamp, names: Sequence[str], times, positions,
 
 
 def serialize_joint_trajectory(stamp, names: Sequence[str], times, positions,
-                               velocities=None) -> bytes:
+                               velocities=None, frame_id: str = '') -> bytes:
     """
     Return the JointTrajectory of :func:`make_joint_trajectory` already serialized (CDR).
 
@@ -632,7 +634,7 @@ def serialize_joint_trajectory(stamp, names: Sequence[str], times, positions,
         raise ValueError('times must be >= 0 and strictly increasing')
     header = _stamp(stamp)
     return joint_trajectory_cdr(header.sec, header.nanosec, names, times, positions,
-                                velocities)
+                                velocities, frame_id)
 
 
 def make_float64_multiarray(values, labels: Sequence[str]) -> Float64MultiArray:

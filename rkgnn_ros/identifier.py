@@ -15,18 +15,18 @@
 """
 The ``identifier`` node: evolve an RKGNN model of the arm online while it moves.
 
-This module declares the node's interface and wires its parts
-(:mod:`rkgnn_ros.identification`); what each part does and why is in its own module, the
-rules of the online search in :mod:`rkgnn_ros.core.fitting.online`.
+This module declares the interface and wires the parts (:mod:`rkgnn_ros.identification`);
+each part's module says what it does and why, :mod:`rkgnn_ros.core.fitting.online` the
+search's rules.
 
 Interface
 ---------
-Subscribed (best effort: matches best-effort and reliable publishers alike)
-    ``joint_states`` (sensor_msgs/JointState, depth 100): θ, θ̇ and, in case 'torque', τ
-    (effort).
-    ``joint_commands`` (sensor_msgs/JointState, depth 100): θd (position), θ̇d (velocity).
-    ``reference_trajectory`` (trajectory_msgs/JointTrajectory, optional, depth 1: only the
-    newest plan is used): the plan.
+Subscribed (best effort, depth 100: matches best-effort and reliable publishers alike)
+    ``joint_states`` (sensor_msgs/JointState): θ, and θ̇ and τ (effort) where the driver has
+    them (``case: auto`` takes case 1 with effort, θ̇ is estimated from θ without velocity).
+    ``joint_commands`` (sensor_msgs/JointState, optional): θd (position), θ̇d (velocity).
+    ``reference_trajectory`` (trajectory_msgs/JointTrajectory): the plan; it stands in for
+    ``joint_commands`` where that topic is silent, and predictions end where it ends.
     Size budgets (:mod:`rkgnn_ros.conversions`): a JointState of at most 64 KiB, a
     JointTrajectory of at most 8 MiB and 10,000 points, at most 256 joint names of at most
     256 bytes each; a message over any is dropped, counted as ``over_budget``. A stamp far
@@ -35,19 +35,28 @@ Subscribed (best effort: matches best-effort and reliable publishers alike)
     node clock jumping back by more than 1 s (``/clock`` under ``use_sim_time``) clears the
     buffer too.
 Published
-    ``~/model`` (std_msgs/String, reliable, transient local, depth 1): the model YAML
-    (``RKGNNModel.to_yaml``) when the best improves, at most every
-    ``model_publish_period`` s; at start too when ``model_file`` held a usable model.
-    ``~/prediction`` (trajectory_msgs/JointTrajectory): the published model rolled out
-    over ``prediction.horizon`` s at ``model_step`` from the newest accepted joint_states
-    sample (header stamp copied, ``points[0]`` that state exactly), at ``prediction.rate``
-    Hz and with ``prediction.on_state`` on each accepted state (at most once per
-    ``model_step``); never with a non-finite value (counted ``prediction_non_finite``).
-    ``~/evolution`` (std_msgs/Float64MultiArray, layout label :data:`EVOLUTION_LABELS`):
-    once per generation, at most 20 Hz.
-    ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): one status named after the
-    node with the state, the search's figures, ``prediction_inputs``, the
-    receipt-to-publish latency of predictions and one ``drops.<reason>`` entry per reason.
+    ``~/model`` (std_msgs/String, reliable, transient local, depth 1): the model YAML when
+    the best improves, at most every ``model_publish_period`` s; at start when
+    ``model_file`` held a usable model.
+    ``~/prediction`` (trajectory_msgs/JointTrajectory): from the newest accepted
+    joint_states sample (header stamp copied, ``points[0]`` that state exactly) over
+    ``prediction.horizon`` s at ``model_step``, ending where the plan ends unless
+    ``prediction.beyond_plan`` says otherwise; at ``prediction.rate`` Hz and with
+    ``prediction.on_state`` on each accepted state (at most once per ``model_step``).
+    ``header.frame_id`` says what it is: ``model``, ``baseline:follow_reference`` or
+    ``baseline:hold_last`` (the self-check publishes a baseline while the model has not
+    earned trust or did worse lately), with ``;beyond_plan_from=<s>`` when points lie past
+    the plan's end. Never non-finite (counted ``prediction_non_finite``).
+    ``~/prediction_uncertainty`` (trajectory_msgs/JointTrajectory): the same stamp, joints
+    and times, positions = the expected θ error (rad, the published predictor's recent
+    RMSE per horizon), ``frame_id`` ``rmse:<source>``.
+    ``~/prediction_scores`` (std_msgs/Float64MultiArray, 1 Hz): a row per scored horizon,
+    columns :data:`SCORE_LABELS` (windowed RMSE / θ range; layout ``rows``, the labels).
+    ``~/evolution`` (std_msgs/Float64MultiArray, labels :data:`EVOLUTION_LABELS`): per
+    generation, at most 20 Hz.
+    ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): the state, the search's
+    figures, the case in effect, where θ̇ and the commands come from, what is published
+    and why, the scores, the prediction latency, a ``drops.<reason>`` per reason.
 Services
     ``~/reset`` (std_srvs/Trigger): clear the buffer and restart the search.
     ``~/save_model`` (std_srvs/Trigger): write the published model to ``model_file``.
@@ -68,15 +77,13 @@ does. The ingest thread takes the two streams (:mod:`~rkgnn_ros.identification.i
 the worker thread runs the search (:mod:`~rkgnn_ros.identification.worker`), the
 prediction thread predicts (:mod:`~rkgnn_ros.identification.prediction`); they hand what
 is to be published or logged to the executor through an outbox
-(:mod:`~rkgnn_ros.identification.publishing`). Objects alive at start are
-frozen out of the cyclic garbage collector and no QoS-event handlers are created, both to
-keep the executor thread cheap.
+(:mod:`~rkgnn_ros.identification.publishing`). Objects alive at start are frozen out of the
+cyclic garbage collector and no QoS-event handlers are created: the executor stays cheap.
 """
 
 import gc
 import sys
 
-from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
 from rclpy.clock import JumpThreshold
 from rclpy.duration import Duration
@@ -92,15 +99,15 @@ from rkgnn_ros.identification.model_file import load_model_file, save_model_file
 from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierParameters,
                                                  network_spec)
 from rkgnn_ros.identification.prediction import Predictor
-from rkgnn_ros.identification.publishing import EVOLUTION_LABELS, Outbox, Publishing
+from rkgnn_ros.identification.publishing import (create_publishers, EVOLUTION_LABELS, Outbox,
+                                                 Publishing, SCORE_LABELS)
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-__all__ = ['EVOLUTION_LABELS', 'ConfigurationError', 'IdentifierNode', 'main']
+__all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main']
 
 CLOCK_JUMP_S = 1.0  # a node clock jumping back by more clears the buffer
 
@@ -142,19 +149,7 @@ class IdentifierNode(Node):
         stream_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                                 reliability=ReliabilityPolicy.BEST_EFFORT,
                                 durability=DurabilityPolicy.VOLATILE)
-        model_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                               reliability=ReliabilityPolicy.RELIABLE,
-                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        publishers = {
-            'model': self.create_publisher(String, '~/model', model_qos,
-                                           event_callbacks=pub_events),
-            'prediction': self.create_publisher(JointTrajectory, '~/prediction', 10,
-                                                event_callbacks=pub_events),
-            'evolution': self.create_publisher(Float64MultiArray, '~/evolution', 10,
-                                               event_callbacks=pub_events),
-            'diagnostics': self.create_publisher(DiagnosticArray, '/diagnostics', 10,
-                                                 event_callbacks=pub_events),
-        }
+        publishers = create_publishers(self, pub_events)
 
         self._outbox = Outbox()
         self._ingestion = Ingestion(config, self._outbox.log, alive=self.context.ok,
@@ -210,7 +205,8 @@ class IdentifierNode(Node):
 
     def _load_model_file(self, config):
         model, lines = load_model_file(config['model_file'], self._ingestion.joints,
-                                       config.case, lambda n: network_spec(config.values, n),
+                                       config.case,
+                                       lambda n, case: network_spec(config.values, n, case),
                                        config['model_step'])
         for level, text in lines:
             self._outbox.log(level, text)

@@ -19,6 +19,7 @@ import math
 import numpy as np
 import pytest
 from rkgnn_ros.core.differentiate import (causal_coefficients, causal_derivative,
+                                          causal_slope, CAUSAL_WINDOW,
                                           centred_derivative, derivative_response,
                                           gaussian_kernels, noise_gain)
 
@@ -84,3 +85,24 @@ def test_gaussian_kernel_derivative_of_positions_equals_smoothed_velocity():
     assert noise_gain(h_prime) == pytest.approx(expected, rel=0.01)
     with pytest.raises(ValueError, match='sigma'):
         gaussian_kernels(DT, 0.5 * DT)
+
+
+def test_causal_slope_on_jittered_stamps_is_the_causal_fit():
+    x, v = signal(T)
+    k = 300
+    rows = slice(k - CAUSAL_WINDOW + 1, k + 1)
+    # on uniform stamps it is causal_derivative
+    np.testing.assert_allclose(causal_slope(T[rows], x[rows]), causal_derivative(x[:k + 1], DT),
+                               rtol=1e-9, atol=1e-12)
+    # on a driver's jittered stamps (±0.3 dt) it stays exact for the parabola (column 1)
+    # and, for the sine, as close as the uniform fit on uniform stamps
+    rng = np.random.default_rng(1)
+    stamps = T[rows] + rng.uniform(-0.3, 0.3, CAUSAL_WINDOW) * DT
+    stamps[-1] = T[k]
+    values, _ = signal(stamps)
+    slope = causal_slope(stamps, values)
+    assert slope[1] == pytest.approx(v[k, 1], rel=1e-9)
+    uniform = causal_derivative(x[:k + 1], DT)[0]
+    assert abs(slope[0] - uniform) < 0.01 * np.abs(v[:, 0]).max()
+    assert causal_slope(stamps[-2:], values[-2:])[1] == pytest.approx(
+        (values[-1, 1] - values[-2, 1]) / (stamps[-1] - stamps[-2]))

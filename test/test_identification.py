@@ -33,6 +33,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
 from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
+from rkgnn_ros.core.differentiate import causal_derivative
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification, Status
 from rkgnn_ros.core.model.spec import NetworkSpec
@@ -42,7 +43,7 @@ from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identification.ingest import Ingestion, PolledGroup
 from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierParameters,
                                                  make_config, PARAMETERS)
-from rkgnn_ros.identification.prediction import Predictor
+from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import Outbox
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change, ParameterSpec
@@ -220,6 +221,80 @@ def test_a_prediction_is_asked_for_on_accepted_states_at_most_once_per_model_ste
     assert np.all(np.diff(requests) >= 0.01 - 1e-12)
 
 
+# ------------------------------------------------------------------ what the driver publishes
+
+def _state(data, k, velocity=True, effort=True):
+    return serialize_message(make_joint_state(
+        T0 + data.t[k], JOINTS, data.theta[k], data.theta_dot[k] if velocity else None,
+        data.tau[k] if effort else None))
+
+
+def test_case_auto_follows_the_effort_with_a_second_of_hysteresis(data):
+    clock = [0.0]
+    lines = []
+    ingestion = Ingestion(make_config(joints=list(JOINTS)),
+                          lambda level, text: lines.append(text), clock=lambda: clock[0])
+    assert ingestion.sources.describe()['case_in_effect'] == 'auto: waiting for joint_states'
+    for k in range(50):  # effort in joint_states: case 1 at once
+        clock[0] += 0.01
+        ingestion.handle_state(_state(data, k))
+    config, _, buffer, _ = ingestion.view()
+    assert config.settings.case == 'torque' and buffer.need_tau
+    assert 'auto -> torque (effort in joint_states)' in ingestion.sources.describe()[
+        'case_in_effect']
+    for k in range(50, 140):  # the driver stops publishing effort: dropped for 1 s ...
+        clock[0] += 0.01
+        ingestion.handle_state(_state(data, k, effort=False))
+    assert ingestion.view()[0].settings.case == 'torque'
+    assert ingestion.drop_counts()['missing_effort'] == 90
+    for k in range(140, 160):  # ... then case 3 (no gains given), the buffer rebuilt
+        clock[0] += 0.01
+        ingestion.handle_state(_state(data, k, effort=False))
+    assert ingestion.view()[0].settings.case == 'unknown'
+    assert [t for t in lines if t.startswith('case auto: unknown (no effort in joint_states')]
+    assert 0 < ingestion.samples_buffered() <= 11
+    ingestion.handle_state(_state(data, 160))  # one message with effort changes nothing
+    assert ingestion.view()[0].settings.case == 'unknown'
+    # a set case stays whatever the streams do
+    ingestion.reconfigure(make_config(joints=list(JOINTS), case='torque'), rebuild=True)
+    assert ingestion.view()[0].settings.case == 'torque'
+
+
+def test_without_velocity_the_start_state_gets_the_causal_estimate(data):
+    ingestion = Ingestion(make_config(joints=list(JOINTS)), lambda level, text: None)
+    ingestion.handle_state(_state(data, 0, velocity=False))
+    assert ingestion.latest_state is None   # nothing to start a prediction from yet
+    for k in range(1, 300):
+        ingestion.handle_state(_state(data, k, velocity=False))
+    latest = ingestion.latest_state
+    assert latest.velocity_estimated and ingestion.velocity_estimated
+    expected = causal_derivative(data.theta[285:300], 0.01)
+    np.testing.assert_allclose(latest.theta_dot, expected, rtol=1e-9, atol=1e-12)
+    # the documented delay (a few ms) and gain (a few %) of the causal fit
+    assert np.abs(latest.theta_dot - data.theta_dot[299]).max() < 0.05 * np.ptp(
+        data.theta_dot)
+    assert 'estimated from position' in ingestion.sources.describe()['velocity_source']
+    assert ingestion.drop_counts()['missing_velocity'] == 0
+
+
+def test_without_joint_commands_the_plan_gives_the_commands(data):
+    clock = [0.0]
+    ingestion = Ingestion(make_config(joints=list(JOINTS), case='unknown'),
+                          lambda level, text: None, clock=lambda: clock[0])
+    ingestion.handle_state(_state(data, 0))
+    _plan(ingestion, data, 0, 3.0)
+    for k in range(1, 200):
+        clock[0] += 0.01
+        ingestion.handle_state(_state(data, k))
+    assert ingestion.buffer.stats()['command_samples'] == 199
+    assert ingestion.sources.describe()['commands_source'].startswith('reference_trajectory')
+    np.testing.assert_allclose(ingestion.latest_command, data.theta_d[199], atol=1e-3)
+    commands = [item for item in ingestion.feed if item[0] == 'command']
+    assert len(commands) == 199 and commands[-1][1] == T0 + data.t[199]
+    segments = ingestion.capture().segments(10)
+    assert segments and segments[0].theta_d is not None
+
+
 # ------------------------------------------------------------------ prediction
 
 @pytest.fixture(scope='module')
@@ -228,17 +303,29 @@ def unknown_model(data):
     return Evolution(NetworkSpec.recommended(3, 'unknown'), [data], seed=0).best_model(JOINTS)
 
 
-def _predictor(config, model):
+def _predictor(config, model, holder=None):
+    """Return ingestion, predictor and what it published; ``holder['config']`` is read."""
+    holder = {} if holder is None else holder
+    holder.setdefault('config', config)
     ingestion = Ingestion(config, lambda level, text: None)
     published = []
 
-    def publish(prediction):  # what the node's executor does with a prediction
-        published.append(prediction.data)
-        predictor.published(prediction)
-    predictor = Predictor(ingestion, publish, lambda: config)
+    def publish(item):  # what the node's executor does with a prediction
+        if isinstance(item, Prediction):
+            published.append(item.data)
+            predictor.published(item)
+    predictor = Predictor(ingestion, publish, lambda: holder['config'])
     predictor.set_model(model)
     predictor.warm_up(model)
     return ingestion, predictor, published
+
+
+def _plan(ingestion, data, k, seconds):
+    """Send the plan from sample ``k`` over ``seconds`` (points every 0.1 s)."""
+    ahead = slice(k, k + int(round(seconds * 100)) + 1, 10)
+    ingestion.handle_reference(make_joint_trajectory(
+        T0 + data.t[k], JOINTS, data.t[ahead] - data.t[k], data.theta_d[ahead],
+        data.theta_d_dot[ahead]), T0)
 
 
 def test_latency_counts_the_first_prediction_from_each_state(data, unknown_model):
@@ -247,31 +334,51 @@ def test_latency_counts_the_first_prediction_from_each_state(data, unknown_model
     ingestion, predictor, published = _predictor(config, unknown_model)
     assert not predictor.predict()  # no state yet
     _feed(ingestion, data, 0, 100)
+    _plan(ingestion, data, 99, 3.0)
     assert predictor.predict() and predictor.predict()
     assert len(published) == 2 and predictor.latencies().size == 1
     _feed(ingestion, data, 100, 101)
     assert predictor.predict() and predictor.latencies().size == 2
 
 
-def test_a_prediction_follows_the_reference_snapshot_else_holds_the_command(
-        data, unknown_model):
-    config = make_config(case='unknown', joints=list(JOINTS),
-                         **{'prediction.horizon': 0.5})
-    ingestion, predictor, published = _predictor(config, unknown_model)
+def _times(msg):
+    return np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+                     for p in msg.points])
+
+
+def test_no_prediction_point_lies_past_the_plans_end_unless_marked(data, unknown_model):
+    config = make_config(case='unknown', joints=list(JOINTS), **{'prediction.horizon': 0.5})
+    holder = {}
+    ingestion, predictor, published = _predictor(config, unknown_model, holder)
     _feed(ingestion, data, 0, 100)
-    assert predictor.predict() and predictor.inputs == 'held command'
-    k = 99
-    ahead = slice(k, k + 100, 10)
-    ingestion.handle_reference(make_joint_trajectory(
-        T0 + data.t[k], JOINTS, data.t[ahead] - data.t[k], data.theta_d[ahead],
-        data.theta_d_dot[ahead]), T0)
+    # joint_commands but no plan: with beyond_plan 'stop' nothing is predicted
+    assert not predictor.predict() and 'no plan' in predictor.inputs
+    _plan(ingestion, data, 99, 2.0)
     assert predictor.predict() and predictor.inputs == 'reference'
     msg = deserialize_message(published[-1], JointTrajectory)
+    assert len(msg.points) == 51 and msg.header.frame_id == 'baseline:follow_reference'
+    np.testing.assert_array_equal(msg.points[0].positions, data.theta[99])
+    # a plan that ends 0.3 s ahead: the prediction ends there
+    _plan(ingestion, data, 99, 0.3)
+    assert predictor.predict()
+    msg = deserialize_message(published[-1], JointTrajectory)
+    assert _times(msg)[-1] == pytest.approx(0.3) and 'beyond_plan' not in msg.header.frame_id
+    # 'hold': the whole horizon, the points past the plan's end marked from where they start
+    holder['config'] = make_config(case='unknown', joints=list(JOINTS),
+                                   **{'prediction.horizon': 0.5,
+                                      'prediction.beyond_plan': 'hold'})
+    assert predictor.predict()
+    msg = deserialize_message(published[-1], JointTrajectory)
     assert len(msg.points) == 51
-    np.testing.assert_array_equal(msg.points[0].positions, data.theta[k])
-    ingestion.clear()  # ~/reset drops the reference (and the predictor's snapshot of it)
+    assert msg.header.frame_id == 'baseline:follow_reference;beyond_plan_from=0.300'
+    theta_end = data.theta_d[99 + 30]
+    for point in msg.points[31:]:  # following the plan past its end: its last point held
+        np.testing.assert_allclose(point.positions, theta_end)
+    ingestion.clear()  # ~/reset drops the plan: the newest command held, marked from 0
     _feed(ingestion, data, 100, 110)
     assert predictor.predict() and predictor.inputs == 'held command'
+    msg = deserialize_message(published[-1], JointTrajectory)
+    assert msg.header.frame_id.endswith(';beyond_plan_from=0.000')
 
 
 # ------------------------------------------------------------------ outbox and worker

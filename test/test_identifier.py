@@ -51,7 +51,7 @@ from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode
-from ros_helpers import run_in_executor, wait_for
+from ros_helpers import retire_node, run_in_executor, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
@@ -85,6 +85,7 @@ class Streamer:
         self.reference_pub = node.create_publisher(JointTrajectory,
                                                    f'{NS}/reference_trajectory', 10)
         self.published = {}  # (sec, nanosec) -> (position list, velocity list)
+        self.plans = []      # (stamp, end) of every plan sent, seconds
         self.lock = threading.Lock()
         self.running = threading.Event()
         self.running.set()
@@ -120,15 +121,22 @@ class Streamer:
                                                       d.theta_d_dot[i]))
             if i % 50 == 0 and i + 200 < n_samples:  # 2 s of plan every 0.5 s
                 ahead = slice(i, i + 200, 10)
-                self.reference_pub.publish(make_joint_trajectory(
-                    stamp, JOINTS, d.t[ahead] - d.t[i], d.theta_d[ahead],
-                    d.theta_d_dot[ahead]))
+                plan = make_joint_trajectory(stamp, JOINTS, d.t[ahead] - d.t[i],
+                                             d.theta_d[ahead], d.theta_d_dot[ahead])
+                with self.lock:
+                    self.plans.append((_seconds(plan.header.stamp),
+                                       _seconds(plan.header.stamp) + d.t[ahead][-1] - d.t[i]))
+                self.reference_pub.publish(plan)
             k += 1
 
     def stop(self):
         self.stopped.set()
         self.running.set()
         self.thread.join(5.0)
+
+
+def _seconds(stamp):
+    return stamp.sec + 1e-9 * stamp.nanosec
 
 
 class Probe:
@@ -487,6 +495,86 @@ def test_model_file_is_published_at_start(rig):
         run_in_executor(rig.executor, lambda: rig.test_node.destroy_subscription(sub))
 
 
+def test_a_model_with_wrong_gravity_is_replaced_by_the_baseline_with_the_reason(rig, tmp_path):
+    # the search's saved model, its gravity output shifted by a constant torque: loaded
+    # from the model file and never replaced (min_window 60 s: no search in this test)
+    model = RKGNNModel.load(rig.saved_model_path, JOINTS)
+    spec = model.spec
+    bias = next(b for b in spec.blocks() if b.name == 'theta_bias')
+    rows = np.arange(spec.n_outputs)[spec.output_slices()['gravity']]
+    genome = model.genome.copy()
+    genome[bias.start + rows] += 5.0 / spec.output_scales(model.scales)[rows]  # +5 N m
+    broken = RKGNNModel(spec, model.scales, genome, joint_names=JOINTS, kp=model.kp,
+                        kd=model.kd, dt=model.dt, substeps=model.substeps, info=model.info)
+    path = tmp_path / 'wrong_gravity.yaml'
+    broken.save(path)
+    name = 'identifier_broken'
+    probe = Probe(rig.test_node, name)
+    overrides = {'case': 'unknown', 'model_file': str(path), 'window': 60.0,
+                 'min_window': 60.0, 'prediction.rate': 10.0, 'prediction.horizon': 0.5}
+    node = IdentifierNode(name, context=rig.context, namespace=NS, parameter_overrides=[
+        Parameter(key, value=value) for key, value in overrides.items()])
+    run_in_executor(rig.executor, lambda: rig.executor.add_node(node))
+    try:
+        values = probe.diagnostic(
+            lambda s, v: v.get('prediction_source') == 'follow_reference'
+            and "the model's" in v.get('prediction_source_reason', ''), 2 * PATIENCE)
+        assert values, 'the broken model was not set aside'
+        reason = values['prediction_source_reason']
+        assert 'error over the last' in reason and 'for follow_reference' in reason
+        assert reason.endswith('publishing follow_reference'), reason
+        # the scores say why: the model's error against the baselines', on the same targets
+        scores = values['selfcheck.0.5s']
+        model_score = float(scores.split('model ')[1].split('%')[0])
+        follow_score = float(scores.split('follow_reference ')[1].split('%')[0])
+        assert model_score > follow_score
+        # what goes out is marked as the baseline, and is the plan
+        t0 = time.monotonic()
+        assert wait_for(lambda: probe.since(probe.predictions, t0), PATIENCE)
+        msg = probe.since(probe.predictions, t0)[-1]
+        assert msg.header.frame_id == 'baseline:follow_reference'
+        assert int(values['drops.prediction_non_finite']) >= 0
+    finally:
+        node.stop()
+        retire_node(rig.executor, node)
+
+
+def test_no_prediction_point_lies_past_the_plans_end_unless_marked(rig):
+    probe = rig.probe
+    # a horizon longer than the plan (2 s plans, each 1.9 s long)
+    res, = probe.set_parameters(Parameter('prediction.horizon', value=3.0))
+    assert res.successful
+    try:
+        t0 = time.monotonic()
+        assert wait_for(lambda: len(probe.since(probe.predictions, t0)) >= 10, PATIENCE)
+        with rig.streamer.lock:
+            plans = list(rig.streamer.plans)
+        for msg in probe.since(probe.predictions, t0)[1:]:
+            start = _seconds(msg.header.stamp)
+            ends = [end for stamp, end in plans if stamp <= start + 1e-9]
+            last = start + _seconds(msg.points[-1].time_from_start)
+            assert 'beyond_plan' not in msg.header.frame_id
+            assert last <= max(ends) + 1e-6, (last, max(ends))
+            assert _seconds(msg.points[-1].time_from_start) < 3.0
+        # beyond_plan 'hold': the whole horizon, the points past the plan's end marked
+        res, = probe.set_parameters(Parameter('prediction.beyond_plan', value='hold'))
+        assert res.successful
+        t1 = time.monotonic()
+        assert wait_for(lambda: len(probe.since(probe.predictions, t1)) >= 5, PATIENCE)
+        for msg in probe.since(probe.predictions, t1)[1:]:
+            frame = msg.header.frame_id
+            assert ';beyond_plan_from=' in frame, frame
+            beyond = float(frame.split('beyond_plan_from=')[1])
+            start = _seconds(msg.header.stamp)
+            with rig.streamer.lock:
+                ends = [end for stamp, end in rig.streamer.plans if stamp <= start + 1e-9]
+            assert beyond <= max(0.0, max(ends) - start) + 0.011  # marked where it ends
+            assert _seconds(msg.points[-1].time_from_start) == pytest.approx(3.0)
+    finally:
+        probe.set_parameters(Parameter('prediction.horizon', value=0.5),
+                             Parameter('prediction.beyond_plan', value='stop'))
+
+
 def test_reset_restarts_the_search(rig):
     probe = rig.probe
     before = max(probe.generations())
@@ -515,25 +603,20 @@ def test_structural_change_restarts_with_the_new_case(rig):
                      else None, PATIENCE)
     assert model, 'no controller law in the published case-1 model'
     law = model.info['controller_law']
-    # The fit pairs each state with the commands interpolated at its stamp: where the
-    # best-effort stream lost a command the pair is off, and the gains with it. The fit's
-    # own relative residual (fit_ratio) bounds that: over 100 seeded runs with 1-40 %
-    # messages lost, |dKp| <= 1.3 fit_ratio Kp and |dKd| <= 2.7 fit_ratio (Kd + 0.1 s Kp).
-    ratio = np.array(law['fit_ratio'])
+    # the data are exact: the learned gains are the servo's (to 1 %: the fit filters both
+    # sides, and pairs each state with the commands interpolated at its stamp, off where
+    # the best-effort stream lost a command)
     kp, kd = np.diag(PDController.paper().kp), np.diag(PDController.paper().kd)
-    kp_tol = 1e-9 + 5.0 * ratio * kp
-    kd_tol = 1e-9 + 5.0 * ratio * (kd + 0.1 * kp)
-    assert np.all(np.abs(np.array(law['kp']) - kp) <= kp_tol), (law, kp_tol)
-    assert np.all(np.abs(np.array(law['kd']) - kd) <= kd_tol), (law, kd_tol)
-    assert np.all(ratio < 0.1)  # the law explains the torque: it is used
-    assert wait_for(lambda: np.all(np.abs(np.array(probe.get_parameter('identified.kp')) - kp)
-                                   <= kp_tol), PATIENCE)
-    closed = probe.diagnostic(
-        lambda s, v: v['prediction_inputs'].startswith('closed loop (fitted law)'), PATIENCE)
-    assert closed, 'predictions do not run in closed loop'
-    t1 = time.monotonic()
-    assert wait_for(lambda: probe.since(probe.predictions, t1), PATIENCE), \
-        'no closed-loop prediction'
+    assert law['form'].startswith('PD') and np.all(np.array(law['ki']) == 0.0), law
+    np.testing.assert_allclose(law['kp'], kp, rtol=0.01)
+    assert np.all(np.abs(np.array(law['kd']) - kd) <= 0.01 * (kd + 0.1 * kp)), law
+    assert np.all(np.array(law['fit_ratio']) < 0.1)  # the law explains the torque: it is used
+    assert wait_for(lambda: np.allclose(probe.get_parameter('identified.kp'), law['kp'],
+                                        rtol=0.01), PATIENCE)
+    # the model predicts in closed loop with the law: its predictions are scored
+    scored = probe.diagnostic(lambda s, v: 'model ' in v.get('selfcheck.0.5s', ''), PATIENCE)
+    assert scored, 'the case-1 model makes no prediction'
+    assert scored['case_in_effect'] == 'torque (set by the case parameter)'
 
 
 def test_sigint_mid_generation_exits_cleanly_and_saves(rig, tmp_path):

@@ -20,7 +20,10 @@ index, exactly where ``ros2 run rkgnn_ros <exe>`` looks) on a private ROS domain
 their topics from a small monitor node, prints progress every few seconds (generation, best
 cost, validation error, the error of the 2 s-ahead predictions against the motion that
 followed) and, at the end, stops both nodes and writes a figure: measured vs predicted
-joint trajectories, the evolution history and the prediction error over time.
+joint trajectories with the uncertainty the identifier published beside each prediction
+(``~/prediction_uncertainty``: the published predictor's recent error at that horizon, a
+band of ± one RMSE), which predictions were the model's and which a baseline's (the
+self-check, ``header.frame_id``), the evolution history and the prediction error over time.
 """
 
 import argparse
@@ -37,7 +40,39 @@ from rkgnn_ros.monitor import (CASES, field, identifier_arguments, Monitor,  # n
                                NodeProcesses, prediction_score)
 
 
-def write_figure(path, snapshot, horizon, case):
+class Companions:
+    """Records, per prediction stamp, what it was (frame_id) and its uncertainty at the horizon."""
+
+    def __init__(self, node, horizon):
+        from trajectory_msgs.msg import JointTrajectory
+        self.horizon = horizon
+        self.source, self.sigma = {}, {}
+        node.create_subscription(JointTrajectory, 'identifier/prediction', self._on_prediction,
+                                 10)
+        node.create_subscription(JointTrajectory, 'identifier/prediction_uncertainty',
+                                 self._on_uncertainty, 10)
+
+    @staticmethod
+    def _key(msg):  # the stamp as the monitor keeps it (the same float)
+        return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+
+    def _on_prediction(self, msg):
+        self.source[self._key(msg)] = msg.header.frame_id.split(';')[0]
+
+    def _on_uncertainty(self, msg):
+        times = [p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in msg.points]
+        if times and times[-1] >= self.horizon - 1e-9:
+            self.sigma[self._key(msg)] = np.array(msg.points[-1].positions, dtype=float)
+
+    def at(self, t0s):
+        """Return (is a baseline (M,), σ at the horizon (M, n) or NaN) for stamps ``t0s``."""
+        baseline = np.array([self.source.get(t, 'model') != 'model' for t in t0s], dtype=bool)
+        sigma = [self.sigma.get(t) for t in t0s]
+        n = next((len(v) for v in sigma if v is not None), 0)
+        return baseline, np.array([v if v is not None else np.full(n, np.nan) for v in sigma])
+
+
+def write_figure(path, snapshot, horizon, case, companions=None):
     """Write measured vs predicted trajectories, evolution history and prediction error."""
     import matplotlib
     matplotlib.use('Agg')
@@ -48,14 +83,23 @@ def write_figure(path, snapshot, horizon, case):
     start = meas_t.min()
     n = meas_theta.shape[1]
     fig, axes = plt.subplots(n + 2, 1, figsize=(11, 2.3 * (n + 2)))
-    ahead_t = [t0 + horizon for t0, off in zip(t0s, offs) if off[-1] >= horizon - 1e-9]
-    ahead_th = [th[-1] for off, th in zip(offs, thetas) if off[-1] >= horizon - 1e-9]
+    reach = [k for k, off in enumerate(offs) if off[-1] >= horizon - 1e-9]
+    ahead_t = np.array([t0s[k] + horizon for k in reach]) - start
+    ahead_th = np.array([thetas[k][-1] for k in reach])
+    baseline, sigma = (companions.at([t0s[k] for k in reach]) if companions is not None
+                       else (np.zeros(len(reach), dtype=bool), np.empty((len(reach), 0))))
     for j in range(n):
         ax = axes[j]
         ax.plot(meas_t - start, meas_theta[:, j], 'k', lw=1.5, label='measured')
-        if ahead_t:
-            ax.plot(np.array(ahead_t) - start, np.array(ahead_th)[:, j], 'C0.', ms=3,
-                    label=f'predicted {horizon:g} s earlier')
+        if reach:
+            if sigma.shape[1] == n:
+                ax.fill_between(ahead_t, ahead_th[:, j] - sigma[:, j],
+                                ahead_th[:, j] + sigma[:, j], color='C0', alpha=0.25, lw=0,
+                                label='± published uncertainty')
+            ax.plot(ahead_t[~baseline], ahead_th[~baseline, j], 'C0.', ms=3,
+                    label=f'model, predicted {horizon:g} s earlier')
+            ax.plot(ahead_t[baseline], ahead_th[baseline, j], 'C1.', ms=3,
+                    label='baseline published (self-check)')
         lo, hi = meas_theta[:, j].min(), meas_theta[:, j].max()
         pad = 0.5 * (hi - lo) + 0.05
         ax.set_ylim(lo - pad, hi + pad)  # far-off predictions leave the frame
@@ -93,14 +137,17 @@ def main(argv=None):
     """Run the demo; return the exit code."""
     parser = argparse.ArgumentParser(description='rkgnn_ros demo: sim_arm + identifier')
     parser.add_argument('--duration', type=float, default=90.0, help='seconds to run')
-    parser.add_argument('--case', default='torque', choices=sorted(CASES))
+    parser.add_argument('--case', default='auto', choices=['auto'] + sorted(CASES),
+                        help="the identifier's case ('auto', its default, follows the streams)")
     parser.add_argument('--horizon', type=float, default=2.0)
     parser.add_argument('--out', default=os.path.join(os.path.dirname(HERE), 'out',
                                                       'demo.png'))
     parser.add_argument('--domain-id', type=int, default=None)
     parser.add_argument('--print-every', type=float, default=5.0)
     args = parser.parse_args(argv)
-    case = CASES[args.case]
+    case = args.case if args.case == 'auto' else CASES[args.case]
+    identifier_args = (['-p', f'prediction.horizon:={float(args.horizon)}'] if case == 'auto'
+                       else identifier_arguments(case, args.horizon))
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -109,13 +156,13 @@ def main(argv=None):
     log_dir = os.path.dirname(os.path.abspath(args.out))
     print(f'rkgnn_ros demo: case {case}, {args.duration:.0f} s, ROS_DOMAIN_ID={domain}, '
           f'node logs in {log_dir}/demo_*.log', flush=True)
-    nodes = NodeProcesses([('sim_arm', []),
-                           ('identifier', identifier_arguments(case, args.horizon))],
+    nodes = NodeProcesses([('sim_arm', []), ('identifier', identifier_args)],
                           domain, log_dir, prefix='demo_')
     try:
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=domain)
         monitor = Monitor(ctx, args.horizon)
+        companions = Companions(monitor.node, args.horizon)
         executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(monitor.node)
         t_start = time.monotonic()
@@ -141,7 +188,7 @@ def main(argv=None):
                       f'({snap[0].size} states, {len(snap[2])} predictions)', flush=True)
         snap = monitor.snapshot()
         _, _, score = prediction_score(snap, args.horizon, window=10.0)
-        write_figure(args.out, snap, args.horizon, case)
+        write_figure(args.out, snap, args.horizon, case, companions)
         print(f'final {args.horizon:g} s-ahead θ RMSE (last 10 s): {score:.2%} of the θ range',
               flush=True)
         print(f'figure: {args.out}', flush=True)

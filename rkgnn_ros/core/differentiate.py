@@ -29,6 +29,7 @@ Two estimates, because the two uses differ:
   ``noise_gain(coefficients) * theta_std``. With the defaults at 100 Hz (15 samples,
   order 2) that is about 4 ms of delay and 7 % too much gain at 1 Hz, and 23 × θ's noise
   (the backward difference: 141 ×; a linear fit over the same window: 70 ms of lag).
+  :func:`causal_slope` is the same fit on stamps as they come (a driver's jitter).
 
 :func:`gaussian_kernels` gives a smoothing kernel h and its exact derivative h′. Applying
 h to an equation's both sides and h′ to θ in place of h to θ̇ (h′ * θ = h * θ̇) keeps a
@@ -129,6 +130,42 @@ def causal_derivative(x, dt: float, window: int = CAUSAL_WINDOW,
     x = np.asarray(x, dtype=float)
     window = _window(window, order, x.shape[0])
     return np.tensordot(causal_coefficients(dt, window, order), x[-window:], axes=(0, 0))
+
+
+def causal_slope(times, x, order: int = CAUSAL_ORDER) -> np.ndarray:
+    """
+    Return the slope at the newest sample of the polynomial fitted to samples at ``times``.
+
+    :func:`causal_derivative` for stamps that are not exactly uniform (a driver's jitter):
+    the same local least-squares polynomial, on the times as they are; on uniform times the
+    two agree. With fewer than ``order + 2`` samples the order drops (two samples: the
+    backward difference).
+
+    Parameters
+    ----------
+    times : array_like, shape (W,)
+        Increasing sample times (s), newest last, at least two.
+    x : array_like, shape (W,) or (W, n)
+        The samples.
+    order : int
+        Polynomial order.
+
+    Returns
+    -------
+    ndarray, shape () or (n,)
+
+    """
+    times = np.asarray(times, dtype=float)
+    x = np.asarray(x, dtype=float)
+    if times.ndim != 1 or times.size < 2 or x.shape[0] != times.size:
+        raise ValueError(f'need at least two times matching x, got {times.shape}, {x.shape}')
+    order = max(1, min(int(order), times.size - 2)) if times.size > 2 else 1
+    s = times - times[-1]
+    span = max(-s[0], 1e-12)
+    basis = np.vander(s / span, order + 1, increasing=True)        # (W, order + 1)
+    coef, _, _, _ = np.linalg.lstsq(basis, x.reshape(times.size, -1), rcond=None)
+    slope = coef[1] / span
+    return slope.reshape(x.shape[1:])
 
 
 def derivative_response(weights, dt: float, frequency) -> Tuple[np.ndarray, np.ndarray]:

@@ -29,8 +29,15 @@ callback group the executor never waits on (:class:`PolledGroup`) and the ingest
 lock, also taken while the joints, the buffer or the settings change, keeps a message
 from seeing them half changed. The parts are testable with bytes, no middleware: the
 handlers take exactly what the subscriptions deliver.
+
+What a driver leaves out is decided by :class:`~rkgnn_ros.identification.sources.Sources`
+(the case of ``case: auto``, θ̇ estimated from θ, the plan standing in for
+``joint_commands``). Every accepted state and command also goes, as ``(kind, stamp, θ)``,
+into :attr:`Ingestion.feed`, a bounded queue the predictor's self-check drains.
 """
 
+from collections import deque
+from dataclasses import replace
 import math
 import threading
 import time
@@ -42,10 +49,10 @@ from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.serialization import deserialize_message
 from rkgnn_ros.cdr import is_plain_cdr
-from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arrays,
-                                   joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
+from rkgnn_ros.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
                                    parse_joint_state_cdr, Rejection, REJECTION_REASONS)
 from rkgnn_ros.identification.parameters import MAX_JOINTS
+from rkgnn_ros.identification.sources import read_joint_state, Sources
 from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -56,6 +63,7 @@ __all__ = ['NODE_REASONS', 'INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'State
 NODE_REASONS = ('no_joints', 'internal_error', 'prediction_non_finite', 'worker_error')
 
 DRAIN_LIMIT = 100        # queued stream messages taken per stream and pass
+FEED_LIMIT = 20000       # states and commands kept for the self-check (at 1 kHz: 10 s)
 INGEST_PERIOD_S = 0.001  # the ingest thread takes the queued stream messages this often
 LOG_THROTTLE_S = 1.0
 JOIN_TIMEOUT_S = 10.0
@@ -67,9 +75,10 @@ class StateSample(NamedTuple):
     stamp: Tuple[int, int]  # header stamp (sec, nanosec), copied into what derives from it
     t: float                # the stamp in seconds
     theta: np.ndarray       # (n,)
-    theta_dot: np.ndarray   # (n,)
+    theta_dot: np.ndarray   # (n,), measured or estimated from θ
     tau: Optional[np.ndarray]  # (n,), case 'torque' only
     received_ns: int        # when the middleware received it (time.time_ns clock)
+    velocity_estimated: bool = False
 
 
 class PolledGroup(CallbackGroup):
@@ -134,6 +143,9 @@ class Ingestion:
         self._last_state_prediction = -math.inf
         self.latest_state: Optional[StateSample] = None
         self.latest_command: Optional[np.ndarray] = None  # θd (n,)
+        self.sources = Sources(config)
+        #: ('state' | 'command', stamp, θ or θd (n,)) per accepted sample, for the self-check
+        self.feed: deque = deque(maxlen=FEED_LIMIT)
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
         if config['joints']:
@@ -152,9 +164,21 @@ class Ingestion:
         return self._buffer
 
     def view(self):
-        """Return ``(config, joints, buffer, received)``, consistent with each other."""
+        """
+        Return ``(config, joints, buffer, received)``, consistent with each other.
+
+        The config's settings carry the case in effect (``case: auto`` follows the streams).
+        """
         with self.lock:
-            return self._config, self._joints, self._buffer, dict(self._received)
+            config, case = self._config, self.sources.case
+            if case is not None and case != config.settings.case:
+                config = replace(config, settings=replace(config.settings, case=case))
+            return config, self._joints, self._buffer, dict(self._received)
+
+    @property
+    def velocity_estimated(self) -> bool:
+        """Return whether the search's data get θ̇ from θ (``Sources.buffered_estimated``)."""
+        return self.sources.buffered_estimated
 
     def capture(self) -> Optional[Capture]:
         """Return a capture of the buffered streams (None until the joints are known)."""
@@ -182,6 +206,9 @@ class Ingestion:
         """
         with self.lock:
             self._config = config
+            before = self.sources.case
+            self.sources.reconfigure(config)
+            rebuild = rebuild or self.sources.case != before
             if joints_changed:
                 self.set_joints(config['joints'] or None, 'the joints parameter')
             elif rebuild:
@@ -194,9 +221,10 @@ class Ingestion:
             joints = tuple(joints) if joints else None
             buffer = None
             if joints is not None:
+                case = self.sources.case
                 buffer = StreamBuffer(joints, cfg['model_step'], cfg['window'],
-                                      cfg['gap_threshold'], need_tau=cfg.case == 'torque',
-                                      need_desired=cfg.case != 'torque',
+                                      cfg['gap_threshold'], need_tau=case == 'torque',
+                                      need_desired=case != 'torque',
                                       max_rate_hz=cfg['max_rate_hz'])
             with self._counts_lock:
                 old = self._buffer
@@ -333,28 +361,6 @@ class Ingestion:
         return sample
 
     @staticmethod
-    def _joint_sample(raw: bytes, joints, need_effort: bool):
-        """
-        Read a raw JointState: the CDR fast path, else rclpy's deserialization.
-
-        Plain CDR our reader refuses is malformed (rclpy's deserializer would print a line
-        on stderr for each such message); only another encoding goes to rclpy.
-        """
-        sample = joint_state_cdr_to_arrays(raw, joints, need_velocity=True,
-                                           need_effort=need_effort)
-        if sample is None and is_plain_cdr(raw):
-            return Rejection('malformed', f'{len(raw)} bytes of CDR that do not form a '
-                                          'JointState')
-        if sample is None:  # not plain CDR: let rclpy decide what it is
-            try:
-                msg = deserialize_message(raw, JointState)
-            except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
-                return Rejection('malformed', f'cannot read JointState: {error!r}')
-            sample = joint_state_to_arrays(msg, joints, need_velocity=True,
-                                           need_effort=need_effort)
-        return sample
-
-    @staticmethod
     def _message_names(raw: bytes):
         """Return the joint names of a raw JointState, or None if it has none readable."""
         try:
@@ -369,35 +375,50 @@ class Ingestion:
 
     def _handle_state(self, raw: bytes, received: int) -> None:
         cfg = self._config
-        need_tau = cfg.case == 'torque'
+        sources = self.sources
+        need_tau = cfg.case == 'torque'  # a set case 1: effort or nothing
         joints = self._joints
         if joints is None:
             names = self._message_names(raw) or ()
-            sample = self._joint_sample(raw, names, need_tau)
+            sample = read_joint_state(raw, names, need_tau)
             if sample.ok and len(names) > MAX_JOINTS:
                 sample = Rejection('over_budget', f'{len(names)} joints to learn, more than '
                                                   f'{MAX_JOINTS}: set the joints parameter')
             if not sample.ok:
                 self.reject('joint_states', 'state', sample.reason, sample.message)
                 return
+            self._decide_case(sample.effort is not None)
             self.set_joints(names, 'the first joint_states message')
             joints = self._joints
-        sample = self._joint_sample(raw, joints, need_tau)
+        sample = read_joint_state(raw, joints, need_tau)
         if not sample.ok:
             self.reject('joint_states', 'state', sample.reason, sample.message)
             return
-        result = self._buffer.add_state(sample.stamp, sample.position, sample.velocity,
-                                        sample.effort if need_tau else None)
+        self._decide_case(sample.effort is not None)
+        effort = sample.effort if sources.case == 'torque' else None
+        if sources.case == 'torque' and effort is None:
+            self.reject('joint_states', 'state', 'missing_effort',
+                        f'effort is empty or NaN (case torque, {sources.case_reason})')
+            return
+        theta_dot, estimated = sources.velocity(sample.stamp, sample.position,
+                                                sample.velocity)
+        result = self._buffer.add_state(
+            sample.stamp, sample.position,
+            np.zeros(len(joints)) if theta_dot is None else theta_dot, effort)
         if result.clock_jump:
             self._warn_jump('joint_states', sample.stamp)
         if not result.accepted:
             self.log_drop('joint_states', result.reason,
                           f'stamp {sample.stamp:.6f} s rejected by the buffer')
             return
-        self.latest_state = StateSample(sample.sec_nanosec, sample.stamp, sample.position,
-                                        sample.velocity, sample.effort, received)
         now = self._clock()
         self._received['state'] = now
+        self.feed.append(('state', sample.stamp, sample.position))
+        self._command_from_plan(sample.stamp, now)
+        if theta_dot is None or not sources.history_ready:
+            return  # θ̇ not known well enough yet to start a prediction from
+        self.latest_state = StateSample(sample.sec_nanosec, sample.stamp, sample.position,
+                                        theta_dot, effort, received, estimated)
         if cfg['prediction.on_state'] and now - self._last_state_prediction >= cfg['model_step']:
             self._last_state_prediction = now
             self._on_state()
@@ -425,15 +446,42 @@ class Ingestion:
                             f'the node clock jumped back by {seconds:.3f} s: buffered data '
                             'cleared, identification continues on the new timeline')
 
+    def _decide_case(self, effort: bool) -> None:
+        """Let ``case: auto`` follow the streams; a switch rebuilds the buffer and says so."""
+        case = self.sources.observe_effort(effort, self._clock())
+        if case is None:
+            return
+        self._log('info', f'case auto: {case} ({self.sources.case_reason}); the search runs '
+                          f'case {case} from the next data')
+        if self._joints is not None:
+            self.set_joints(self._joints, f'the switch to case {case}')
+
+    def _command_from_plan(self, stamp: float, now: float) -> None:
+        """Without joint_commands, take θd, θ̇d of the newest plan at a state's stamp."""
+        if not self.sources.commands_from_plan(now):
+            return
+        plan = self._buffer.reference()
+        if plan is None or not plan.t0 + plan.times[0] <= stamp <= plan.end:
+            return
+        theta_d, theta_d_dot = plan.at([stamp])
+        if self._buffer.add_command(stamp, theta_d[0], theta_d_dot[0]).accepted:
+            self.latest_command = theta_d[0]
+            self._received['command'] = now
+            self.feed.append(('command', stamp, theta_d[0]))
+
     def _handle_command(self, raw: bytes) -> None:
         joints = self._joints
         if joints is None:
             self.reject('joint_commands', 'command', 'no_joints',
                         'joints not known yet (waiting for joint_states)')
             return
-        sample = self._joint_sample(raw, joints, False)
+        sample = read_joint_state(raw, joints, False)
         if not sample.ok:
             self.reject('joint_commands', 'command', sample.reason, sample.message)
+            return
+        if sample.velocity is None:
+            self.reject('joint_commands', 'command', 'missing_velocity',
+                        'velocity (θ̇d) is empty or NaN')
             return
         result = self._buffer.add_command(sample.stamp, sample.position, sample.velocity)
         if result.clock_jump:
@@ -443,7 +491,10 @@ class Ingestion:
                           f'stamp {sample.stamp:.6f} s rejected by the buffer')
             return
         self.latest_command = sample.position
-        self._received['command'] = self._clock()
+        now = self._clock()
+        self._received['command'] = now
+        self.sources.command_received(now)
+        self.feed.append(('command', sample.stamp, sample.position))
 
     # ------------------------------------------------------------------ the ingest thread
 

@@ -338,9 +338,9 @@ def load_model_file(path: str, joints, case: str, spec_for: Callable,
     joints : tuple of str, optional
         The configured joints (None: take the model's).
     case : str
-        The configured case.
+        The configured case ('auto': a model of any case is taken).
     spec_for : callable
-        ``spec_for(n_joints)`` returns the network the parameters describe.
+        ``spec_for(n_joints, case)`` returns the network the parameters describe.
     model_step : float, optional
         The configured ``model_step`` (s): the model must integrate it in at most 64
         RKG steps.
@@ -370,10 +370,10 @@ def load_model_file(path: str, joints, case: str, spec_for: Callable,
         return None, lines
     try:
         model = read_model(path, joints)
-        if model.case != case:
+        if case != 'auto' and model.case != case:
             raise ModelFileError(f'the model is for case {model.case!r}, the configured case '
                                  f'is {case!r}')
-        spec = spec_for(model.n_joints)
+        spec = spec_for(model.n_joints, model.case)
         if model.spec != spec:
             raise ModelFileError(f'the network {model.spec.to_dict()} differs from the '
                                  f'network.* parameters {spec.to_dict()}')

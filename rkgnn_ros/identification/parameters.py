@@ -24,7 +24,7 @@ the other parts read whole (one reference), so a generation, a message or a pred
 never sees a change half applied.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 import re
 import threading
@@ -40,8 +40,8 @@ from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
 from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.parameters import Change, ParameterSpec
 
-__all__ = ['PARAMETERS', 'OUTPUTS', 'Config', 'ConfigurationError', 'IdentifierParameters',
-           'check_parameters', 'make_config',
+__all__ = ['PARAMETERS', 'OUTPUTS', 'PARAMETER_CASES', 'Config', 'ConfigurationError',
+           'IdentifierParameters', 'auto_case', 'check_parameters', 'make_config',
            'network_spec', 'optimizer_settings', 'online_settings']
 
 #: What an accepted value may be, beyond the rows' own ranges (README, *Reliability*).
@@ -57,15 +57,22 @@ _T = Parameter.Type
 _RESTART = Change.RESTART
 _REBUILD = Change.RESTART | Change.BUFFER  # a new timeline or layout: data and search anew
 _REC = NetworkSpec.recommended(1, 'torque')
+#: Values of the ``case`` parameter: the three cases and 'auto' (chosen from the streams).
+PARAMETER_CASES = ('auto',) + CASES
 _RESTARTS = 'Changing it restarts the search.'
 _ES_NOTE = 'Applied between generations.'
+BEYOND_PLAN = ('stop', 'hold')
+VELOCITY_ESTIMATES = ('buffered', 'missing', 'always')
 
 PARAMETERS = (
-    ParameterSpec('case', 'torque',
-                  "Identification case: 'torque' (1, measured torque), 'pd_gains' (2, known "
-                  "PD gains kp, kd) or 'unknown' (3, the controller is identified too); 1/2/3 "
-                  'accepted. Changing it clears the buffer and restarts the search.',
-                  choices=CASES, change=_REBUILD),
+    ParameterSpec('case', 'auto',
+                  "Identification case: 'auto' (from the streams: effort in joint_states -> "
+                  "'torque'; else kp and kd given -> 'pd_gains'; else 'unknown'; switching "
+                  "when the streams change), 'torque' (1, measured torque), 'pd_gains' (2, "
+                  "known PD gains kp, kd) or 'unknown' (3, the controller is identified "
+                  'too); 1/2/3 accepted. Changing it clears the buffer and restarts the '
+                  'search.',
+                  choices=PARAMETER_CASES, change=_REBUILD),
     ParameterSpec('kp', (), "Known proportional gains per joint (case 'pd_gains'). "
                   + _RESTARTS, low=0.0, high=MAX_GAIN, ptype=_T.DOUBLE_ARRAY,
                   max_items=MAX_JOINTS, change=_RESTART),
@@ -154,7 +161,9 @@ PARAMETERS = (
     ParameterSpec('es.seed', 0,
                   "Seed of the optimizer's random generator, used when a search (re)starts.",
                   0, 2 ** 31 - 1),
-    ParameterSpec('prediction.horizon', 2.0, 'Seconds predicted on ~/prediction.', 0.01, 60.0,
+    ParameterSpec('prediction.horizon', 2.0,
+                  'Seconds predicted on ~/prediction (less where the plan ends first, see '
+                  'prediction.beyond_plan).', 0.01, 60.0,
                   constraints=f'>= model_step; at most {MAX_PREDICTION_POINTS} model_steps'),
     ParameterSpec('prediction.rate', 10.0,
                   'Rate (Hz) of ~/prediction (0: only on_state; otherwise at least '
@@ -163,6 +172,28 @@ PARAMETERS = (
     ParameterSpec('prediction.on_state', False,
                   'Also predict on every accepted joint_states sample (at most once per '
                   'model_step).'),
+    ParameterSpec('prediction.beyond_plan', 'stop',
+                  "Past the end of the plan on reference_trajectory: 'stop' (the prediction "
+                  "ends where the plan ends; no plan, no prediction) or 'hold' (the arm is "
+                  "taken to hold the plan's last point, or the newest command; such points "
+                  "are marked in header.frame_id, ';beyond_plan_from=<s>').",
+                  choices=BEYOND_PLAN),
+    ParameterSpec('selfcheck.window', 10.0,
+                  'Seconds of recent predictions scored against the motion that followed '
+                  '(the model, following the reference, holding the last state).',
+                  1.0, 600.0),
+    ParameterSpec('selfcheck.margin', 0.2,
+                  'How much better than each baseline (a share of its error, over the window '
+                  'and the last 2 s) the model must be to be published; it is set aside as '
+                  'soon as it is worse than one, and the better baseline published, marked.',
+                  0.0, 0.9),
+    ParameterSpec('velocity.estimate', 'buffered',
+                  "Where theta-dot is estimated from theta: 'buffered' (the search's data "
+                  'always, by the lag-free centred derivative; the state a prediction starts '
+                  "from only when joint_states has no velocity), 'missing' (only when it has "
+                  "none) or 'always' (the start state too, by the causal fit: a driver that "
+                  'differences noisy encoders). ' + _RESTARTS, choices=VELOCITY_ESTIMATES,
+                  change=_RESTART),
     ParameterSpec('model_file', '',
                   'Model YAML: loaded at start if present (published, start genome), written '
                   'atomically on ~/save_model and at shutdown; empty: no file. Only a regular '
@@ -215,7 +246,7 @@ def online_settings(values: Mapping, version: int = 0) -> OnlineSettings:
     """Return the policy's settings the parameter values describe."""
     algorithm, settings = optimizer_settings(values)
     return OnlineSettings(
-        case=normalize_case(values['case']), kp=tuple(values['kp']), kd=tuple(values['kd']),
+        case=_case(values['case']), kp=tuple(values['kp']), kd=tuple(values['kd']),
         network=MappingProxyType({name: values[f'network.{name}'] for name in _NETWORK_NAMES}),
         optimizer=algorithm, optimizer_settings=MappingProxyType(settings),
         seed=values['es.seed'], substeps=values['substeps'], min_window=values['min_window'],
@@ -225,14 +256,30 @@ def online_settings(values: Mapping, version: int = 0) -> OnlineSettings:
         max_generations=values['es.max_generations'], version=version)
 
 
-def network_spec(values: Mapping, n_joints: int) -> NetworkSpec:
+def network_spec(values: Mapping, n_joints: int, case: Optional[str] = None) -> NetworkSpec:
     """
     Return the NetworkSpec the parameters describe for ``n_joints`` joints.
 
-    Settings without a parameter (e.g. the inertia floor) keep their values of
-    ``NetworkSpec.recommended``.
+    ``case`` replaces the parameter's (needed when it is 'auto': the case the streams
+    chose, or any case to check the other settings). Settings without a parameter (e.g.
+    the inertia floor) keep their values of ``NetworkSpec.recommended``.
     """
-    return online_settings(values).spec(n_joints)
+    settings = online_settings(values)
+    case = case or settings.case
+    return replace(settings, case='unknown' if case == 'auto' else case).spec(n_joints)
+
+
+def _case(value) -> str:
+    """Return the ``case`` parameter normalized: 'auto' or a case of ``normalize_case``."""
+    return 'auto' if str(value).strip().lower() == 'auto' else normalize_case(value)
+
+
+def auto_case(effort: bool, values: Mapping) -> str:
+    """Return the case ``case: auto`` takes: 'torque' with effort, else by the gains given."""
+    if effort:
+        return 'torque'
+    kp, kd = values['kp'], values['kd']
+    return 'pd_gains' if kp and len(kp) == len(kd) else 'unknown'
 
 
 def _prefixed(text: str, prefix: str, names: Sequence[str]) -> str:
@@ -246,9 +293,10 @@ def _check_one(spec: ParameterSpec, value, at_start: bool, previous) -> Optional
     """Return why ``value`` is invalid for ``spec`` (None if valid)."""
     if spec.name == 'case' and isinstance(value, str):
         try:
-            normalize_case(value)
+            _case(value)
         except ValueError:
-            return f'case must be one of {", ".join(CASES)} (or 1, 2, 3), got {value!r}'
+            return (f'case must be one of {", ".join(PARAMETER_CASES)} (or 1, 2, 3), got '
+                    f'{value!r}')
         return None
     if spec.name == 'es.population_size' and type(value) is int and (
             value == 1 or (value == 0 and not at_start and previous != 0)):
@@ -286,7 +334,7 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
         network_spec(values, max(1, len(joints)))
     except ValueError as exc:
         return _prefixed(str(exc), 'network.', _NETWORK_NAMES)
-    if normalize_case(values['case']) == 'pd_gains':
+    if _case(values['case']) == 'pd_gains':
         kp, kd = values['kp'], values['kd']
         if not kp or len(kp) != len(kd):
             return (f"case 'pd_gains' needs kp and kd with one value per joint, got "
@@ -314,7 +362,7 @@ class Config:
 
     @property
     def case(self) -> str:
-        """Return the normalized identification case: torque, pd_gains or unknown."""
+        """Return the case the settings say: torque, pd_gains, unknown (or auto, undecided)."""
         return self.settings.case
 
 

@@ -13,22 +13,44 @@
 # limitations under the License.
 
 """
-The prediction service: the published model rolled out from the newest measured state.
+The prediction service: the model rolled out from the newest state, checked as it goes.
 
 :class:`Predictor` owns the prediction thread. A request (the ``prediction.rate`` timer, or
 an accepted state with ``prediction.on_state``) wakes it; requests that arrive while a
 prediction runs collapse into one, which starts from the newest state. The compiled rollout
 releases the GIL, so the 1 kHz ingestion never waits behind it. Inputs over the horizon are
-snapshots, never live buffers: the newest planned reference
-(:class:`~rkgnn_ros.stream_buffer.PlannedReference`, immutable), else the newest command
-held, else (case 'torque' without a fitted law) the newest torque held.
+snapshots, never live buffers: the newest plan (:class:`~rkgnn_ros.stream_buffer.
+PlannedReference`, immutable), else the newest command held.
 
-A prediction is checked finite, serialized straight to CDR
-(``conversions.serialize_joint_trajectory``) and handed over as a :class:`Prediction` to
-``publish``: the identifier queues it for its executor thread, which publishes it and
-calls :meth:`Predictor.published`, so the latency kept for ``/diagnostics`` runs from the
-middleware's receipt of the state to the actual publish. (Publishing from this thread
-instead showed no lower latency in paired runs; the README's *Responsiveness* has them.)
+What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
+
+- Every prediction is scored against what the arm then did, beside following the reference
+  (the plan) and holding the last state, per horizon (a quarter, half and all of
+  ``prediction.horizon``), over the last ``selfcheck.window`` seconds. Until the model is
+  ``selfcheck.margin`` better than each baseline, and as soon as it is worse than one, the
+  better baseline is published instead, and the switch is logged with its reason.
+- A new model from the search is a *candidate*: it predicts beside the model in use, and
+  replaces it only once its own scored predictions are at least as good on the same
+  targets (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.trial`). A model that the search
+  found worse never reaches ``~/prediction``.
+- Horizons: with ``prediction.beyond_plan: stop`` a prediction ends where the plan ends
+  (no plan, no prediction); with 'hold' it goes on with the plan's last point (or the
+  newest command) held, and says from where.
+- ``header.frame_id`` says what a prediction is: ``model``, ``baseline:follow_reference`` or
+  ``baseline:hold_last``, followed by ``;beyond_plan_from=<s>`` when points past the
+  plan's end are included. ``~/prediction_uncertainty`` (same stamp, joints and times)
+  carries, as positions, the expected θ error (rad): the published predictor's RMSE per
+  horizon over the window, measured on this arm lately (NaN until scored), linear in
+  between (0 at the start, a measured state).
+
+Case 1 closes the learned servo law around the arm model
+(:class:`~rkgnn_ros.core.fitting.online_records.ClosedLoop`): its integral term is the
+law's at the data it was fitted on, carried on to the start with the errors since. A
+prediction is checked finite (else counted ``prediction_non_finite`` and a baseline
+goes out), serialized straight to CDR and handed over as a :class:`Prediction` to
+``publish``: the identifier queues it for its executor thread, which publishes it and calls
+:meth:`Predictor.published`, so the latency kept for ``/diagnostics`` runs from the
+middleware's receipt of the state to the actual publish.
 """
 
 from collections import deque
@@ -40,26 +62,32 @@ from typing import Callable, NamedTuple, Optional, Tuple
 from builtin_interfaces.msg import Time
 import numpy as np
 from rkgnn_ros.conversions import serialize_joint_trajectory
-from rkgnn_ros.core.fitting.online import ClosedLoop
+from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.selfcheck import SelfCheck
 
-__all__ = ['LATENCY_WINDOW', 'Prediction', 'Predictor']
+__all__ = ['LATENCY_WINDOW', 'SCORE_LABELS', 'Prediction', 'Predictor', 'ScoreReport']
 
 LATENCY_WINDOW = 1000  # predictions whose latency the diagnostics summarise
 MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's bound)
 JOIN_TIMEOUT_S = 10.0
+DECIDE_EVERY_S = 0.1   # the publish decision is taken again at most this often (stamp time)
+REPORT_EVERY_S = 1.0   # scores handed to the executor this often (stamp time)
+CLOCK_JUMP_S = 1.0     # a state this much older than the last restarts the self-check
+
+#: Columns of ``~/prediction_scores`` (one row per scored horizon).
+SCORE_LABELS = ('horizon_s', 'model', 'follow_reference', 'hold_last', 'published', 'count')
 
 
 class _FromReference:
     """A planned reference from absolute time ``t0`` on (the rollout's ``evaluate`` API)."""
 
-    def __init__(self, plan, t0: float, shift=None):
-        self._plan, self._t0, self._shift = plan, t0, shift
+    def __init__(self, plan, t0: float):
+        self._plan, self._t0 = plan, t0
 
     def evaluate(self, times):
         """Return (θd, θ̇d), each (M, n), at ``times`` (M,) relative to ``t0``."""
-        theta_d, theta_d_dot = self._plan.at(self._t0 + np.asarray(times, dtype=float))
-        return (theta_d if self._shift is None else theta_d + self._shift), theta_d_dot
+        return self._plan.at(self._t0 + np.asarray(times, dtype=float))
 
 
 class _HeldCommand:
@@ -75,38 +103,69 @@ class _HeldCommand:
 
 
 class Prediction(NamedTuple):
-    """A prediction to publish: its CDR bytes, and the receipt (ns) of its state if new."""
+    """A prediction to publish: its CDR bytes, its state's receipt (ns) if new, and more."""
 
     data: bytes
     received_ns: Optional[int]  # None: predicted again from the same state
+    uncertainty: Optional[bytes] = None  # ~/prediction_uncertainty, CDR
 
 
-class _Published(NamedTuple):
-    model: Optional[RKGNNModel] = None
-    loop: Optional[ClosedLoop] = None
+class ScoreReport(NamedTuple):
+    """The self-check's state: what is published and why, and the scores per horizon."""
+
+    source: str
+    reason: str
+    table: np.ndarray  # (H, len(SCORE_LABELS))
+
+
+class _Slot(NamedTuple):
+    model: RKGNNModel
+    loop: Optional[ClosedLoop]
+
+
+class _Horizon(NamedTuple):
+    """The times a prediction covers, the commands over them and how far the plan goes."""
+
+    t: np.ndarray                  # (K,) offsets from the state
+    theta_d: Optional[np.ndarray]  # (K, n), None: no plan and no command
+    theta_d_dot: Optional[np.ndarray]
+    reference: Optional[object]    # the same, for the rollout's exact stage times
+    beyond: Optional[float]        # offset where the plan ends, if before the last point
+    what: str
 
 
 class Predictor:
     """
-    Predictions of the published model from the newest state, in a thread of their own.
+    Predictions from the newest state, scored and chosen, in a thread of their own.
 
     Parameters
     ----------
     ingestion : Ingestion
-        Where the newest state, command and reference come from, and where a non-finite
-        prediction or an internal error is counted.
+        Where the newest state, command, plan and the self-check's feed come from, and
+        where a non-finite prediction or an internal error is counted.
     publish : callable
-        Called with each :class:`Prediction` (from the prediction thread).
+        Called with each :class:`Prediction`, :class:`ScoreReport` and log line (from the
+        prediction thread).
     config : callable
-        Returns the current parameters (``model_step``, ``prediction.horizon``).
+        Returns the current parameters.
 
     """
 
-    def __init__(self, ingestion, publish: Callable[[Prediction], None], config: Callable):
+    def __init__(self, ingestion, publish: Callable[[object], None], config: Callable):
         self._ingestion = ingestion
         self._publish = publish
         self._config = config
-        self._published = _Published()
+        self._slots_lock = threading.Lock()
+        self._model: Optional[_Slot] = None       # in use
+        self._candidate: Optional[_Slot] = None   # on trial
+        self._pending: Optional[_Slot] = None     # the newest model, waiting for a trial
+        self._trial_start = math.nan
+        self._check: Optional[SelfCheck] = None
+        self._check_key = None
+        self._fed = -math.inf  # stamp of the newest state fed to the self-check
+        self._decision = None
+        self._decided_at = -math.inf
+        self._reported_at = -math.inf
         self._ready = threading.Event()  # the rollout kernels ran once (compiled)
         self._wanted = threading.Event()
         self._stop = threading.Event()
@@ -116,10 +175,33 @@ class Predictor:
         self._thread: Optional[threading.Thread] = None
         #: what the inputs over the horizon of the last prediction were (for diagnostics)
         self.inputs = 'none yet'
+        #: the newest ScoreReport (for diagnostics)
+        self.report: Optional[ScoreReport] = None
+
+    # ------------------------------------------------------------------ models
 
     def set_model(self, model: RKGNNModel, loop: Optional[ClosedLoop] = None) -> None:
-        """Predict with ``model`` from now on (case 1 with a fitted law: closed by ``loop``)."""
-        self._published = _Published(model, loop)
+        """
+        Take a new model: in use at once if there is none, else a candidate for a trial.
+
+        ``loop``: a case-1 model closed with the learned law (case 1 predicts only so).
+        """
+        slot = _Slot(model, loop)
+        with self._slots_lock:
+            if self._model is None:
+                self._model = slot
+            else:
+                self._pending = slot
+
+    def update_loop(self, model: RKGNNModel, loop: Optional[ClosedLoop]) -> None:
+        """Predict ``model`` with ``loop`` (a new learned law) wherever it is held."""
+        with self._slots_lock:
+            for name in ('_model', '_candidate', '_pending'):
+                slot = getattr(self, name)
+                if slot is not None and slot.model is model:
+                    setattr(self, name, _Slot(model, loop))
+
+    # ------------------------------------------------------------------ latency
 
     def request(self) -> None:
         """Ask for a prediction from the newest state (requests collapse while one runs)."""
@@ -151,74 +233,217 @@ class Predictor:
             model.simulate(x0, t, theta_d=zeros, theta_d_dot=zeros)
         self._ready.set()
 
+    # ------------------------------------------------------------------ predicting
+
     def predict(self) -> bool:
         """Publish one prediction from the newest state now; return whether one was."""
-        if not self._ready.is_set():
-            return False
-        model, loop = self._published
         latest, joints = self._ingestion.latest_state, self._ingestion.joints
-        if model is None or latest is None or joints is None or model.joint_names != joints:
+        if latest is None or joints is None:
             return False
         cfg = self._config()
-        step = cfg['model_step']
-        k = max(1, int(round(cfg['prediction.horizon'] / step)))
-        t = np.arange(k + 1) * step
-        inputs = what = None
-        if model.case == 'torque' and loop is not None and loop.model is model:
-            inputs, what = self._desired_inputs(latest.t + t, loop.shift)
-            if inputs is not None:  # closed loop with the fitted law, along the reference
-                model, what = loop.closed, f'closed loop (fitted law), {what}'
-        if inputs is None:
-            inputs, what = self._inputs(model.case, latest.t + t, latest.tau)
-        if inputs is None:
+        check = self._self_check(cfg, len(joints))
+        horizon = self._horizon(cfg, latest.t)
+        if horizon is None:
             return False
+        t = horizon.t
+        with self._slots_lock:
+            if self._candidate is None and self._pending is not None:
+                self._candidate, self._pending = self._pending, None
+                self._trial_start = latest.t
+                check.discard_candidate()
+            model, candidate = self._model, self._candidate
         x0 = np.concatenate([latest.theta, latest.theta_dot])
-        # at most MAX_SUBSTEPS RKG steps per model_step, whatever step the model was made
-        # with (model_step may have grown since): the rollout's memory stays bounded
-        substeps = min(MAX_SUBSTEPS, math.ceil(step * model.substeps / model.dt - 1e-9))
-        states = model.simulate(x0, t, substeps=max(1, substeps), **inputs)  # (k+1, 2n)
-        n = len(joints)
-        positions = np.array(states[:, :n])
-        velocities = np.array(states[:, n:2 * n])
-        positions[0] = latest.theta
-        velocities[0] = latest.theta_dot
-        if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
-            self._ingestion.reject('~/prediction', 'prediction', 'prediction_non_finite',
-                                   'the model diverged over the horizon; prediction not '
-                                   'published')
-            return False
+        mine = self._rollout(model, joints, x0, horizon, latest.t, check)
+        theirs = self._rollout(candidate, joints, x0, horizon, latest.t, check)
+        publishable = ('follow_reference',) if horizon.theta_d is not None else ()
+        decision = self._decide(check, latest.t, publishable)
+        source = decision.source
+        if source == 'model' and mine is None:
+            source = publishable[0] if publishable else 'hold_last'
+        positions, velocities = self._published(source, mine, horizon, latest)
+        check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
+                             None if theirs is None else theirs[0],
+                             None if source == 'model' else positions)
+        self._trial(check, latest.t, cfg)
+        frame = 'model' if source == 'model' else f'baseline:{source}'
+        if horizon.beyond is not None:
+            frame += f';beyond_plan_from={horizon.beyond:.3f}'
         sec, nanosec = latest.stamp
+        stamp = Time(sec=sec, nanosec=nanosec)
+        sigma = check.uncertainty(t, source)
         new = latest.received_ns != self._last_predicted_ns  # not again from the same state
         self._last_predicted_ns = latest.received_ns
-        self._publish(Prediction(serialize_joint_trajectory(
-            Time(sec=sec, nanosec=nanosec), joints, t, positions, velocities),
-            latest.received_ns if new else None))
-        self.inputs = what
+        self._publish(Prediction(
+            serialize_joint_trajectory(stamp, joints, t, positions, velocities, frame),
+            latest.received_ns if new else None,
+            serialize_joint_trajectory(stamp, joints, t, sigma, None, f'rmse:{source}')))
+        self.inputs = horizon.what
+        self._report(check, latest.t)
         return True
 
-    def _inputs(self, case: str, times: np.ndarray, tau) -> Tuple[Optional[dict], str]:
-        """Return the model inputs over absolute ``times`` and what they are."""
-        if case == 'torque':
-            if tau is None:
-                return None, ''
-            return {'tau': np.tile(tau, (times.size, 1))}, 'held torque'
-        return self._desired_inputs(times)
+    def _self_check(self, cfg, n: int) -> SelfCheck:
+        """Return the self-check for these settings (a new one if they changed), fed."""
+        horizon = cfg['prediction.horizon']
+        step = cfg['model_step']
+        horizons = tuple(sorted({max(step, round(horizon * f / step) * step)
+                                 for f in (0.25, 0.5, 1.0)}))
+        key = (n, horizons, cfg['selfcheck.window'], cfg['selfcheck.margin'])
+        if self._check is None or key != self._check_key:
+            self._check = SelfCheck(n, horizons, window=cfg['selfcheck.window'],
+                                    margin=cfg['selfcheck.margin'])
+            self._check_key = key
+            self._decided_at = -math.inf
+        feed = self._ingestion.feed
+        while True:
+            try:
+                kind, stamp, values = feed.popleft()
+            except IndexError:
+                return self._check
+            if values.size != n:
+                continue
+            if kind != 'state':
+                self._check.add_reference(stamp, values)
+                continue
+            if stamp < self._fed - CLOCK_JUMP_S:  # the clock went back: a new timeline
+                self._check = SelfCheck(n, horizons, window=cfg['selfcheck.window'],
+                                        margin=cfg['selfcheck.margin'])
+                self._decided_at = -math.inf
+            self._fed = stamp
+            self._check.add_state(stamp, values)
 
-    def _desired_inputs(self, times: np.ndarray, shift=None) -> Tuple[Optional[dict], str]:
-        """
-        Return θd, θ̇d over absolute ``times``: the reference, else the latest command held.
-
-        The reference is evaluated exactly at the RKG stage times (no resampling);
-        ``shift`` (n,) is added to θd (the fitted law's constant).
-        """
+    def _horizon(self, cfg, t0: float) -> Optional[_Horizon]:
+        """Return what a prediction from ``t0`` covers (None: nothing, see the module)."""
+        step = cfg['model_step']
+        k = max(1, int(round(cfg['prediction.horizon'] / step)))
+        hold = cfg['prediction.beyond_plan'] == 'hold'
         plan = self._ingestion.reference()
-        if plan is not None and times[0] <= plan.end:
-            return {'reference': _FromReference(plan, float(times[0]), shift)}, 'reference'
-        command = self._ingestion.latest_command
-        if command is None:
-            return None, ''
-        held = command if shift is None else command + shift
-        return {'reference': _HeldCommand(held)}, 'held command'
+        left = None if plan is None else plan.end - t0
+        if not hold:
+            if left is None or left < step - 1e-9:
+                self._ingestion.warn_throttled(
+                    ('prediction', 'no_plan'),
+                    '~/prediction: no plan on reference_trajectory reaches past the newest '
+                    'state; with prediction.beyond_plan stop no prediction is published')
+                self.inputs = 'no plan ahead (prediction.beyond_plan: stop)'
+                return None
+            k = min(k, int(math.floor(left / step + 1e-9)))
+        t = np.arange(k + 1) * step
+        beyond = None
+        if plan is not None and t0 + plan.times[0] <= plan.end:
+            reference = _FromReference(plan, t0)
+            what = 'reference'
+            if left < t[-1] - 1e-9:
+                beyond = max(0.0, left)
+                what = "reference, its last point held past the plan's end"
+        else:
+            command = self._ingestion.latest_command
+            if command is None:
+                return _Horizon(t, None, None, None, 0.0 if hold else None, 'no plan')
+            reference, what, beyond = _HeldCommand(command), 'held command', 0.0
+        theta_d, theta_d_dot = reference.evaluate(t)
+        return _Horizon(t, theta_d, theta_d_dot, reference, beyond, what)
+
+    def _rollout(self, slot: Optional[_Slot], joints, x0, horizon: _Horizon, t0: float,
+                 check: SelfCheck) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+        """Return ``(θ, θ̇)`` (K, n) of a model's prediction, None if it has none."""
+        if (slot is None or horizon.theta_d is None or slot.model.joint_names != joints
+                or not self._ready.is_set()):
+            return None
+        model, loop = slot
+        n = len(joints)
+        if model.case == 'torque':
+            if loop is None or loop.model is not model:
+                return None  # case 1 predicts only in closed loop with the learned law
+            law = loop.loop.law
+            integral = law.integral_term
+            if np.any(law.ki != 0.0):
+                grown = check.error_integral(loop.integral_time, t0)
+                if grown is not None:
+                    integral = integral + law.ki * grown
+            states = loop.loop.simulate(x0, horizon.t, horizon.theta_d, horizon.theta_d_dot,
+                                        integral)
+        else:
+            # at most MAX_SUBSTEPS RKG steps per model_step, whatever step the model was made
+            # with (model_step may have grown since): the rollout's memory stays bounded
+            step = float(horizon.t[1] - horizon.t[0]) if horizon.t.size > 1 else model.dt
+            substeps = min(MAX_SUBSTEPS, math.ceil(step * model.substeps / model.dt - 1e-9))
+            states = model.simulate(x0, horizon.t, reference=horizon.reference,
+                                    substeps=max(1, substeps))
+        if not np.all(np.isfinite(states)):
+            self._ingestion.reject('~/prediction', 'prediction', 'prediction_non_finite',
+                                   'the model diverged over the horizon; a baseline is '
+                                   'published instead')
+            return None
+        theta, theta_dot = np.array(states[:, :n]), np.array(states[:, n:2 * n])
+        theta[0], theta_dot[0] = x0[:n], x0[n:]
+        return theta, theta_dot
+
+    @staticmethod
+    def _published(source: str, mine, horizon: _Horizon, latest):
+        """Return the published positions and velocities (K, n): the model's or a baseline's."""
+        if source == 'model':
+            return mine
+        k = horizon.t.size
+        if source == 'follow_reference':
+            positions, velocities = np.array(horizon.theta_d), np.array(horizon.theta_d_dot)
+        else:
+            positions = np.tile(latest.theta, (k, 1))
+            velocities = np.zeros_like(positions)
+        positions[0], velocities[0] = latest.theta, latest.theta_dot
+        return positions, velocities
+
+    def _decide(self, check: SelfCheck, now: float, publishable):
+        """Return the publish decision (taken again at most every DECIDE_EVERY_S)."""
+        decision = self._decision
+        if decision is None or now - self._decided_at >= DECIDE_EVERY_S or \
+                not now >= self._decided_at:
+            decision = check.decide(publishable)
+            self._decided_at = now
+            previous, self._decision = self._decision, decision
+            if previous is None or previous.source != decision.source:
+                level = 'warning' if decision.scored and decision.is_baseline else 'info'
+                self._publish(LogLine(level, f'~/prediction publishes {decision.source}: '
+                                             f'{decision.reason}'))
+        return decision
+
+    def _trial(self, check: SelfCheck, now: float, cfg) -> None:
+        """Promote or drop the candidate once its trial has an answer."""
+        with self._slots_lock:
+            candidate = self._candidate
+            if candidate is None:
+                return
+            verdict = check.trial()
+            if verdict is None:
+                if now - self._trial_start <= cfg['selfcheck.window']:
+                    return
+                check.discard_candidate()  # never scored (the plan too short?): drop it
+                self._candidate = None
+                return
+            if verdict.better:
+                check.promote()
+                self._model, self._candidate = candidate, None
+                self._decided_at = -math.inf
+            else:
+                check.discard_candidate()
+                self._candidate = None
+        generation = candidate.model.info.get('generation', '?')
+        self._publish(LogLine('info', (
+            f'the model of generation {generation} ' + ('now predicts' if verdict.better
+                                                        else 'is not used') +
+            f': {verdict.candidate:.2%} of the range on the scored horizons against '
+            f'{verdict.model:.2%} for the model in use')))
+
+    def _report(self, check: SelfCheck, now: float) -> None:
+        """Hand the scores to the executor every REPORT_EVERY_S."""
+        if self._decision is None or (now - self._reported_at < REPORT_EVERY_S
+                                      and now >= self._reported_at):
+            return
+        self._reported_at = now
+        scores = self._decision.scores
+        table = np.array([[h] + [scores.get(h, {}).get(name, math.nan)
+                                 for name in SCORE_LABELS[1:]] for h in check.horizons])
+        self.report = ScoreReport(self._decision.source, self._decision.reason, table)
+        self._publish(self.report)
 
     # ------------------------------------------------------------------ the thread
 

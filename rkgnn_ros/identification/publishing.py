@@ -18,11 +18,13 @@ Publishing: everything the identifier tells the world, from the executor thread 
 The worker, ingest and prediction threads never touch a publisher, a parameter or the
 logger: they put what they have to say into the :class:`Outbox` (a bounded queue whose
 ``put`` triggers a guard condition), and :meth:`Publishing.drain`, the guard condition's
-callback, handles it in the executor thread: a prediction goes to ``~/prediction``; a new
-model to ``~/model`` (its YAML was made in the worker), to the ``identified.*`` output
-parameters and to the predictor; generation statistics to ``~/evolution``; log lines to
-the node's logger. :meth:`Publishing.publish_diagnostics` (a 1 Hz timer) gathers
-``/diagnostics`` from the parts' read-only views.
+callback, handles it in the executor thread: a prediction goes to ``~/prediction`` and
+its uncertainty to ``~/prediction_uncertainty``; the self-check's scores to
+``~/prediction_scores``; a new model to ``~/model`` (its YAML was made in the worker), to
+the ``identified.*`` output parameters and to the predictor; generation statistics to
+``~/evolution``; log lines to the node's logger. :meth:`Publishing.publish_diagnostics` (a
+1 Hz timer) gathers ``/diagnostics`` from the parts' read-only views.
+:func:`create_publishers` makes the publishers, so the node and its tests agree on them.
 """
 
 from collections import deque
@@ -30,19 +32,42 @@ from typing import Callable, NamedTuple, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.conversions import make_float64_multiarray
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Status)
 from rkgnn_ros.core.model.model import RKGNNModel
-from rkgnn_ros.identification.prediction import Prediction
-from std_msgs.msg import String
+from rkgnn_ros.identification.prediction import Prediction, SCORE_LABELS, ScoreReport
+from std_msgs.msg import Float64MultiArray, String
+from trajectory_msgs.msg import JointTrajectory
 
-__all__ = ['EVOLUTION_LABELS', 'ModelMessage', 'Outbox', 'Publishing']
+__all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ModelMessage', 'Outbox', 'Publishing',
+           'create_publishers']
 
 #: Field names of ``~/evolution`` (the layout label of its one dimension).
 EVOLUTION_LABELS = GenerationStats._fields
 
 OUTBOX_LIMIT = 10000  # items kept when nothing drains the outbox (no executor spins)
+
+
+def create_publishers(node, events) -> dict:
+    """
+    Create the identifier's publishers on ``node`` (``events``: their event callbacks).
+
+    ``~/model`` is reliable, transient local, depth 1 (a late subscriber gets the last
+    model at once); the others are volatile, depth 10.
+    """
+    model_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                           reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    topics = {'model': (String, '~/model', model_qos),
+              'prediction': (JointTrajectory, '~/prediction', 10),
+              'prediction_uncertainty': (JointTrajectory, '~/prediction_uncertainty', 10),
+              'prediction_scores': (Float64MultiArray, '~/prediction_scores', 10),
+              'evolution': (Float64MultiArray, '~/evolution', 10),
+              'diagnostics': (DiagnosticArray, '/diagnostics', 10)}
+    return {key: node.create_publisher(kind, topic, qos, event_callbacks=events)
+            for key, (kind, topic, qos) in topics.items()}
 
 
 class ModelMessage(NamedTuple):
@@ -103,8 +128,7 @@ class Publishing:
     outbox : Outbox
         What the other threads queued.
     publishers : dict
-        ``model`` (String), ``prediction`` (JointTrajectory, takes CDR bytes),
-        ``evolution`` (Float64MultiArray), ``diagnostics``.
+        Those of :func:`create_publishers` (the trajectories take CDR bytes).
     parameters : IdentifierParameters
         Where the ``identified.*`` outputs are set.
     predictor : Predictor
@@ -144,6 +168,11 @@ class Publishing:
         if isinstance(item, Prediction):
             self._publishers['prediction'].publish(item.data)
             self._predictor.published(item)
+            if item.uncertainty is not None:
+                self._publishers['prediction_uncertainty'].publish(item.uncertainty)
+        elif isinstance(item, ScoreReport):
+            self._publishers['prediction_scores'].publish(
+                make_float64_multiarray(item.table, SCORE_LABELS))
         elif isinstance(item, LogLine):
             self.log(item.level, item.text)
         elif isinstance(item, GenerationStats):
@@ -152,8 +181,7 @@ class Publishing:
         elif isinstance(item, ModelMessage):
             self.publish_model(item.update, item.text)
         elif isinstance(item, LoopUpdate):
-            if item.model is self._model:
-                self._predictor.set_model(item.model, item.loop)
+            self._predictor.update_loop(item.model, item.loop)
 
     def publish_model(self, update: ModelUpdate, text: Optional[str] = None) -> None:
         """Publish a model on ``~/model``, predict with it, set the ``identified.*`` outputs."""
@@ -204,6 +232,10 @@ class Publishing:
             ('case', self._parameters.config.case),
             ('joints', ','.join(ingestion.joints or ())),
             ('prediction_inputs', self._predictor.inputs),
+        ]
+        pairs += list(ingestion.sources.describe().items())
+        pairs += _selfcheck_pairs(self._predictor.report)
+        pairs += [
             ('prediction_latency_p50_ms', _percentile_text(latencies, 50)),
             ('prediction_latency_p99_ms', _percentile_text(latencies, 99)),
         ]
@@ -217,6 +249,21 @@ class Publishing:
         msg = DiagnosticArray(status=[diag])
         msg.header.stamp = node.get_clock().now().to_msg()
         return msg
+
+
+def _selfcheck_pairs(report: Optional[ScoreReport]) -> list:
+    """Return the self-check's diagnostics entries (what is published, why, the scores)."""
+    if report is None:
+        return [('prediction_source', 'none yet')]
+    pairs = [('prediction_source', report.source), ('prediction_source_reason', report.reason)]
+    for row in report.table:
+        fields = dict(zip(SCORE_LABELS, row))
+        text = ', '.join(f'{name} {fields[name]:.2%}' for name in SCORE_LABELS[1:5]
+                         if np.isfinite(fields[name]))
+        count = int(fields['count']) if np.isfinite(fields['count']) else 0
+        pairs.append((f"selfcheck.{fields['horizon_s']:g}s",
+                      f'{text} (model: {count} scored)' if text else 'not scored yet'))
+    return pairs
 
 
 def _percentile_text(values: np.ndarray, q: float) -> str:

@@ -151,7 +151,8 @@ class SearchWorker:
         with self._lock:
             reset, self._reset = self._reset, False
             paused = self._paused
-        obs = Observation(config.settings, joints, received, paused, reset)
+        obs = Observation(config.settings, joints, received, paused, reset,
+                          estimate_velocity=self._ingestion.velocity_estimated)
         capture = None
         if buffer is not None and self._policy.data_due(obs):
             capture = buffer.capture()

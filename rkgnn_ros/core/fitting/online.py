@@ -27,7 +27,8 @@ The rules (the identifier node's documentation states them for users):
 
 - A search is built when ``min_window`` seconds of training data are buffered, warm-started
   from a loaded model if it fits the settings, else by the equation-error fit (no rollout
-  needed, a few seconds at most); its rollout must not diverge or the default genome stays.
+  needed, a few seconds at most; case 3 first tries the servo's gains from a linear fit of
+  the closed loop, :mod:`.case_three`); a start whose rollout diverges is not taken.
 - The data are refreshed at most every :data:`DATA_REFRESH_S` (``Evolution.set_data``: the
   optimizer is kept); when the window has grown by :data:`REWARM_GROWTH` since the last
   equation-error fit, the fit runs again and replaces the best genome only if it is better.
@@ -35,13 +36,21 @@ The rules (the identifier node's documentation states them for users):
   a changed best is validated every :data:`VALIDATION_EVERY` generations and before every
   publication (θ-NRMSE of the open-loop prediction from each segment's first state).
 - The best model is published when it changed, at most every ``model_publish_period``.
-- Case 'torque': the arm controller's PD law is fitted from effort and commands at each
-  refresh; while it explains the torque the search runs in closed loop (a case-2 search
-  with the fitted gains) and the published case-1 model carries the law; the search
-  restarts when the law appears, stops explaining the torque or moves by more than
-  :data:`LAW_GAIN_RTOL`.
-- A stream silent for ``stale_timeout`` pauses the search (one warning), a reset or a change
-  of the settings' ``version`` restarts it, ``max_generations`` ends it.
+- Case 'torque': the arm's servo law is learned from effort and commands at each refresh
+  (:mod:`.case_one`: PD, integral and θ-terms, robust to encoder noise; the commands are
+  ``joint_commands`` or the plan sampled at the states). While it explains the torque
+  the search runs in closed loop (a case-2 search with the law's gains on θd shifted by
+  its other terms), the published case-1 model is the arm's (the law in its ``info``) and
+  predictions roll the searched closed loop out; the search restarts when the law appears
+  or stops explaining the torque, and goes on from its best genome (an arm model whatever
+  the gains) with the new law when the gains move (:class:`.case_one.LawKeeper`). Without
+  a usable law the search runs on the measured torque and no model prediction is
+  possible (the predictor publishes a baseline, see :mod:`rkgnn_ros.core.selfcheck`).
+- θ̇ is taken from the driver, or, when the observation says the velocity is estimated,
+  recomputed on the buffered data by the lag-free centred derivative of θ.
+- A stream silent for ``stale_timeout`` pauses the search (one warning); a reset, a change
+  of the settings' ``version`` or of the case (``case: auto`` follows the streams) restarts
+  it; ``max_generations`` ends it.
 """
 
 from collections import deque
@@ -52,8 +61,9 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from .controller import closed_loop_model, fit_pd_law, open_loop_model
-from .controller_laws import PDLaw
+from . import case_three
+from .case_one import arm_model, LawKeeper, search_segments
+from .controller import ControllerLaw
 from .identify import Evolution
 from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
                              ModelUpdate, Observation, OnlineSettings, Status, StepResult,
@@ -62,6 +72,7 @@ from .optimizers import make_optimizer
 from .refine import refine_equation_error
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
 from ..data import Dataset
+from ..differentiate import centred_derivative
 from ..model.model import RKGNNModel
 
 __all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCapture', 'Status',
@@ -70,9 +81,6 @@ __all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCaptu
 
 DATA_REFRESH_S = 1.0        # at most one set_data per second
 WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
-MIN_LAW_SAMPLES = 50        # case 'torque': paired samples before a controller law is fitted
-MAX_LAW_FIT_RATIO = 0.1     # ... and its RMS residual must stay below this share of RMS τ
-LAW_GAIN_RTOL = 0.1         # a refit moving the gains more than this restarts the search
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
 WARM_START_S = 5.0          # computation budget of one equation-error fit (real seconds)
@@ -83,14 +91,6 @@ MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search resta
 LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
 
 
-def _close_loop(model: RKGNNModel, law: PDLaw, closed=None) -> Optional[ClosedLoop]:
-    """Return ``model`` closed with ``law`` (``closed``: already built), None if it cannot be."""
-    if law.kp.size != model.n_joints:
-        return None
-    closed = closed_loop_model(model, law) if closed is None else closed
-    return ClosedLoop(model, closed, law.shift())
-
-
 def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: int):
     """Return ``(genome, rollout cost, seconds)`` of the equation-error fit from the best."""
     t0 = time.perf_counter()  # a computation budget: real time, whatever the clock
@@ -98,6 +98,40 @@ def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: in
                                       kd, max_nfev=nfev, deadline=t0 + budget_s)
     cost = float(evo.problem.cost(genome[None])[0])
     return genome, cost, time.perf_counter() - t0
+
+
+def _warm_start(evo: Evolution, train, kp, kd, budget_s: float, nfev: int) -> Optional[str]:
+    """
+    Place the start genome by the equation-error fit (the offline pipeline's first stage).
+
+    Fitting M θ̈ + V + G + F = τ on the buffered samples needs no rollout: within its
+    budget it puts gravity, inertia and friction where the data put them, which a search
+    from the default genome takes many generations to find. Kept only when its rollout on
+    the training data does not diverge (the optimizer then restarts around it); returns
+    what the search starts from, None if not kept.
+    """
+    genome, cost, seconds = _equation_error_fit(evo, train, kp, kd, budget_s, nfev)
+    if not math.isfinite(cost):
+        return None
+    _restart_around(evo.optimizer, genome, cost)
+    return f'the equation-error fit ({seconds:.1f} s, J {cost:.4g})'
+
+
+def _rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) -> str:
+    """
+    Run the equation-error fit again from the best genome, on the grown window.
+
+    Its genome replaces the best (and the optimizer restarts around it) only if its rollout
+    cost on the new data is lower. Returns the line that says what happened.
+    """
+    before = float(evo.optimizer.best_cost)
+    genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd, budget_s, nfev)
+    kept = math.isfinite(cost) and not cost >= before
+    if kept:
+        _restart_around(evo.optimizer, genome, cost)
+    return (f'equation-error fit again on {seconds:.1f} s of data ({took:.1f} s): J '
+            f'{cost:.4g} vs the best {before:.4g}, '
+            + ('restarting around it' if kept else 'kept the best'))
 
 
 def _restart_around(optimizer, genome, cost: float) -> None:
@@ -146,23 +180,11 @@ def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[
     return None
 
 
-def _law_log_line(new: Optional[PDLaw], old: Optional[PDLaw],
-                  fresh: PDLaw) -> Optional[LogLine]:
-    """Return the line saying that the law the search uses changed (None: it did not)."""
-    if new is not None and not new.close_to(old, LAW_GAIN_RTOL):
-        return LogLine('info',
-                       'controller law fitted from effort and joint_commands: the search and '
-                       'the predictions run in closed loop along the reference with Kp '
-                       f'{np.round(new.kp, 3).tolist()}, Kd {np.round(new.kd, 3).tolist()} '
-                       f'(residual {np.round(100 * new.fit_ratio, 2).tolist()} % of the '
-                       'torque)')
-    if new is None and old is not None:
-        return LogLine('warning',
-                       'joint_commands no longer explain the measured torque as a PD law '
-                       f'(residual {np.round(100 * fresh.fit_ratio, 1).tolist()} %): the '
-                       'search runs on the measured torque and predictions hold the latest '
-                       'torque')
-    return None
+def _with_velocity(segments, estimate: bool) -> List[Dataset]:
+    """Return ``segments``, θ̇ recomputed from θ by the centred derivative if ``estimate``."""
+    if not estimate:
+        return list(segments)
+    return [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt)) for seg in segments]
 
 
 def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
@@ -172,7 +194,7 @@ def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
             and (model.case == spec.case or model.case == case))
 
 
-def _search_structure(settings: OnlineSettings, law: Optional[PDLaw], joints):
+def _search_structure(settings: OnlineSettings, law: Optional[ControllerLaw], joints):
     """
     Return ``(spec, kp, kd)`` of a new search.
 
@@ -228,14 +250,16 @@ class OnlineIdentification:
         self._published_genome = None if published is None else published.genome.copy()
         self._last_model_pub = -math.inf if published is None else clock()
         self._start_model = published
-        # case 'torque': the law fitted from torque and commands, and the published model
+        self._resume = None  # (genome, scales) a rebuilt search goes on from
+        # case 'torque': the law learned from torque and commands, the published model
         # closed with it
-        self._law: Optional[PDLaw] = None
+        self._laws = LawKeeper()
         self._loop: Optional[ClosedLoop] = None
         # the search
         self._evo: Optional[Evolution] = None
         self._evo_version = -1
-        self._evo_law: Optional[PDLaw] = None  # the law a closed-loop search runs with
+        self._evo_case = ''
+        self._evo_law: Optional[ControllerLaw] = None  # the law a closed-loop search runs with
         self._warm_seconds = math.inf  # seconds of data at the last equation-error fit
         self._algorithm = ''
         self._generation = 0
@@ -298,6 +322,8 @@ class OnlineIdentification:
             self._start_model = None
         if self._evo is not None and self._evo_version != settings.version:
             self._drop_search('structural parameters changed')
+        if self._evo is not None and self._evo_case != settings.case:
+            self._drop_search(f'the case is now {settings.case} (the streams changed)')
         if self._evo is not None:
             self._maybe_publish_model(settings, obs.joints)
         if obs.paused:
@@ -315,7 +341,7 @@ class OnlineIdentification:
         since = self._clock() - self._last_refresh
         due = since >= DATA_REFRESH_S or (self._evo is None and since >= WAITING_REFRESH_S)
         if due and obs.data is not None:
-            if not self._refresh_data(settings, obs.data, obs.joints):
+            if not self._refresh_data(settings, obs.data, obs.joints, obs.estimate_velocity):
                 return False
         elif self._evo is None:  # waiting for enough data: look again in a moment
             return False
@@ -330,7 +356,8 @@ class OnlineIdentification:
     def _searching(self, obs: Observation) -> bool:
         """Return whether a search will be running after the restarts of ``obs``."""
         return (self._evo is not None and not obs.reset
-                and self._evo_version == obs.settings.version)
+                and self._evo_version == obs.settings.version
+                and self._evo_case == obs.settings.case)
 
     def _finished(self, settings: OnlineSettings, searching: bool) -> bool:
         limit = settings.max_generations
@@ -355,13 +382,20 @@ class OnlineIdentification:
         self._set_status('stale', f'{topic} silent for {age:.1f} s')
         return False
 
-    def _refresh_data(self, settings: OnlineSettings, capture, joints) -> bool:
+    def _refresh_data(self, settings: OnlineSettings, capture, joints,
+                      estimate_velocity: bool = False) -> bool:
         """Take the captured data; build the search or hand it the new data."""
         self._last_refresh = self._clock()
-        law = self._update_law(capture) if settings.case == 'torque' else None
-        segments = list(capture.segments(MIN_SEGMENT_SAMPLES, law is not None))
-        if law is not None:  # fold the law's constant torque into θd (see controller)
-            segments = [replace(seg, theta_d=seg.theta_d + law.shift()) for seg in segments]
+        law = None
+        if settings.case == 'torque':
+            paired = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, True),
+                                    estimate_velocity)
+            law = self._update_law(paired, capture.time_origin)
+        if law is not None:  # the closed-loop search: θd shifted by the law's other terms
+            segments = search_segments(paired, law)
+        else:
+            segments = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, False),
+                                      estimate_velocity)
         train, validation, seconds = split_validation(
             segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)
         if seconds < settings.min_window or not train:
@@ -375,7 +409,8 @@ class OnlineIdentification:
             self._evo.set_data(train)
             if seconds >= REWARM_GROWTH * self._warm_seconds:
                 self._warm_seconds = seconds
-                self._rewarm(train, seconds)
+                self._log('info', _rewarm(self._evo, train, seconds, self._warm_start_seconds,
+                                          self._warm_start_nfev))
             if self._had_finite and not math.isfinite(self._evo.optimizer.best_cost):
                 self._log_throttled(
                     'diverges', 'warning',
@@ -385,39 +420,40 @@ class OnlineIdentification:
         self._data_version += 1
         return True
 
-    def _update_law(self, capture) -> Optional[PDLaw]:
+    def _update_law(self, segments: List[Dataset], origin: float) -> Optional[ControllerLaw]:
         """
-        Case 'torque': refit the controller law; return the law the search runs with.
+        Case 'torque': learn the servo law again; return the law the search runs with.
 
-        Too few paired samples (no commands, or just after a reset) change nothing.
+        ``segments`` carry the commands paired with the states (``origin``: the stamp time
+        of their t = 0); :meth:`.case_one.LawKeeper.refit` says what the refit means. A law
+        that moved rebuilds the search from its best genome (an arm model whatever the
+        gains), one that appeared or went restarts it.
         """
-        pairs = capture.controller_samples()
-        fresh = None if pairs is None else fit_pd_law(**pairs, min_samples=MIN_LAW_SAMPLES)
         searching = self._evo is not None
-        running = self._evo_law if searching else None
-        if fresh is None:
-            return running
-        new = fresh if fresh.usable(MAX_LAW_FIT_RATIO) else None
-        if searching:
-            if running is not None and new is not None and running.close_to(new,
-                                                                            LAW_GAIN_RTOL):
-                return running
-            if running is None and new is None:
-                return None
+        refit = self._laws.refit(segments, origin, self._evo_law if searching else None)
+        if refit.kind == 'keep':
+            if searching:
+                self._evo_law = refit.law
+            return refit.law
+        if searching and refit.kind == 'moved':
+            resume = (self._evo.optimizer.best_x.copy(), self._evo.scales)
+            self._drop_search(f'the controller law moved (Kp '
+                              f'{np.round(refit.law.kp, 2).tolist()}, Kd '
+                              f'{np.round(refit.law.kd, 2).tolist()}); it goes on from its '
+                              'best genome')
+            self._resume = resume
+        elif searching:
             self._drop_search('the controller law changed')
-        line = _law_log_line(new, self._law, fresh)
-        if line is not None:
-            self._events.append(line)
-        self._law = new
+        if refit.line is not None:
+            self._log(*refit.line)
         model = self._model
-        if model is not None:
-            self._loop = (_close_loop(model, new)
-                          if new is not None and model.case == 'torque' else None)
+        if model is not None and model.case == 'torque':
+            self._loop = self._laws.close(model)
             self._events.append(LoopUpdate(model, self._loop))
-        return new
+        return refit.law
 
     def _build_search(self, settings: OnlineSettings, train, joints, seconds: float) -> None:
-        law = self._law
+        law = self._laws.law
         spec, kp, kd = _search_structure(settings, law, joints)
         algorithm = settings.optimizer
         x0 = scales = None
@@ -425,13 +461,27 @@ class OnlineIdentification:
         if _fits(self._start_model, joints, spec, settings.case):
             x0, scales, origin = self._start_model.genome, self._start_model.scales, \
                 'the loaded model'
+        elif self._resume is not None and self._resume[0].size == spec.genome_size:
+            (x0, scales), origin = self._resume, 'the best genome before the law moved'
+        self._resume = None
         self._evo_law = law if spec.case != settings.case else None
+        self._evo_case = settings.case
         self._evo = Evolution(spec, train, optimizer=algorithm,
                               settings=dict(settings.optimizer_settings), seed=settings.seed,
                               kp=kp, kd=kd, substeps=settings.substeps or None, scales=scales,
                               x0=x0)
         if x0 is None:
-            origin = self._warm_start(train, kp, kd, origin)
+            self._set_status('evolving', 'warm start: equation-error fit')
+            placed = case_three.start_genome(self._evo, train, self._warm_start_seconds,
+                                             self._warm_start_nfev)
+            if placed is not None:
+                _restart_around(self._evo.optimizer, placed.genome, placed.cost)
+            origin = (placed.origin if placed is not None else
+                      _warm_start(self._evo, train, kp, kd, self._warm_start_seconds,
+                                  self._warm_start_nfev) or origin)
+        elif origin.startswith('the best genome'):
+            optimizer = self._evo.optimizer
+            _restart_around(optimizer, x0, float(self._evo.problem.cost(x0[None])[0]))
         self._start_model = None
         self._evo_version = settings.version
         self._algorithm = algorithm
@@ -444,49 +494,12 @@ class OnlineIdentification:
                   f'{self._evo.optimizer.population_size}, {self._evo.substeps} substeps, '
                   f'{seconds:.1f} s of data')
 
-    def _warm_start(self, train, kp, kd, origin: str) -> str:
-        """
-        Place the start genome by the equation-error fit (the offline pipeline's first stage).
-
-        Fitting M θ̈ + V + G + F = τ on the buffered samples needs no rollout: within its
-        budget it puts gravity, inertia and friction where the data put them, which a
-        search from the default genome takes many generations to find. Kept only when its
-        rollout on the training data does not diverge; the optimizer restarts around it.
-        """
-        self._set_status('evolving', 'warm start: equation-error fit')
-        genome, cost, seconds = _equation_error_fit(self._evo, train, kp, kd,
-                                                    self._warm_start_seconds,
-                                                    self._warm_start_nfev)
-        if not math.isfinite(cost):
-            return origin
-        _restart_around(self._evo.optimizer, genome, cost)
-        return f'the equation-error fit ({seconds:.1f} s, J {cost:.4g})'
-
-    def _rewarm(self, train, seconds: float) -> None:
-        """
-        Run the equation-error fit again from the best genome, on the grown window.
-
-        Its genome replaces the best (and the optimizer restarts around it) only if its
-        rollout cost on the new data is lower.
-        """
-        evo = self._evo
-        before = float(evo.optimizer.best_cost)
-        genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd,
-                                                 self._warm_start_seconds,
-                                                 self._warm_start_nfev)
-        kept = math.isfinite(cost) and not cost >= before
-        if kept:
-            _restart_around(evo.optimizer, genome, cost)
-        self._log('info',
-                  f'equation-error fit again on {seconds:.1f} s of data ({took:.1f} s): J '
-                  f'{cost:.4g} vs the best {before:.4g}, '
-                  + ('restarting around it' if kept else 'kept the best'))
-
     def _drop_search(self, why: str) -> None:
         if self._evo is not None:
             self._log('info', f'restarting the search after generation {self._generation}: '
                               f'{why}')
         self._evo = None
+        self._resume = None
         self._generation = 0
         self._evaluations = 0
         self._gen_times.clear()
@@ -562,19 +575,20 @@ class OnlineIdentification:
         self._publish(model, settings)
 
     def _publish(self, model: RKGNNModel, settings: OnlineSettings) -> None:
-        law = self._law
+        law = self._laws.law
         closed = None
         if model.case == 'pd_gains' and settings.case == 'torque' and law is not None:
-            # a closed-loop search (case 'torque' with the fitted law): publish the arm model
+            # a closed-loop search (case 'torque' with the learned law): publish the arm
             closed = model
-            model = open_loop_model(closed, info=dict(closed.info, controller_law=law.to_dict()))
+            model = arm_model(closed, law, self._laws.theta,
+                              info=dict(closed.info, controller_law=law.to_dict()))
         gains = model.implied_gains()
         loop = None
         if model.case == 'torque' and law is not None:
             gains = (law.kp, law.kd)
-            loop = _close_loop(model, law, closed)
+            loop = self._laws.close(model, closed)
         self._model, self._loop = model, loop
-        self._published_genome = model.genome.copy()
+        self._published_genome = (closed or model).genome.copy()
         self._last_model_pub = self._clock()
         self._events.append(model_update(model, loop, gains))
 

@@ -27,6 +27,7 @@ from typing import Dict, List, Mapping, NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from .controller import ClosedLoop as ControllerLoop
 from ..data import Dataset
 from ..model.model import RKGNNModel
 from ..model.spec import NetworkSpec
@@ -44,7 +45,8 @@ class OnlineSettings:
     Attributes
     ----------
     case : str
-        'torque', 'pd_gains' or 'unknown'.
+        'torque', 'pd_gains' or 'unknown': the case the search runs (a node with ``case:
+        auto`` passes the one the streams allow); a change restarts the search.
     kp, kd : tuple of float
         Known gains (case 'pd_gains'), one per joint.
     network : mapping
@@ -90,9 +92,12 @@ class StreamCapture:
     """
     What :meth:`OnlineIdentification.step` reads from a capture of the buffered streams.
 
-    A protocol: any object with these two methods will do (the node passes
-    ``StreamBuffer.capture()``). Both work on arrays copied when the capture was taken.
+    A protocol: any object with these two methods and ``time_origin`` (the stamp time in s
+    of the segments' t = 0) will do (the node passes ``StreamBuffer.capture()``). Both work
+    on arrays copied when the capture was taken.
     """
+
+    time_origin: float = 0.0
 
     def segments(self, min_samples: int, pair_commands: bool) -> List[Dataset]:
         """Return the window as gap-free segments, oldest first (see ``StreamBuffer``)."""
@@ -114,6 +119,8 @@ class Observation(NamedTuple):
     reset: bool = False
     #: a StreamCapture, given when data_due() said so (None otherwise)
     data: Optional[object] = None
+    #: θ̇ is to be recomputed from θ (the driver publishes none, or it is not trusted)
+    estimate_velocity: bool = False
 
 
 class Status(NamedTuple):
@@ -129,11 +136,11 @@ class Status(NamedTuple):
 
 
 class ClosedLoop(NamedTuple):
-    """A published case-1 ``model`` closed with the fitted law: ``closed`` and θd shift."""
+    """A published case-1 ``model`` and, for prediction, the closed loop with the learned law."""
 
     model: RKGNNModel
-    closed: RKGNNModel
-    shift: np.ndarray  # (n,) added to θd: the law's constant torque
+    loop: ControllerLoop      # rolls the closed loop out (``ControllerLoop.simulate``)
+    integral_time: float      # stamp time (s) at which ``loop.law.integral_term`` holds
 
 
 class ModelUpdate(NamedTuple):

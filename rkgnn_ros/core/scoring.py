@@ -1,0 +1,479 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Predictions scored against what the arm then did: the error figures and the record.
+
+A prediction made from the state at time t0 covers [t0, t0 + T]. Its k-ahead error is the
+predicted θ at t0 + k minus the measured θ at that time (linear interpolation of the
+measured stream). The figure users ask for is the RMSE of those errors divided by the range
+of θ, averaged over the joints (:func:`ahead_errors`, :func:`range_normalised_rmse`).
+
+:class:`PredictionRecord` keeps what continuous scoring needs, bounded to a rolling window:
+the measured states, the commanded θd that followed, and per prediction its start and its
+θ at each scored horizon for the model, a candidate model and what was published. It scores
+per horizon, **on the same targets**, the model, the candidate and the two baselines:
+
+- ``follow_reference``: θd at the target time (the arm will be where it was told to go);
+- ``hold_last``: θ at the start (the arm will stay where it is).
+
+What to publish from those scores is :mod:`rkgnn_ros.core.selfcheck`'s.
+"""
+
+from collections import deque
+import math
+from typing import Dict, Optional, Sequence, Tuple
+
+import numpy as np
+
+__all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'ahead_errors', 'range_normalised_rmse',
+           'rollout_spread', 'finite_rows', 'PredictionRecord']
+
+#: Default horizons (s) scored.
+HORIZONS = (0.5, 1.0, 2.0)
+
+#: What can be published: the model and the two baselines.
+SOURCES = ('model', 'follow_reference', 'hold_last')
+BASELINES = SOURCES[1:]
+
+
+def ahead_errors(stamps: Sequence[float], times: Sequence[np.ndarray],
+                 thetas: Sequence[np.ndarray], meas_t, meas_theta, ahead):
+    """
+    Errors of every prediction ``ahead`` seconds after its start.
+
+    Parameters
+    ----------
+    stamps : sequence of float, length M
+        Start time t0 of each prediction.
+    times : sequence of ndarray, shape (K_m,)
+        Offsets from t0 of each prediction's points (``time_from_start``).
+    thetas : sequence of ndarray, shape (K_m, n)
+        Predicted θ at those points.
+    meas_t : ndarray, shape (T,)
+        Increasing times of the measured stream.
+    meas_theta : ndarray, shape (T, n)
+        Measured θ.
+    ahead : float
+        How far ahead to score (s); a prediction shorter than that is skipped.
+
+    Returns
+    -------
+    t0 : ndarray, shape (M',)
+        Start times of the scored predictions.
+    errors : ndarray, shape (M', n)
+        Predicted minus measured θ at t0 + ahead.
+
+    """
+    meas_t = np.asarray(meas_t, dtype=float)
+    meas_theta = np.asarray(meas_theta, dtype=float)
+    out_t, out_e = [], []
+    if meas_t.size < 2:
+        return np.empty(0), np.empty((0, meas_theta.shape[-1] if meas_theta.ndim == 2 else 0))
+    for t0, off, th in zip(stamps, times, thetas):
+        off = np.asarray(off, dtype=float)
+        th = np.asarray(th, dtype=float)
+        target = t0 + ahead
+        if off.size < 2 or off[-1] < ahead - 1e-9 or target > meas_t[-1] or target < meas_t[0]:
+            continue
+        pred = np.array([np.interp(ahead, off, th[:, j]) for j in range(th.shape[1])])
+        meas = np.array([np.interp(target, meas_t, meas_theta[:, j])
+                         for j in range(meas_theta.shape[1])])
+        out_t.append(t0)
+        out_e.append(pred - meas)
+    if not out_t:
+        return np.empty(0), np.empty((0, meas_theta.shape[1]))
+    return np.asarray(out_t), np.asarray(out_e)
+
+
+def range_normalised_rmse(errors, theta_range) -> float:
+    """RMSE per joint divided by the θ range per joint, averaged over joints (NaN if empty)."""
+    errors = np.asarray(errors, dtype=float)
+    if errors.size == 0:
+        return float('nan')
+    rmse = np.sqrt(np.mean(np.square(errors), axis=0))
+    return float(np.mean(rmse / np.maximum(np.asarray(theta_range, dtype=float), 1e-12)))
+
+
+def rollout_spread(rollouts) -> np.ndarray:
+    """
+    Return the spread of several rollouts of one prediction: std over members, per time.
+
+    Parameters
+    ----------
+    rollouts : array_like, shape (M, K, m)
+        M rollouts (e.g. the optimizer's elite or an ensemble of models) from one start
+        over the same K times; non-finite members are left out.
+
+    Returns
+    -------
+    ndarray, shape (K, m)
+        Standard deviation over the finite members (NaN with fewer than 2).
+
+    """
+    rollouts = np.asarray(rollouts, dtype=float)
+    if rollouts.ndim != 3:
+        raise ValueError(f'rollouts must have shape (M, K, m), got {rollouts.shape}')
+    finite = np.all(np.isfinite(rollouts), axis=(1, 2))
+    if finite.sum() < 2:
+        return np.full(rollouts.shape[1:], np.nan)
+    return np.std(rollouts[finite], axis=0, ddof=1)
+
+
+class _Series:
+    """A bounded, time-ordered series of (t, row) samples."""
+
+    def __init__(self):
+        self.t: deque = deque()
+        self.rows: deque = deque()
+
+    def __len__(self):
+        return len(self.t)
+
+    def append(self, t, row) -> bool:
+        if self.t and t <= self.t[-1]:
+            return False
+        self.t.append(t)
+        self.rows.append(row)
+        return True
+
+    def replace_from(self, times, rows):
+        """Drop samples at or after ``times[0]``, then append (a newer plan overrides)."""
+        while self.t and self.t[-1] >= times[0]:
+            self.t.pop()
+            self.rows.pop()
+        for t, row in zip(times, rows):
+            self.append(t, row)
+
+    def prune(self, before):
+        while len(self.t) > 2 and self.t[1] < before:
+            self.t.popleft()
+            self.rows.popleft()
+
+    def interp(self, when: np.ndarray) -> np.ndarray:
+        """Return rows at ``when`` (M,), shape (M, n); NaN outside the series."""
+        t = np.fromiter(self.t, float, len(self.t))
+        rows = np.array(self.rows)
+        out = np.full((when.size, rows.shape[1]), np.nan)
+        inside = (when >= t[0] - 1e-9) & (when <= t[-1] + 1e-9)
+        for j in range(rows.shape[1]):
+            out[inside, j] = np.interp(when[inside], t, rows[:, j])
+        return out
+
+
+class PredictionRecord:
+    """
+    The recent states, commands and predictions, and their scores per horizon.
+
+    Feed it the measured states (:meth:`add_state`), the commanded θd as it becomes known
+    (:meth:`add_reference`: ``joint_commands`` samples or the plan's points) and every
+    prediction (:meth:`add_prediction`); ask :meth:`scores` and :meth:`rmse`. Times are the
+    node's clock in seconds; nothing here reads a clock. Memory is bounded by the window.
+
+    Parameters
+    ----------
+    n_joints : int
+        Number of joints n.
+    horizons : sequence of float
+        Horizons (s) to score, increasing.
+    window : float
+        Rolling window (s): predictions whose target time lies in the last ``window``
+        seconds of measured states are scored.
+
+    """
+
+    def __init__(self, n_joints: int, horizons: Sequence[float] = HORIZONS,
+                 window: float = 10.0):
+        horizons = tuple(float(h) for h in horizons)
+        if not horizons or any(not (math.isfinite(h) and h > 0.0) for h in horizons) or \
+                list(horizons) != sorted(set(horizons)):
+            raise ValueError(f'horizons must be positive and increasing, got {horizons}')
+        if not (math.isfinite(window) and window > 0.0):
+            raise ValueError(f'window must be positive, got {window}')
+        self.n = int(n_joints)
+        self.horizons = horizons
+        self.window = float(window)
+        self._states = _Series()
+        self._reference = _Series()
+        # per prediction: start, θ at each horizon (H, n) of the model, of the candidate and
+        # of what was published (NaN: none), and the published source
+        self._t0: deque = deque()
+        self._model: deque = deque()
+        self._candidate: deque = deque()
+        self._published_at: deque = deque()
+        self._published: deque = deque()
+        self._low = np.full(self.n, np.inf)
+        self._high = np.full(self.n, -np.inf)
+        self._cache = None         # the table of the recorded data, until they change
+        #: per-reason counts of samples that were not taken
+        self.rejected = {'non_finite': 0, 'out_of_order': 0, 'wrong_shape': 0}
+
+    # -- input ----------------------------------------------------------------------------
+
+    def _row(self, value) -> Optional[np.ndarray]:
+        row = np.asarray(value, dtype=float).reshape(-1)
+        if row.size != self.n:
+            self.rejected['wrong_shape'] += 1
+            return None
+        if not np.all(np.isfinite(row)):
+            self.rejected['non_finite'] += 1
+            return None
+        return row
+
+    def add_state(self, t: float, theta) -> None:
+        """Record a measured θ (n,) at time ``t``; older or duplicate stamps are ignored."""
+        row = self._row(theta)
+        if row is None or not math.isfinite(t):
+            return
+        if not self._states.append(float(t), row):
+            self.rejected['out_of_order'] += 1
+            return
+        self._cache = None
+        self._low = np.minimum(self._low, row)
+        self._high = np.maximum(self._high, row)
+        self._prune(float(t))
+
+    def add_reference(self, t, theta_d) -> None:
+        """
+        Record commanded θd: one sample (t float, θd (n,)) or plan points (t (K,), (K, n)).
+
+        Points at or after the first new time replace what was stored there (a new plan
+        overrides the tail of the previous one).
+        """
+        times = np.atleast_1d(np.asarray(t, dtype=float))
+        rows = np.asarray(theta_d, dtype=float).reshape(times.size, -1)
+        if rows.shape[1] != self.n:
+            self.rejected['wrong_shape'] += 1
+            return
+        good = np.isfinite(times) & np.all(np.isfinite(rows), axis=1)
+        if not np.all(good):
+            self.rejected['non_finite'] += int((~good).sum())
+        times, rows = times[good], rows[good]
+        if times.size == 0:
+            return
+        self._cache = None
+        if np.any(np.diff(times) <= 0.0):
+            self.rejected['out_of_order'] += 1
+            return
+        if times.size == 1:
+            if not self._reference.append(float(times[0]), rows[0]):
+                self.rejected['out_of_order'] += 1
+            return
+        self._reference.replace_from(times, rows)
+
+    def _at_horizons(self, offsets: np.ndarray, theta) -> Optional[np.ndarray]:
+        """Return θ (K, n) at the horizons (H, n), NaN past its end; None if unusable."""
+        if theta is None:
+            return np.full((len(self.horizons), self.n), np.nan)
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (offsets.size, self.n):
+            self.rejected['wrong_shape'] += 1
+            return None
+        if not np.all(np.isfinite(theta)):
+            self.rejected['non_finite'] += 1
+            return None
+        at = np.full((len(self.horizons), self.n), np.nan)
+        for i, h in enumerate(self.horizons):
+            if offsets[0] - 1e-9 <= h <= offsets[-1] + 1e-9:
+                at[i] = [np.interp(h, offsets, theta[:, j]) for j in range(self.n)]
+        return at
+
+    def add_prediction(self, t0: float, offsets, theta, source: str = 'model',
+                       candidate=None, published=None) -> None:
+        """
+        Record the predictions made from time ``t0``, each θ (K, n) at ``offsets`` (K,).
+
+        Horizons past a prediction's end are not scored.
+
+        Parameters
+        ----------
+        t0 : float
+            The start (the measured state's time).
+        offsets : array_like, shape (K,)
+            Times after ``t0``, increasing, at least two.
+        theta : array_like, shape (K, n), or None
+            The model's prediction (None: the model made none).
+        source : str
+            What was published (one of :data:`SOURCES`), so the published stream is
+            scored too.
+        candidate : array_like, shape (K, n), optional
+            A candidate model's prediction from the same start (see :meth:`trial`).
+        published : array_like, shape (K, n), optional
+            The baseline's θ as published (e.g. the plan's θd); default: the baseline is
+            scored from the recorded states and commands.
+
+        """
+        if source not in SOURCES:
+            raise ValueError(f'source must be one of {SOURCES}, got {source!r}')
+        offsets = np.asarray(offsets, dtype=float).reshape(-1)
+        if offsets.size < 2 or not math.isfinite(t0):
+            self.rejected['wrong_shape' if offsets.size < 2 else 'non_finite'] += 1
+            return
+        model = self._at_horizons(offsets, theta)
+        other = None if model is None else self._at_horizons(offsets, candidate)
+        shown = (model.copy() if source == 'model' and model is not None
+                 else self._at_horizons(offsets, published))
+        if model is None or other is None or shown is None:
+            return
+        self._cache = None
+        self._t0.append(float(t0))
+        self._model.append(model)
+        self._candidate.append(other)
+        self._published_at.append(shown)
+        self._published.append(source)
+
+    def _prune(self, now: float) -> None:
+        keep_from = now - self.window - self.horizons[-1] - 1.0
+        self._states.prune(keep_from)
+        self._reference.prune(keep_from)
+        while self._t0 and self._t0[0] < keep_from:
+            for store in (self._t0, self._model, self._candidate, self._published_at,
+                          self._published):
+                store.popleft()
+
+    # -- scoring --------------------------------------------------------------------------
+
+    @property
+    def theta_range(self) -> np.ndarray:
+        """Return the range of every measured θ so far (n,) (NaN before two states)."""
+        span = self._high - self._low
+        return np.where(np.isfinite(span), span, np.nan)
+
+    def _table(self) -> Dict[float, Optional[Dict[str, np.ndarray]]]:
+        """
+        Return horizon -> predictor -> errors (M_h, n) on the scored targets, or None.
+
+        The rows are the predictions whose target lies in the window and whose start and
+        target the measured states cover; a predictor without a value for a row has NaN
+        there (the model made none, no θd known, ...).
+        """
+        if self._cache is None:
+            self._cache = self._compute_table()
+        return self._cache
+
+    def _compute_table(self) -> Dict[float, Optional[Dict[str, np.ndarray]]]:
+        out: Dict[float, Optional[Dict[str, np.ndarray]]] = dict.fromkeys(self.horizons)
+        if len(self._states) < 2 or not self._t0:
+            return out
+        latest = self._states.t[-1]
+        t0 = np.fromiter(self._t0, float, len(self._t0))
+        stacks = {'model': np.array(self._model), 'candidate': np.array(self._candidate),
+                  'shown': np.array(self._published_at)}                  # (M, H, n)
+        published = np.array(self._published)
+        start = self._states.interp(t0)                                  # (M, n)
+        have_reference = len(self._reference) >= 2
+        for i, h in enumerate(self.horizons):
+            target = t0 + h
+            select = (target <= latest + 1e-9) & (target >= latest - self.window)
+            if not np.any(select):
+                continue
+            truth = self._states.interp(target[select])
+            valid = np.all(np.isfinite(truth), axis=1) & np.all(
+                np.isfinite(start[select]), axis=1)
+            truth = truth[valid]
+            follow = (self._reference.interp(target[select][valid]) if have_reference
+                      else np.full(truth.shape, np.nan))
+            errors = {'model': stacks['model'][select, i][valid] - truth,
+                      'candidate': stacks['candidate'][select, i][valid] - truth,
+                      'follow_reference': follow - truth,
+                      'hold_last': start[select][valid] - truth}
+            shown = stacks['shown'][select, i][valid] - truth
+            chosen = published[select][valid]
+            recorded = np.all(np.isfinite(shown), axis=1)
+            for name in BASELINES:       # a baseline published without its θ: as recorded
+                rows = (chosen == name) & ~recorded
+                shown[rows] = errors[name][rows]
+            errors['published'] = shown
+            errors['target'] = target[select][valid]
+            out[h] = errors
+        return out
+
+    def _nrmse(self, errors: np.ndarray, rows: np.ndarray) -> float:
+        return range_normalised_rmse(errors[rows], self.theta_range) if np.any(rows) \
+            else math.nan
+
+    def scores(self) -> Dict[float, Dict[str, float]]:
+        """
+        Return horizon -> predictor -> windowed range-normalised RMSE, and the counts.
+
+        Predictors are ``model``, ``follow_reference`` (when θd is known), ``hold_last``,
+        ``published`` (what was actually published) and ``candidate`` (while one is
+        scored); ``count`` and ``candidate_count`` are the numbers of scored predictions
+        of the model and of the candidate at that horizon. The baselines are scored on the
+        model's targets once it has some. Empty for a horizon with nothing scored yet.
+        """
+        out = {}
+        for h, errors in self._table().items():
+            if errors is None or not errors['hold_last'].shape[0]:
+                out[h] = {}
+                continue
+            has_model = finite_rows(errors['model'])
+            count = int(has_model.sum())
+            base = has_model if count else np.ones(has_model.shape, dtype=bool)
+            row = {'model': self._nrmse(errors['model'], has_model), 'count': count}
+            for name in BASELINES:
+                rows = base & finite_rows(errors[name])
+                if np.any(rows):
+                    row[name] = self._nrmse(errors[name], rows)
+            shown = finite_rows(errors['published'])
+            row['published'] = self._nrmse(errors['published'], shown)
+            has_candidate = finite_rows(errors['candidate'])
+            if np.any(has_candidate):
+                row['candidate'] = self._nrmse(errors['candidate'], has_candidate)
+                row['candidate_count'] = int(has_candidate.sum())
+            out[h] = row
+        return out
+
+    def rmse(self, predictor: str = 'published') -> Dict[float, np.ndarray]:
+        """Return horizon -> windowed RMSE per joint (rad) of one predictor (NaN if none)."""
+        out = {}
+        for h, errors in self._table().items():
+            e = None if errors is None else errors.get(predictor)
+            if e is not None:
+                e = e[finite_rows(e)]
+            out[h] = (np.sqrt(np.mean(np.square(e), axis=0)) if e is not None and e.size
+                      else np.full(self.n, np.nan))
+        return out
+
+    def _reached(self, store: deque) -> Tuple[float, ...]:
+        """Return the horizons that at least one stored prediction of ``store`` reaches."""
+        if not store:
+            return ()
+        reach = np.any(np.all(np.isfinite(np.array(store)), axis=2), axis=0)     # (H,)
+        return tuple(h for h, hit in zip(self.horizons, reach) if hit)
+
+    def error_integral(self, t_from: float, t_to: float) -> Optional[np.ndarray]:
+        """
+        Return ∫ (θd − θ) dt (n,) from ``t_from`` to ``t_to`` over the recorded streams.
+
+        What a servo's integral term accumulated; the trapezoid rule on the measured
+        states' times, θd interpolated at them. None when the states do not reach back to
+        ``t_from`` or no θd is recorded.
+        """
+        if len(self._states) < 2 or len(self._reference) < 2 or not t_to >= t_from:
+            return None
+        t = np.fromiter(self._states.t, float, len(self._states))
+        if t_from < t[0] - 1e-9:
+            return None
+        inner = t[(t > t_from) & (t < t_to)]
+        times = np.concatenate([[t_from], inner, [t_to]])
+        e = self._reference.interp(times) - self._states.interp(times)
+        if not np.all(np.isfinite(e)):
+            return None
+        return np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(times)[:, None], axis=0)
+
+
+def finite_rows(errors: np.ndarray) -> np.ndarray:
+    """Return which rows of ``errors`` (M, n) are finite in every column, (M,)."""
+    return np.all(np.isfinite(errors), axis=1)
