@@ -17,8 +17,9 @@
 import numpy as np
 import pytest
 from rkgnn_ros.core.fitting.case_three import fit_gains, start_genome
-from rkgnn_ros.core.fitting.identify import Evolution, RKGNNModel
-from rkgnn_ros.core.model.network import NetworkSpec
+from rkgnn_ros.core.fitting.identify import Evolution
+from rkgnn_ros.core.model.model import RKGNNModel
+from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.scoring import range_normalised_rmse
 from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.sensors import SensorModel

@@ -44,11 +44,11 @@ from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .controller import closed_loop, ClosedLoop, ControllerLaw, fit_controller, \
-    open_loop_model, RBFFeatures, TrigFeatures
-from .identify import RKGNNModel
+from .controller import closed_loop, ClosedLoop, fit_controller, open_loop_model
+from .controller_laws import ControllerLaw, RBFFeatures, TrigFeatures
 from .online_records import ClosedLoop as PredictionLoop
 from ..data import Dataset
+from ..model.model import RKGNNModel
 
 __all__ = ['AGREEMENT_RTOL', 'KI_ZERO', 'LAW_GAIN_RTOL', 'MAX_LAW_FIT_RATIO',
            'MIN_LAW_SAMPLES', 'fit_law', 'search_segments', 'arm_model', 'prediction_loop',
