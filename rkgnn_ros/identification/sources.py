@@ -74,12 +74,13 @@ class Sources:
     """
     The case, the velocity and the commands as the driver's streams allow them.
 
+    Not thread-safe: the ingestion calls it under its lock.
+
     Parameters
     ----------
     config : Config
         The parameters; replaced by :meth:`reconfigure`.
 
-    Not thread-safe: the ingestion calls it under its lock.
     """
 
     def __init__(self, config):
