@@ -174,6 +174,8 @@ def score(snapshot, commands, horizon, duration, sources=None):
     if pt0.size:
         for a in np.arange(pt0[0], pt0[-1] - WINDOW + 1e-9, 1.0):
             sel = (pt0 >= a) & (pt0 < a + WINDOW)
+            if sel.sum() < 2:  # a window the simulation's pauses left empty
+                continue
             best = min(nrmse(errors['follow_reference'][sel]), nrmse(errors['hold_last'][sel]))
             ratios.append(nrmse(errors['prediction'][sel]) / max(best, 1e-12))
             if ratios[-1] >= max(ratios):

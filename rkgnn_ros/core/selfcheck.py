@@ -152,7 +152,9 @@ class SelfCheck(PredictionRecord):
         reached = self._reached(self._model)
         counts = [scores[h].get('count', 0) for h in reached]
         if not reached or min(counts) < self.min_scored:
-            best = _best_baseline(scores, allowed, self.horizons)
+            # the baselines' first scores are few and from the start of the motion, when
+            # an arm at rest is briefly better held than following its plan: follow it
+            best = 'follow_reference' if 'follow_reference' in allowed else 'hold_last'
             have = min(counts) if counts else 0
             return Decision(best, f'the model has not been scored yet ({have} of '
                             f'{self.min_scored} predictions at every horizon it reaches): '
