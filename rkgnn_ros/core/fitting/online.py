@@ -23,7 +23,7 @@ pause and reset requests, and a capture of the buffered streams when
 :meth:`~OnlineIdentification.data_due` asks for one). Out: events (:mod:`.online_records`)
 for whoever owns the outputs, and the state shown to users through ``on_status``.
 
-The rules (the identifier node's documentation states them for users):
+The rules (the node's documentation states them for users):
 
 - A search is built when ``min_window`` seconds of training data are buffered, from a
   loaded model that fits the settings, else the equation-error fit (no rollout, a few
@@ -146,7 +146,7 @@ def _hand_over_settings(evo: Evolution, running: str, settings: OnlineSettings,
     Give the search the optimizer the settings ask for (between two generations).
 
     A new algorithm replaces the optimizer, warm-started from the best genome; changed
-    settings go to the running one. Returns the log line saying so (None: no change).
+    settings go to the running one. Returns the line saying so (None: no change).
     """
     algorithm, wanted = settings.optimizer, dict(settings.optimizer_settings)
     optimizer = evo.optimizer
@@ -182,9 +182,8 @@ def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[
 
 def _with_velocity(segments, estimate: bool) -> List[Dataset]:
     """Return ``segments``, θ̇ recomputed from θ by the centred derivative if ``estimate``."""
-    if not estimate:
-        return list(segments)
-    return [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt)) for seg in segments]
+    return [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt)) if estimate
+            else seg for seg in segments]
 
 
 def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
