@@ -23,6 +23,9 @@ simulation down; at most 3 × that in wall time), as ``bench/online.py`` does, a
 prediction is scored 2 s ahead against the measured motion, beside the two baselines on
 the same targets: following the reference (θd at the target time, from ``joint_commands``)
 and holding the last state (θ at the start). Errors are RMSE / range of θ, mean over joints.
+When the machine is too busy, ``sim_arm`` falls behind its clock and pauses the simulation
+(its stamps jump); predictions over such a pause are left out and counted
+(``simulation_pauses``, ``left_out_over_pauses``).
 
 Cells: servo ``pd`` (the paper's), ``pd_gravity`` (plus the arm's own gravity at the
 measured θ), ``pid`` (Ki = 20 N m/(rad s)); sensors ``exact`` and ``noise`` (encoders with
@@ -78,6 +81,7 @@ DEFAULTS = {'defaults_no_effort': ['-p', 'sensors.effort:=false'],
 BIN = 5.0
 WINDOW = 10.0
 MAX_WALL_FACTOR = 3.0  # a cell runs until the arm's stamps span the duration, at most this x
+MAX_GAP = 0.25  # s between two joint_states stamps: the simulation paused (fell behind)
 
 
 class Commands:
@@ -139,6 +143,13 @@ def score(snapshot, commands, horizon, duration, sources=None):
     cmd_t, cmd_theta = commands
     pt0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, horizon)
     keep = (pt0 + horizon >= cmd_t[0]) & (pt0 + horizon <= cmd_t[-1])
+    # where the simulation fell behind its clock it paused and its stamps jump: what the arm
+    # did there follows no plan, so predictions over such a gap are left out (counted)
+    gaps = np.flatnonzero(np.diff(meas_t) > MAX_GAP)
+    over_gap = np.zeros(pt0.shape, dtype=bool)
+    for g in gaps:
+        over_gap |= (pt0 < meas_t[g + 1]) & (pt0 + horizon > meas_t[g])
+    keep &= ~over_gap
     pt0, err = pt0[keep], err[keep]
     truth = _interp(pt0 + horizon, meas_t, meas_theta)
     errors = {'prediction': err,
@@ -163,6 +174,8 @@ def score(snapshot, commands, horizon, duration, sources=None):
     if pt0.size:
         for a in np.arange(pt0[0], pt0[-1] - WINDOW + 1e-9, 1.0):
             sel = (pt0 >= a) & (pt0 < a + WINDOW)
+            if sel.sum() < 2:  # a window the simulation's pauses left empty
+                continue
             best = min(nrmse(errors['follow_reference'][sel]), nrmse(errors['hold_last'][sel]))
             ratios.append(nrmse(errors['prediction'][sel]) / max(best, 1e-12))
             if ratios[-1] >= max(ratios):
@@ -184,6 +197,7 @@ def score(snapshot, commands, horizon, duration, sources=None):
                       'follow_reference': [row[2] for row in curve],
                       'hold_last': [row[3] for row in curve]},
             'states': int(meas_t.size), 'predictions': len(t0s), 'scored': int(pt0.size),
+            'simulation_pauses': int(gaps.size), 'left_out_over_pauses': int(over_gap.sum()),
             'generations': int(evolution[-1][0]) if len(evolution) else 0}
     return cell
 

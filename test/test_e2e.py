@@ -80,8 +80,9 @@ def running_pair(tmp_path):
 def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(running_pair):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
     from trajectory_msgs.msg import JointTrajectory
 
     domain, procs, tmp_path = running_pair
@@ -100,6 +101,10 @@ def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(runnin
     node.create_subscription(JointState, 'joint_states', on_state,
                              QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
     node.create_subscription(JointTrajectory, 'identifier/prediction', predictions.append, 10)
+    models = []  # predictions come at once (a baseline until the model earns it); the model
+    node.create_subscription(String, 'identifier/model', models.append,  # later
+                             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
     executor = SingleThreadedExecutor(context=ctx)
     executor.add_node(node)
     deadline = time.monotonic() + 240.0  # a fresh clone compiles every kernel first
@@ -146,6 +151,10 @@ def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(runnin
             meas_t, meas_theta, 2.0)
         assert t0.size >= 1, 'no prediction could be scored against the motion that followed'
         assert err.shape == (t0.size, 3) and np.all(np.isfinite(err))
+        deadline = time.monotonic() + 240.0
+        while not models and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        assert models, 'no ~/model within 240 s'  # what is saved at shutdown
     finally:
         executor.shutdown()
         node.destroy_node()

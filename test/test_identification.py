@@ -286,11 +286,13 @@ def test_without_joint_commands_the_plan_gives_the_commands(data):
     for k in range(1, 200):
         clock[0] += 0.01
         ingestion.handle_state(_state(data, k))
-    assert ingestion.buffer.stats()['command_samples'] == 199
+    # joint_commands is given stale_timeout (1 s) after the first state to appear
+    count = ingestion.buffer.stats()['command_samples']
+    assert count in (99, 100)  # states 101 (or 100, the clock's rounding) to 199
     assert ingestion.sources.describe()['commands_source'].startswith('reference_trajectory')
     np.testing.assert_allclose(ingestion.latest_command, data.theta_d[199], atol=1e-3)
     commands = [item for item in ingestion.feed if item[0] == 'command']
-    assert len(commands) == 199 and commands[-1][1] == T0 + data.t[199]
+    assert len(commands) == count and commands[-1][1] == T0 + data.t[199]
     segments = ingestion.capture().segments(10)
     assert segments and segments[0].theta_d is not None
 

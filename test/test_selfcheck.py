@@ -240,3 +240,28 @@ def test_the_error_integral_is_what_a_servo_integrates():
     np.testing.assert_allclose(check.error_integral(1.0, 2.5), [2.5 ** 2 - 1.0], rtol=1e-9)
     np.testing.assert_allclose(check.error_integral(1.005, 1.005), [0.0])
     assert check.error_integral(-1.0, 2.0) is None   # older than what is recorded
+
+
+def test_following_is_scored_as_the_plan_said_and_gaps_are_not_scored():
+    check = SelfCheck(N)
+    late = 0.3   # the plan known at each start is 0.3 s late (a stale plan)
+    for k in range(1200):
+        t = k / RATE
+        check.add_state(t, motion(t))
+        check.add_reference(t, desired(t))
+        if k % 10 == 0:
+            check.add_prediction(t, OFFSETS, motion(t + OFFSETS), 'follow_reference',
+                                 follow=desired(t + OFFSETS - late))
+    stale = check.scores()[2.0]['follow_reference']
+    fresh = SelfCheck(N)
+    run(fresh, 12.0, perfect)
+    assert stale > 2 * fresh.scores()[2.0]['follow_reference']   # scored as published
+    # a 1 s gap in the states (the arm's driver stalled): no prediction over it is scored
+    check = SelfCheck(N)
+    run(check, 6.0, perfect)
+    run(check, 6.0, perfect, start=7.0)
+    before = check.scores()[2.0]['count']
+    t0 = np.array(check._t0)
+    spanning = np.sum((t0 < 7.0) & (t0 + 2.0 > 6.0 - 0.01) & (t0 + 2.0 >= 13.0 - 10.0))
+    assert spanning > 0
+    assert before == np.sum((t0 + 2.0 <= 12.99) & (t0 + 2.0 >= 2.99)) - spanning

@@ -25,8 +25,12 @@ the measured states, the commanded θd that followed, and per prediction its sta
 θ at each scored horizon for the model, a candidate model and what was published. It scores
 per horizon, **on the same targets**, the model, the candidate and the two baselines:
 
-- ``follow_reference``: θd at the target time (the arm will be where it was told to go);
+- ``follow_reference``: θd at the target time (the arm will be where it was told to go), as
+  the plan said at the start when it comes with the prediction (what could have been
+  published), else the commanded θd recorded;
 - ``hold_last``: θ at the start (the arm will stay where it is).
+
+Predictions over a gap in the measured states are not scored.
 
 What to publish from those scores is :mod:`rkgnn_ros.core.selfcheck`'s.
 """
@@ -190,11 +194,15 @@ class PredictionRecord:
     window : float
         Rolling window (s): predictions whose target time lies in the last ``window``
         seconds of measured states are scored.
+    max_gap : float
+        A prediction over which the measured states have a gap longer than this (s) is not
+        scored: what the arm did there is not known (a driver that stalled, a simulation
+        that fell behind its clock and paused).
 
     """
 
     def __init__(self, n_joints: int, horizons: Sequence[float] = HORIZONS,
-                 window: float = 10.0):
+                 window: float = 10.0, max_gap: float = 0.25):
         horizons = tuple(float(h) for h in horizons)
         if not horizons or any(not (math.isfinite(h) and h > 0.0) for h in horizons) or \
                 list(horizons) != sorted(set(horizons)):
@@ -204,13 +212,15 @@ class PredictionRecord:
         self.n = int(n_joints)
         self.horizons = horizons
         self.window = float(window)
+        self.max_gap = float(max_gap)
         self._states = _Series()
         self._reference = _Series()
-        # per prediction: start, θ at each horizon (H, n) of the model, of the candidate and
-        # of what was published (NaN: none), and the published source
+        # per prediction: start, θ at each horizon (H, n) of the model, of the candidate, of
+        # the plan and of what was published (NaN: none), and the published source
         self._t0: deque = deque()
         self._model: deque = deque()
         self._candidate: deque = deque()
+        self._follow: deque = deque()
         self._published_at: deque = deque()
         self._published: deque = deque()
         self._low = np.full(self.n, np.inf)
@@ -290,7 +300,7 @@ class PredictionRecord:
         return at
 
     def add_prediction(self, t0: float, offsets, theta, source: str = 'model',
-                       candidate=None, published=None) -> None:
+                       candidate=None, published=None, follow=None) -> None:
         """
         Record the predictions made from time ``t0``, each θ (K, n) at ``offsets`` (K,).
 
@@ -312,6 +322,9 @@ class PredictionRecord:
         published : array_like, shape (K, n), optional
             The baseline's θ as published (e.g. the plan's θd); default: the baseline is
             scored from the recorded states and commands.
+        follow : array_like, shape (K, n), optional
+            The plan's θd at ``offsets`` as known at ``t0``: following the reference is
+            scored as it could have been published; default: by the recorded commands.
 
         """
         if source not in SOURCES:
@@ -322,14 +335,16 @@ class PredictionRecord:
             return
         model = self._at_horizons(offsets, theta)
         other = None if model is None else self._at_horizons(offsets, candidate)
+        plan = None if other is None else self._at_horizons(offsets, follow)
         shown = (model.copy() if source == 'model' and model is not None
                  else self._at_horizons(offsets, published))
-        if model is None or other is None or shown is None:
+        if model is None or other is None or plan is None or shown is None:
             return
         self._cache = None
         self._t0.append(float(t0))
         self._model.append(model)
         self._candidate.append(other)
+        self._follow.append(plan)
         self._published_at.append(shown)
         self._published.append(source)
 
@@ -338,8 +353,8 @@ class PredictionRecord:
         self._states.prune(keep_from)
         self._reference.prune(keep_from)
         while self._t0 and self._t0[0] < keep_from:
-            for store in (self._t0, self._model, self._candidate, self._published_at,
-                          self._published):
+            for store in (self._t0, self._model, self._candidate, self._follow,
+                          self._published_at, self._published):
                 store.popleft()
 
     # -- scoring --------------------------------------------------------------------------
@@ -369,21 +384,28 @@ class PredictionRecord:
         latest = self._states.t[-1]
         t0 = np.fromiter(self._t0, float, len(self._t0))
         stacks = {'model': np.array(self._model), 'candidate': np.array(self._candidate),
+                  'plan': np.array(self._follow),
                   'shown': np.array(self._published_at)}                  # (M, H, n)
         published = np.array(self._published)
         start = self._states.interp(t0)                                  # (M, n)
         have_reference = len(self._reference) >= 2
+        stamps = np.fromiter(self._states.t, float, len(self._states))
+        gaps = np.flatnonzero(np.diff(stamps) > self.max_gap)
         for i, h in enumerate(self.horizons):
             target = t0 + h
             select = (target <= latest + 1e-9) & (target >= latest - self.window)
+            for g in gaps:  # what the arm did over a gap is not known
+                select &= ~((t0 < stamps[g + 1]) & (target > stamps[g]))
             if not np.any(select):
                 continue
             truth = self._states.interp(target[select])
             valid = np.all(np.isfinite(truth), axis=1) & np.all(
                 np.isfinite(start[select]), axis=1)
             truth = truth[valid]
-            follow = (self._reference.interp(target[select][valid]) if have_reference
-                      else np.full(truth.shape, np.nan))
+            follow = stacks['plan'][select, i][valid]
+            if have_reference:   # no plan given with a prediction: the recorded commands
+                missing = ~np.all(np.isfinite(follow), axis=1)
+                follow[missing] = self._reference.interp(target[select][valid][missing])
             errors = {'model': stacks['model'][select, i][valid] - truth,
                       'candidate': stacks['candidate'][select, i][valid] - truth,
                       'follow_reference': follow - truth,

@@ -111,7 +111,7 @@ class SelfCheck(PredictionRecord):
 
     Parameters
     ----------
-    n_joints, horizons, window
+    n_joints, horizons, window, max_gap
         As :class:`~rkgnn_ros.core.scoring.PredictionRecord`.
     margin : float
         How much better than each baseline (a share of its error) the model must be to be
@@ -126,8 +126,8 @@ class SelfCheck(PredictionRecord):
 
     def __init__(self, n_joints: int, horizons: Sequence[float] = HORIZONS,
                  window: float = 10.0, margin: float = 0.2, min_scored: int = 10,
-                 recent: float = 2.0):
-        super().__init__(n_joints, horizons, window)
+                 recent: float = 2.0, max_gap: float = 0.25):
+        super().__init__(n_joints, horizons, window, max_gap)
         if not (math.isfinite(margin) and 0.0 <= margin < 1.0):
             raise ValueError(f'margin must be in [0, 1), got {margin}')
         if not (math.isfinite(recent) and 0.0 < recent <= window):
@@ -152,7 +152,9 @@ class SelfCheck(PredictionRecord):
         reached = self._reached(self._model)
         counts = [scores[h].get('count', 0) for h in reached]
         if not reached or min(counts) < self.min_scored:
-            best = _best_baseline(scores, allowed, self.horizons)
+            # the baselines' first scores are few and from the start of the motion, when
+            # an arm at rest is briefly better held than following its plan: follow it
+            best = 'follow_reference' if 'follow_reference' in allowed else 'hold_last'
             have = min(counts) if counts else 0
             return Decision(best, f'the model has not been scored yet ({have} of '
                             f'{self.min_scored} predictions at every horizon it reaches): '

@@ -74,6 +74,7 @@ JOIN_TIMEOUT_S = 10.0
 DECIDE_EVERY_S = 0.1   # the publish decision is taken again at most this often (stamp time)
 REPORT_EVERY_S = 1.0   # scores handed to the executor this often (stamp time)
 CLOCK_JUMP_S = 1.0     # a state this much older than the last restarts the self-check
+MIN_GAP_S = 0.25       # states further apart: the predictions over them are not scored
 
 #: Columns of ``~/prediction_scores`` (one row per scored horizon).
 SCORE_LABELS = ('horizon_s', 'model', 'follow_reference', 'hold_last', 'published', 'count')
@@ -263,7 +264,7 @@ class Predictor:
         positions, velocities = self._published(source, mine, horizon, latest)
         check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
                              None if theirs is None else theirs[0],
-                             None if source == 'model' else positions)
+                             None if source == 'model' else positions, horizon.theta_d)
         self._trial(check, latest.t, cfg)
         frame = 'model' if source == 'model' else f'baseline:{source}'
         if horizon.beyond is not None:
@@ -287,10 +288,10 @@ class Predictor:
         step = cfg['model_step']
         horizons = tuple(sorted({max(step, round(horizon * f / step) * step)
                                  for f in (0.25, 0.5, 1.0)}))
-        key = (n, horizons, cfg['selfcheck.window'], cfg['selfcheck.margin'])
+        key = (n, horizons, cfg['selfcheck.window'], cfg['selfcheck.margin'],
+               max(MIN_GAP_S, cfg['gap_threshold']))
         if self._check is None or key != self._check_key:
-            self._check = SelfCheck(n, horizons, window=cfg['selfcheck.window'],
-                                    margin=cfg['selfcheck.margin'])
+            self._check = self._new_check(key)
             self._check_key = key
             self._decided_at = -math.inf
         feed = self._ingestion.feed
@@ -305,11 +306,15 @@ class Predictor:
                 self._check.add_reference(stamp, values)
                 continue
             if stamp < self._fed - CLOCK_JUMP_S:  # the clock went back: a new timeline
-                self._check = SelfCheck(n, horizons, window=cfg['selfcheck.window'],
-                                        margin=cfg['selfcheck.margin'])
+                self._check = self._new_check(key)
                 self._decided_at = -math.inf
             self._fed = stamp
             self._check.add_state(stamp, values)
+
+    @staticmethod
+    def _new_check(key) -> SelfCheck:
+        n, horizons, window, margin, max_gap = key
+        return SelfCheck(n, horizons, window=window, margin=margin, max_gap=max_gap)
 
     def _horizon(self, cfg, t0: float) -> Optional[_Horizon]:
         """Return what a prediction from ``t0`` covers (None: nothing, see the module)."""

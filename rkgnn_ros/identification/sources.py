@@ -52,7 +52,6 @@ Commands
 """
 
 from collections import deque
-import math
 from typing import Dict, Optional, Tuple
 
 import numpy as np
@@ -92,7 +91,8 @@ class Sources:
         self._contrary = 0
         self._history: deque = deque(maxlen=CAUSAL_WINDOW)   # (t, θ (n,)) of the newest
         self.velocity_estimated = False
-        self._last_command = -math.inf       # node clock of the last joint_commands
+        self._last_command: Optional[float] = None  # node clock of the last joint_commands
+        self._first_state: Optional[float] = None   # ... and of the first state
         self.commands = 'none yet'
         self.reconfigure(config)
 
@@ -176,8 +176,16 @@ class Sources:
         self.commands = 'joint_commands'
 
     def commands_from_plan(self, now: float) -> bool:
-        """Return whether the plan stands in for joint_commands (silent for stale_timeout)."""
-        silent = now - self._last_command > self._config['stale_timeout']
+        """
+        Return whether the plan stands in for joint_commands (silent for stale_timeout).
+
+        Silent since the first state, too: a topic that starts a little after joint_states
+        does not find its samples taken already.
+        """
+        if self._first_state is None:
+            self._first_state = now
+        last = self._first_state if self._last_command is None else self._last_command
+        silent = now - last > self._config['stale_timeout']
         if silent:
             self.commands = 'reference_trajectory (no joint_commands)'
         return silent

@@ -316,7 +316,7 @@ def _advance(law: ControllerLaw, segments, origin: float, since: float,
 def _law_log_line(new: Optional[ControllerLaw], old: Optional[ControllerLaw],
                   fresh: ControllerLaw) -> Optional[Tuple[str, str]]:
     """Return the (level, text) saying that the law in use changed (None: it did not)."""
-    if new is not None and not new.close_to(old, LAW_GAIN_RTOL):
+    if new is not None and not new.close_to(old, AGREEMENT_RTOL):
         return ('info',
                 f'controller law learned from effort and the commands ({new.describe()}): '
                 'the search and the predictions run in closed loop along the plan with Kp '

@@ -23,31 +23,26 @@ pause and reset requests, and a capture of the buffered streams when
 :meth:`~OnlineIdentification.data_due` asks for one). Out: events (:mod:`.online_records`)
 for whoever owns the outputs, and the state shown to users through ``on_status``.
 
-The rules (the identifier node's documentation states them for users):
+The rules (the node's documentation states them for users):
 
-- A search is built when ``min_window`` seconds of training data are buffered, warm-started
-  from a loaded model if it fits the settings, else by the equation-error fit (no rollout
-  needed, a few seconds at most; case 3 first tries the servo's gains from a linear fit of
-  the closed loop, :mod:`.case_three`); a start whose rollout diverges is not taken.
+- A search is built when ``min_window`` seconds of training data are buffered, from a
+  loaded model that fits the settings, else the equation-error fit (no rollout, a few
+  seconds; case 3 first tries the servo's gains from a linear fit of the closed loop,
+  :mod:`.case_three`); a start whose rollout diverges is not taken.
 - The data are refreshed at most every :data:`DATA_REFRESH_S` (``Evolution.set_data``: the
   optimizer is kept); when the window has grown by :data:`REWARM_GROWTH` since the last
   equation-error fit, the fit runs again and replaces the best genome only if it is better.
 - The newest ``validation_fraction`` of the data is held out (:func:`split_validation`);
   a changed best is validated every :data:`VALIDATION_EVERY` generations and before every
   publication (θ-NRMSE of the open-loop prediction from each segment's first state).
-- The best model is published when it changed, at most every ``model_publish_period``.
-- Case 'torque': the arm's servo law is learned from effort and commands at each refresh
-  (:mod:`.case_one`: PD, integral and θ-terms, robust to encoder noise; the commands are
-  ``joint_commands`` or the plan sampled at the states). While it explains the torque
-  the search runs in closed loop (a case-2 search with the law's gains on θd shifted by
-  its other terms), the published case-1 model is the arm's (the law in its ``info``) and
-  predictions roll the searched closed loop out; the search restarts when the law appears
-  or stops explaining the torque, and goes on from its best genome (an arm model whatever
-  the gains) with the new law when the gains move (:class:`.case_one.LawKeeper`). Without
-  a usable law the search runs on the measured torque and no model prediction is
-  possible (the predictor publishes a baseline, see :mod:`rkgnn_ros.core.selfcheck`).
-- θ̇ is taken from the driver, or, when the observation says the velocity is estimated,
-  recomputed on the buffered data by the lag-free centred derivative of θ.
+- The best changed model is published, at most every ``model_publish_period``.
+- Case 'torque': the servo law is learned from effort and commands at each refresh
+  (:mod:`.case_one`, :class:`.case_one.LawKeeper`). With a law the search runs in closed
+  loop (a case-2 search with its gains, θd shifted by its other terms), the published model
+  is the arm's (the law in ``info``), predictions roll the searched loop out; the search
+  restarts when the law appears or goes, and goes on from its best genome when the gains
+  move. Without a law it runs on the measured torque, and no model prediction is made.
+- θ̇ of the buffered data is the centred derivative of θ when the observation says so.
 - A stream silent for ``stale_timeout`` pauses the search (one warning); a reset, a change
   of the settings' ``version`` or of the case (``case: auto`` follows the streams) restarts
   it; ``max_generations`` ends it.
@@ -119,12 +114,18 @@ def _warm_start(evo: Evolution, train, kp, kd, budget_s: float, nfev: int) -> Op
 
 def _rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) -> str:
     """
-    Run the equation-error fit again from the best genome, on the grown window.
+    Fit again from the best genome on the grown window; return the line that says so.
 
-    Its genome replaces the best (and the optimizer restarts around it) only if its rollout
-    cost on the new data is lower. Returns the line that says what happened.
+    A case-3 search first tries the start from the linearly identified gains
+    (:mod:`.case_three`: they may be determined by now), then the equation-error fit; a
+    genome replaces the best (the optimizer restarts around it) only if its cost is lower.
     """
     before = float(evo.optimizer.best_cost)
+    placed = case_three.start_genome(evo, train, budget_s, nfev)
+    if placed is not None and not placed.cost >= before:
+        _restart_around(evo.optimizer, placed.genome, placed.cost)
+        return (f'{placed.origin} on {seconds:.1f} s of data: better than the best '
+                f'({before:.4g}), restarting around it')
     genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd, budget_s, nfev)
     kept = math.isfinite(cost) and not cost >= before
     if kept:
@@ -146,7 +147,7 @@ def _hand_over_settings(evo: Evolution, running: str, settings: OnlineSettings,
     Give the search the optimizer the settings ask for (between two generations).
 
     A new algorithm replaces the optimizer, warm-started from the best genome; changed
-    settings go to the running one. Returns the log line saying so (None: no change).
+    settings go to the running one. Returns the line saying so (None: no change).
     """
     algorithm, wanted = settings.optimizer, dict(settings.optimizer_settings)
     optimizer = evo.optimizer
@@ -182,9 +183,8 @@ def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[
 
 def _with_velocity(segments, estimate: bool) -> List[Dataset]:
     """Return ``segments``, θ̇ recomputed from θ by the centred derivative if ``estimate``."""
-    if not estimate:
-        return list(segments)
-    return [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt)) for seg in segments]
+    return [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt)) if estimate
+            else seg for seg in segments]
 
 
 def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
