@@ -67,7 +67,9 @@ PATIENCE = 60.0
 LIVE_SECONDS = 5.0
 BASE = {'joints': list(JOINTS), 'window': 4.0, 'min_window': 1.0, 'stale_timeout': 0.5,
         'model_publish_period': 0.5, 'prediction.horizon': 0.5, 'prediction.rate': 10.0,
-        'prediction.on_state': True, 'es.population_size': 8, 'es.seed': 3}
+        'prediction.on_state': True, 'es.population_size': 8, 'es.seed': 3,
+        # the feed has joint_commands but no plan: predict past it as the arm holding them
+        'prediction.beyond_plan': 'hold'}
 _T = Parameter.Type
 _BY_NAME = {spec.name: spec for spec in PARAMETERS}
 
