@@ -90,6 +90,7 @@ from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
+from rkgnn_ros.sample_series import SampleSeries
 from rkgnn_ros.stream_capture import Capture, covered_by, PlannedReference, Snapshot
 
 __all__ = ['DROP_REASONS', 'AddResult', 'Capture', 'PlannedReference', 'Snapshot',
@@ -130,67 +131,50 @@ class AddResult:
 _ACCEPTED = AddResult(True)
 
 
-class _Series:
+def _check_times(buffer) -> None:
+    """Raise ValueError naming the first of the buffer's times and bounds that is invalid."""
+    for name in ('model_step', 'window', 'gap_threshold', 'max_rate_hz',
+                 'clock_jump_threshold', 'max_abs_value'):
+        value = getattr(buffer, name)
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f'{name} must be finite and > 0, got {value}')
+    for name in ('reorder_tolerance', 'pair_tolerance'):
+        value = getattr(buffer, name)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f'{name} must be finite and >= 0, got {value}')
+    if buffer.window < buffer.model_step:
+        raise ValueError(f'window {buffer.window} s is shorter than model_step '
+                         f'{buffer.model_step} s')
+    if buffer.clock_jump_threshold <= buffer.reorder_tolerance:
+        raise ValueError('clock_jump_threshold must exceed reorder_tolerance')
+
+
+def _check_counts(buffer) -> None:
+    """Raise ValueError when the buffer's sample cap or jump count is out of range."""
+    if buffer.max_samples < 2:
+        raise ValueError(f'max_samples must be >= 2, got {buffer.max_samples}')
+    if not 1 <= buffer.jump_samples <= 100:
+        raise ValueError(f'jump_samples must be in [1, 100], got {buffer.jump_samples}')
+
+
+def _settle(buffer, states, commands, settled: float) -> Tuple[int, float]:
     """
-    Time-sorted samples in preallocated arrays: bounded, amortised O(1) append.
+    Return ``(uncovered, settled)`` of the states after ``settled``.
 
-    Rows live in ``[lo, hi)`` of arrays twice the capacity; when the end is reached the
-    live rows move to the front. Not thread-safe (the buffer locks).
+    ``uncovered``: how many the commands can no longer cover; ``settled``: the newest state
+    time now paired or counted.
     """
-
-    def __init__(self, capacity: int, width: int):
-        self.capacity = capacity
-        self._t = np.empty(2 * capacity)
-        self._v = np.empty((2 * capacity, width))
-        self._lo = 0
-        self._hi = 0
-
-    def __len__(self) -> int:
-        return self._hi - self._lo
-
-    @property
-    def t(self) -> np.ndarray:
-        return self._t[self._lo:self._hi]
-
-    @property
-    def values(self) -> np.ndarray:
-        return self._v[self._lo:self._hi]
-
-    def last_t(self) -> Optional[float]:
-        return float(self._t[self._hi - 1]) if self._hi > self._lo else None
-
-    def clear(self):
-        self._lo = self._hi = 0
-
-    def drop_before(self, t_min: float):
-        """Evict samples older than ``t_min`` (relative time)."""
-        # a stream in order evicts one or two samples per insert: step over them in Python
-        # (np.searchsorted on the whole window releases and re-takes the GIL, which costs
-        # the executor thread up to a GIL switch interval per message at 1 kHz)
-        t = self._t
-        for _ in range(8):
-            if self._lo == self._hi or not t[self._lo] < t_min:
-                return
-            self._lo += 1
-        self._lo += int(np.searchsorted(self.t, t_min, side='left'))
-
-    def drop_oldest(self):
-        self._lo += 1
-
-    def insert(self, k: int, t: float, row: np.ndarray):
-        """Insert at sorted position ``k`` (0..len); the caller keeps len < capacity."""
-        if self._hi == self._t.size:
-            n = len(self)
-            self._t[:n] = self._t[self._lo:self._hi]
-            self._v[:n] = self._v[self._lo:self._hi]
-            self._lo, self._hi = 0, n
-        at = self._lo + k
-        if at < self._hi:  # numpy copes with the overlapping shift
-            self._t[at + 1:self._hi + 1] = self._t[at:self._hi]
-            self._v[at + 1:self._hi + 1] = self._v[at:self._hi]
-        self._t[at] = t
-        self._v[at] = row
-        self._hi += 1
+    last = commands.last_t()
+    if last is None or not len(states):
+        return 0, settled
+    limit = last - buffer.reorder_tolerance - buffer.pair_tolerance
+    stamps = states.t
+    a = int(np.searchsorted(stamps, settled, side='right'))
+    b = int(np.searchsorted(stamps, limit, side='right'))
+    if b <= a:
+        return 0, settled
+    covered = covered_by(stamps[a:b], commands.t, buffer.gap_threshold, buffer.pair_tolerance)
+    return int((~covered).sum()), float(stamps[b - 1])
 
 
 class StreamBuffer:
@@ -253,20 +237,7 @@ class StreamBuffer:
         self.pair_tolerance = self.model_step if pair_tolerance is None else float(
             pair_tolerance)
         self.max_abs_value = float(max_abs_value)
-        for name in ('model_step', 'window', 'gap_threshold', 'max_rate_hz',
-                     'clock_jump_threshold', 'max_abs_value'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f'{name} must be finite and > 0, got {value}')
-        for name in ('reorder_tolerance', 'pair_tolerance'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'{name} must be finite and >= 0, got {value}')
-        if self.window < self.model_step:
-            raise ValueError(f'window {self.window} s is shorter than model_step '
-                             f'{self.model_step} s')
-        if self.clock_jump_threshold <= self.reorder_tolerance:
-            raise ValueError('clock_jump_threshold must exceed reorder_tolerance')
+        _check_times(self)
         self.need_tau = bool(need_tau)
         self.need_desired = bool(need_desired)
         self.min_spacing = 1.0 / self.max_rate_hz
@@ -274,18 +245,15 @@ class StreamBuffer:
         if max_samples is None:
             max_samples = min(int(math.ceil(span * self.max_rate_hz)) + 16, 2 ** 20)
         self.max_samples = int(max_samples)
-        if self.max_samples < 2:
-            raise ValueError(f'max_samples must be >= 2, got {self.max_samples}')
         self.max_reference_points = int(max_reference_points)
         self.jump_samples = int(jump_samples)
-        if not 1 <= self.jump_samples <= 100:
-            raise ValueError(f'jump_samples must be in [1, 100], got {jump_samples}')
+        _check_counts(self)
         n = len(self.joints)
         self._n = n
         self._lock = threading.Lock()
         self._series = {
-            'state': _Series(self.max_samples, 3 * n if self.need_tau else 2 * n),
-            'command': _Series(self.max_samples, 2 * n),
+            'state': SampleSeries(self.max_samples, 3 * n if self.need_tau else 2 * n),
+            'command': SampleSeries(self.max_samples, 2 * n),
         }
         self._drops = {stream: dict.fromkeys(DROP_REASONS, 0) for stream in STREAMS}
         self._accepted = dict.fromkeys(STREAMS, 0)
@@ -412,41 +380,13 @@ class StreamBuffer:
     def _place_locked(self, stream: str, t_abs: float, row: np.ndarray,
                       jump: bool = False) -> AddResult:
         """Insert a sample on the current timeline (order, duplicates, rate, window)."""
-        series = self._series[stream]
-        drops = self._drops[stream]
-        rel = t_abs - self._origin
-        newest = series.last_t()
-        if newest is not None and rel < newest - self.reorder_tolerance:
-            drops['out_of_order'] += 1
-            return AddResult(False, 'out_of_order', jump)
-        stamps = series.t
-        size = stamps.size
-        if size == 0 or rel > stamps[-1]:
-            k = size
-        else:
-            k = int(np.searchsorted(stamps, rel, side='left'))
-        if k < size and stamps[k] == rel:
-            drops['duplicate_stamp'] += 1
-            return AddResult(False, 'duplicate_stamp', jump)
-        if (k > 0 and rel - stamps[k - 1] < self.min_spacing) or \
-                (k < size and stamps[k] - rel < self.min_spacing):
-            drops['rate_limited'] += 1
-            return AddResult(False, 'rate_limited', jump)
-        horizon = max(rel, stamps[-1] if size else rel) - self.window - self.gap_threshold
-        before = len(series)
-        series.drop_before(horizon)
-        k -= before - len(series)
-        if k < 0:  # older than the window: nothing to keep
-            drops['out_of_order'] += 1
-            return AddResult(False, 'out_of_order', jump)
-        if len(series) >= series.capacity:
-            if k == 0:
-                drops['overflow'] += 1
-                return AddResult(False, 'overflow', jump)
-            series.drop_oldest()
-            drops['overflow'] += 1
-            k -= 1
-        series.insert(k, rel, row)
+        inserted, reason = self._series[stream].place(
+            t_abs - self._origin, row, self.reorder_tolerance, self.min_spacing,
+            self.window + self.gap_threshold)
+        if reason is not None:
+            self._drops[stream][reason] += 1
+        if not inserted:
+            return AddResult(False, reason, jump)
         self._accepted[stream] += 1
         return AddResult(True, None, True) if jump else _ACCEPTED
 
@@ -595,21 +535,10 @@ class StreamBuffer:
 
     def _settle_locked(self):
         """Count, once, the states the command stream can no longer cover."""
-        if not self.need_desired:
-            return
-        commands, states = self._series['command'], self._series['state']
-        last = commands.last_t()
-        if last is None or not len(states):
-            return
-        limit = last - self.reorder_tolerance - self.pair_tolerance
-        stamps = states.t
-        a = int(np.searchsorted(stamps, self._settled, side='right'))
-        b = int(np.searchsorted(stamps, limit, side='right'))
-        if b > a:
-            covered = covered_by(stamps[a:b], commands.t, self.gap_threshold,
-                                 self.pair_tolerance)
-            self._drops['state']['no_command'] += int((~covered).sum())
-            self._settled = float(stamps[b - 1])
+        if self.need_desired:
+            uncovered, self._settled = _settle(self, self._series['state'],
+                                               self._series['command'], self._settled)
+            self._drops['state']['no_command'] += uncovered
 
     def capture(self) -> Capture:
         """Return a consistent copy of the streams (see :class:`Capture`)."""

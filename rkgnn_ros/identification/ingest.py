@@ -100,6 +100,83 @@ def received_ns(info) -> int:
     return received if received else time.time_ns()
 
 
+def _read_trajectory(msg, joints, now: float):
+    """Read a reference (CDR bytes or a message): our CDR reader, else rclpy's."""
+    if not isinstance(msg, (bytes, bytearray, memoryview)):
+        return joint_trajectory_to_arrays(msg, joints, now=now)
+    sample = joint_trajectory_cdr_to_arrays(msg, joints, now=now)
+    if sample is None:  # another encoding (within the byte budget): rclpy decides
+        try:
+            msg = deserialize_message(bytes(msg), JointTrajectory)
+        except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
+            return Rejection('malformed', f'cannot read JointTrajectory: {error!r}')
+        sample = joint_trajectory_to_arrays(msg, joints, now=now)
+    return sample
+
+
+def _message_names(raw: bytes):
+    """Return the joint names of a raw JointState, or None if it has none readable."""
+    try:
+        parsed = parse_joint_state_cdr(raw)
+        if parsed is not None:
+            return parsed[2]
+        if is_plain_cdr(raw):
+            return None  # malformed: the sample's own reading says so
+        return tuple(deserialize_message(raw, JointState).name)
+    except Exception:  # noqa: B902 - the sample's own reading reports why
+        return None
+
+
+class IngestThread:
+    """
+    The thread that takes what is queued on polled raw subscriptions.
+
+    ``streams`` pairs each subscription with its handler ``handle(raw, received_ns)``;
+    every INGEST_PERIOD_S it takes at most DRAIN_LIMIT messages per stream. An exception in
+    a handler is reported by ``on_error(topic)`` and the thread goes on, unless it is
+    stopping or ``alive()`` says the node is gone.
+    """
+
+    def __init__(self, streams, alive: Callable[[], bool], on_error: Callable[[str], None]):
+        self._streams = streams
+        self._alive = alive
+        self._on_error = on_error
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='rkgnn_ingest', daemon=True)
+        self._thread.start()
+
+    def stop(self) -> bool:
+        """Stop and join the thread; return False if it did not stop in time."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(JOIN_TIMEOUT_S)
+        return not self._thread.is_alive()
+
+    def _run(self) -> None:
+        while not self._stop.wait(INGEST_PERIOD_S):
+            for sub, handle in self._streams:
+                try:
+                    for raw, info in _drain(sub):
+                        handle(raw, received_ns(info))
+                except Exception:  # noqa: B902 - the thread must survive
+                    if self._stop.is_set() or not self._alive():
+                        return
+                    self._on_error(sub.topic_name)
+
+
+def _drain(sub):
+    """Yield the ``(message, info)`` pairs already queued on ``sub``, at most DRAIN_LIMIT."""
+    for _ in range(DRAIN_LIMIT):
+        try:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+        except InvalidHandle:  # destroyed at shutdown
+            return
+        if taken is None:
+            return
+        yield taken
+
+
 class Ingestion:
     """
     The joint streams in: conversion, buffering, the newest samples, drop accounting.
@@ -146,8 +223,7 @@ class Ingestion:
         self.sources = Sources(config)
         #: ('state' | 'command', stamp, θ or θd (n,)) per accepted sample, for the self-check
         self.feed: deque = deque(maxlen=FEED_LIMIT)
-        self._stop = threading.Event()
-        self._thread: Optional[threading.Thread] = None
+        self._thread: Optional[IngestThread] = None
         if config['joints']:
             self.set_joints(config['joints'], 'the joints parameter')
 
@@ -334,7 +410,7 @@ class Ingestion:
                 self.reject('reference_trajectory', 'reference', 'no_joints',
                             'joints not known yet (waiting for joint_states)')
                 return
-            sample = self._trajectory_sample(msg, joints, now)
+            sample = _read_trajectory(msg, joints, now)
             if not sample.ok:
                 self.reject('reference_trajectory', 'reference', sample.reason,
                             sample.message)
@@ -346,40 +422,13 @@ class Ingestion:
         except Exception:  # noqa: B902 - bad input is counted, never raised
             self.internal_error('reference_trajectory')
 
-    @staticmethod
-    def _trajectory_sample(msg, joints, now: float):
-        """Read a reference (CDR bytes or a message): our CDR reader, else rclpy's."""
-        if not isinstance(msg, (bytes, bytearray, memoryview)):
-            return joint_trajectory_to_arrays(msg, joints, now=now)
-        sample = joint_trajectory_cdr_to_arrays(msg, joints, now=now)
-        if sample is None:  # another encoding (within the byte budget): rclpy decides
-            try:
-                msg = deserialize_message(bytes(msg), JointTrajectory)
-            except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
-                return Rejection('malformed', f'cannot read JointTrajectory: {error!r}')
-            sample = joint_trajectory_to_arrays(msg, joints, now=now)
-        return sample
-
-    @staticmethod
-    def _message_names(raw: bytes):
-        """Return the joint names of a raw JointState, or None if it has none readable."""
-        try:
-            parsed = parse_joint_state_cdr(raw)
-            if parsed is not None:
-                return parsed[2]
-            if is_plain_cdr(raw):
-                return None  # malformed: the sample's own reading says so
-            return tuple(deserialize_message(raw, JointState).name)
-        except Exception:  # noqa: B902 - the sample's own reading reports why
-            return None
-
     def _handle_state(self, raw: bytes, received: int) -> None:
         cfg = self._config
         sources = self.sources
         need_tau = cfg.case == 'torque'  # a set case 1: effort or nothing
         joints = self._joints
         if joints is None:
-            names = self._message_names(raw) or ()
+            names = _message_names(raw) or ()
             sample = read_joint_state(raw, names, need_tau)
             if sample.ok and len(names) > MAX_JOINTS:
                 sample = Rejection('over_budget', f'{len(names)} joints to learn, more than '
@@ -500,41 +549,10 @@ class Ingestion:
 
     def start(self, state_sub, command_sub) -> None:
         """Start the ingest thread on the two raw subscriptions (in a :class:`PolledGroup`)."""
-        self._thread = threading.Thread(target=self._run, args=(state_sub, command_sub),
-                                        name='rkgnn_ingest', daemon=True)
-        self._thread.start()
+        self._thread = IngestThread(((state_sub, self.handle_state),
+                                     (command_sub, self.handle_command)),
+                                    self._alive, self.internal_error)
 
     def stop(self) -> bool:
         """Stop and join the ingest thread; return False if it did not stop in time."""
-        self._stop.set()
-        thread = self._thread
-        if thread is not None and thread.is_alive():
-            thread.join(JOIN_TIMEOUT_S)
-            return not thread.is_alive()
-        return True
-
-    def _run(self, state_sub, command_sub) -> None:
-        """Every INGEST_PERIOD_S, take what is queued on the two streams."""
-        streams = ((state_sub, self.handle_state), (command_sub, self.handle_command))
-        while not self._stop.wait(INGEST_PERIOD_S):
-            for sub, handle in streams:
-                try:
-                    for raw, info in self._drain(sub):
-                        handle(raw, received_ns(info))
-                except Exception:  # noqa: B902 - the thread must survive
-                    if self._stop.is_set() or not self._alive():
-                        return
-                    self.internal_error(sub.topic_name)
-
-    @staticmethod
-    def _drain(sub):
-        """Yield the ``(message, info)`` pairs already queued on ``sub``, at most DRAIN_LIMIT."""
-        for _ in range(DRAIN_LIMIT):
-            try:
-                with sub.handle:
-                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            except InvalidHandle:  # destroyed at shutdown
-                return
-            if taken is None:
-                return
-            yield taken
+        return self._thread is None or self._thread.stop()

@@ -63,8 +63,8 @@ from .identify import Evolution
 from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
                              ModelUpdate, Observation, OnlineSettings, Status, StepResult,
                              StreamCapture)
-from .optimizers import make_optimizer
-from .refine import refine_equation_error
+from .search_starts import (hand_over_settings, restart_around, rewarm, warm_start,
+                            WARM_START_NFEV, WARM_START_S)
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
 from ..data import Dataset
 from ..differentiate import centred_derivative
@@ -78,95 +78,9 @@ DATA_REFRESH_S = 1.0        # at most one set_data per second
 WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
-WARM_START_S = 5.0          # computation budget of one equation-error fit (real seconds)
-WARM_START_NFEV = 300
-WARM_START_SIGMA = 0.05     # search spread around the warm start (genome units)
 REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
 MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search restarts
 LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
-
-
-def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: int):
-    """Return ``(genome, rollout cost, seconds)`` of the equation-error fit from the best."""
-    t0 = time.perf_counter()  # a computation budget: real time, whatever the clock
-    genome, _ = refine_equation_error(evo.spec, train, evo.scales, evo.optimizer.best_x, kp,
-                                      kd, max_nfev=nfev, deadline=t0 + budget_s)
-    cost = float(evo.problem.cost(genome[None])[0])
-    return genome, cost, time.perf_counter() - t0
-
-
-def _warm_start(evo: Evolution, train, kp, kd, budget_s: float, nfev: int) -> Optional[str]:
-    """
-    Place the start genome by the equation-error fit (the offline pipeline's first stage).
-
-    Fitting M θ̈ + V + G + F = τ on the buffered samples needs no rollout: within its
-    budget it puts gravity, inertia and friction where the data put them, which a search
-    from the default genome takes many generations to find. Kept only when its rollout on
-    the training data does not diverge (the optimizer then restarts around it); returns
-    what the search starts from, None if not kept.
-    """
-    genome, cost, seconds = _equation_error_fit(evo, train, kp, kd, budget_s, nfev)
-    if not math.isfinite(cost):
-        return None
-    _restart_around(evo.optimizer, genome, cost)
-    return f'the equation-error fit ({seconds:.1f} s, J {cost:.4g})'
-
-
-def _rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) -> str:
-    """
-    Fit again from the best genome on the grown window; return the line that says so.
-
-    A case-3 search first tries the start from the linearly identified gains
-    (:mod:`.case_three`: they may be determined by now), then the equation-error fit; a
-    genome replaces the best (the optimizer restarts around it) only if its cost is lower.
-    """
-    before = float(evo.optimizer.best_cost)
-    placed = case_three.start_genome(evo, train, budget_s, nfev)
-    if placed is not None and not placed.cost >= before:
-        _restart_around(evo.optimizer, placed.genome, placed.cost)
-        return (f'{placed.origin} on {seconds:.1f} s of data: better than the best '
-                f'({before:.4g}), restarting around it')
-    genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd, budget_s, nfev)
-    kept = math.isfinite(cost) and not cost >= before
-    if kept:
-        _restart_around(evo.optimizer, genome, cost)
-    return (f'equation-error fit again on {seconds:.1f} s of data ({took:.1f} s): J '
-            f'{cost:.4g} vs the best {before:.4g}, '
-            + ('restarting around it' if kept else 'kept the best'))
-
-
-def _restart_around(optimizer, genome, cost: float) -> None:
-    """Make ``genome`` the best and restart the optimizer around it."""
-    optimizer.seed_best(genome, cost)
-    optimizer.restart(genome, max(WARM_START_SIGMA, optimizer.settings.get('sigma_min', 0.0)))
-
-
-def _hand_over_settings(evo: Evolution, running: str, settings: OnlineSettings,
-                        upcoming: int) -> Optional[str]:
-    """
-    Give the search the optimizer the settings ask for (between two generations).
-
-    A new algorithm replaces the optimizer, warm-started from the best genome; changed
-    settings go to the running one. Returns the line saying so (None: no change).
-    """
-    algorithm, wanted = settings.optimizer, dict(settings.optimizer_settings)
-    optimizer = evo.optimizer
-    if algorithm != running:
-        new = make_optimizer(algorithm, optimizer.dim, x0=optimizer.best_x, rng=evo.rng,
-                             **wanted)
-        if math.isfinite(optimizer.best_cost):
-            new.rescore(optimizer.best_cost)
-        evo.optimizer = new
-        return (f'generation {upcoming} runs es.algorithm {algorithm!r} (population '
-                f'{new.population_size}), warm-started from the best genome')
-    current = optimizer.settings
-    diff = {k: v for k, v in wanted.items() if current.get(k) != v}
-    if not diff:
-        return None
-    optimizer.update_settings(**diff)
-    shown = ', '.join(f'es.{k}={v}' for k, v in sorted(diff.items()))
-    return (f'generation {upcoming} takes the new settings {shown} '
-            f'(population {optimizer.population_size})')
 
 
 def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[float]]]:
@@ -345,7 +259,7 @@ class OnlineIdentification:
                 return False
         elif self._evo is None:  # waiting for enough data: look again in a moment
             return False
-        line = _hand_over_settings(self._evo, self._algorithm, settings, self._generation + 1)
+        line = hand_over_settings(self._evo, self._algorithm, settings, self._generation + 1)
         self._algorithm = settings.optimizer
         if line:
             self._log('info', line)
@@ -409,8 +323,8 @@ class OnlineIdentification:
             self._evo.set_data(train)
             if seconds >= REWARM_GROWTH * self._warm_seconds:
                 self._warm_seconds = seconds
-                self._log('info', _rewarm(self._evo, train, seconds, self._warm_start_seconds,
-                                          self._warm_start_nfev))
+                self._log('info', rewarm(self._evo, train, seconds, self._warm_start_seconds,
+                                         self._warm_start_nfev))
             if self._had_finite and not math.isfinite(self._evo.optimizer.best_cost):
                 self._log_throttled(
                     'diverges', 'warning',
@@ -475,13 +389,13 @@ class OnlineIdentification:
             placed = case_three.start_genome(self._evo, train, self._warm_start_seconds,
                                              self._warm_start_nfev)
             if placed is not None:
-                _restart_around(self._evo.optimizer, placed.genome, placed.cost)
+                restart_around(self._evo.optimizer, placed.genome, placed.cost)
             origin = (placed.origin if placed is not None else
-                      _warm_start(self._evo, train, kp, kd, self._warm_start_seconds,
-                                  self._warm_start_nfev) or origin)
+                      warm_start(self._evo, train, kp, kd, self._warm_start_seconds,
+                                 self._warm_start_nfev) or origin)
         elif origin.startswith('the best genome'):
             optimizer = self._evo.optimizer
-            _restart_around(optimizer, x0, float(self._evo.problem.cost(x0[None])[0]))
+            restart_around(optimizer, x0, float(self._evo.problem.cost(x0[None])[0]))
         self._start_model = None
         self._evo_version = settings.version
         self._algorithm = algorithm

@@ -1,0 +1,120 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Where an online search starts, and how it takes new settings between two generations.
+
+The equation-error fit places the start (and places it again when the window has grown),
+case 3 first tries the servo's gains (:mod:`.case_three`), and a changed algorithm or
+setting is handed to the running search. Used by :class:`.online.OnlineIdentification`.
+"""
+
+import math
+import time
+from typing import Optional
+
+from . import case_three
+from .identify import Evolution
+from .online_records import OnlineSettings
+from .optimizers import make_optimizer
+from .refine import refine_equation_error
+
+__all__ = ['warm_start', 'rewarm', 'restart_around', 'hand_over_settings', 'WARM_START_S',
+           'WARM_START_NFEV', 'WARM_START_SIGMA']
+
+WARM_START_S = 5.0          # computation budget of one equation-error fit (real seconds)
+WARM_START_NFEV = 300
+WARM_START_SIGMA = 0.05     # search spread around the warm start (genome units)
+
+
+def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: int):
+    """Return ``(genome, rollout cost, seconds)`` of the equation-error fit from the best."""
+    t0 = time.perf_counter()  # a computation budget: real time, whatever the clock
+    genome, _ = refine_equation_error(evo.spec, train, evo.scales, evo.optimizer.best_x, kp,
+                                      kd, max_nfev=nfev, deadline=t0 + budget_s)
+    cost = float(evo.problem.cost(genome[None])[0])
+    return genome, cost, time.perf_counter() - t0
+
+
+def warm_start(evo: Evolution, train, kp, kd, budget_s: float, nfev: int) -> Optional[str]:
+    """
+    Place the start genome by the equation-error fit (the offline pipeline's first stage).
+
+    Fitting M θ̈ + V + G + F = τ on the buffered samples needs no rollout: within its
+    budget it puts gravity, inertia and friction where the data put them, which a search
+    from the default genome takes many generations to find. Kept only when its rollout on
+    the training data does not diverge (the optimizer then restarts around it); returns
+    what the search starts from, None if not kept.
+    """
+    genome, cost, seconds = _equation_error_fit(evo, train, kp, kd, budget_s, nfev)
+    if not math.isfinite(cost):
+        return None
+    restart_around(evo.optimizer, genome, cost)
+    return f'the equation-error fit ({seconds:.1f} s, J {cost:.4g})'
+
+
+def rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) -> str:
+    """
+    Fit again from the best genome on the grown window; return the line that says so.
+
+    A case-3 search first tries the start from the linearly identified gains
+    (:mod:`.case_three`: they may be determined by now), then the equation-error fit; a
+    genome replaces the best (the optimizer restarts around it) only if its cost is lower.
+    """
+    before = float(evo.optimizer.best_cost)
+    placed = case_three.start_genome(evo, train, budget_s, nfev)
+    if placed is not None and not placed.cost >= before:
+        restart_around(evo.optimizer, placed.genome, placed.cost)
+        return (f'{placed.origin} on {seconds:.1f} s of data: better than the best '
+                f'({before:.4g}), restarting around it')
+    genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd, budget_s, nfev)
+    kept = math.isfinite(cost) and not cost >= before
+    if kept:
+        restart_around(evo.optimizer, genome, cost)
+    return (f'equation-error fit again on {seconds:.1f} s of data ({took:.1f} s): J '
+            f'{cost:.4g} vs the best {before:.4g}, '
+            + ('restarting around it' if kept else 'kept the best'))
+
+
+def restart_around(optimizer, genome, cost: float) -> None:
+    """Make ``genome`` the best and restart the optimizer around it."""
+    optimizer.seed_best(genome, cost)
+    optimizer.restart(genome, max(WARM_START_SIGMA, optimizer.settings.get('sigma_min', 0.0)))
+
+
+def hand_over_settings(evo: Evolution, running: str, settings: OnlineSettings,
+                       upcoming: int) -> Optional[str]:
+    """
+    Give the search the optimizer the settings ask for (between two generations).
+
+    A new algorithm replaces the optimizer, warm-started from the best genome; changed
+    settings go to the running one. Returns the line saying so (None: no change).
+    """
+    algorithm, wanted = settings.optimizer, dict(settings.optimizer_settings)
+    optimizer = evo.optimizer
+    if algorithm != running:
+        new = make_optimizer(algorithm, optimizer.dim, x0=optimizer.best_x, rng=evo.rng,
+                             **wanted)
+        if math.isfinite(optimizer.best_cost):
+            new.rescore(optimizer.best_cost)
+        evo.optimizer = new
+        return (f'generation {upcoming} runs es.algorithm {algorithm!r} (population '
+                f'{new.population_size}), warm-started from the best genome')
+    current = optimizer.settings
+    diff = {k: v for k, v in wanted.items() if current.get(k) != v}
+    if not diff:
+        return None
+    optimizer.update_settings(**diff)
+    shown = ', '.join(f'es.{k}={v}' for k, v in sorted(diff.items()))
+    return (f'generation {upcoming} takes the new settings {shown} '
+            f'(population {optimizer.population_size})')
