@@ -40,6 +40,21 @@ Topics (published)
     that state's command). Transient local so that a late subscriber gets the current one
     at once; a volatile subscriber is compatible too.
 
+Topics (subscribed)
+-------------------
+``~/feedforward`` (trajectory_msgs/JointTrajectory, reliable, depth 10)
+    A feed-forward torque, as a servo with an effort interface takes it: the points'
+    ``effort`` (one per joint, mapped by name; positions and velocities are ignored),
+    at ``header.stamp + time_from_start`` on the node's clock (a zero stamp: now), linear
+    between points, added to the servo's torque (before saturation) at the servo's time:
+    τ = servo + τ_ff; ``effort`` in ``joint_states`` stays the applied torque. The newest
+    sound trajectory replaces the one before; after its last point, or on an empty
+    trajectory, the servo runs alone. A malformed or stale one (unknown, missing or
+    repeated joints, a point without efforts, NaN or inf, an effort beyond ``tau_limit``,
+    times not increasing, its last point in the past) is not applied and drops the one
+    before: the servo runs alone, and the reason is counted and logged (at most once a
+    second per reason; :mod:`rkgnn_ros.core.control.receiver`).
+
 Timing
 ------
 Simulation time τ starts at 0 (the reference's time origin) at the first clock reading
@@ -90,11 +105,12 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from .conversions import make_joint_state, make_joint_trajectory
+from .core.control.receiver import FeedforwardReceiver
 from .core.integration.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
 from .core.sim.plant import (ArmParameters, forward_dynamics_kernel, MASS_MODELS,
                              max_stable_rkg_step, PlanarArm, RK4_REAL_STABILITY_LIMIT)
 from .core.sim.sensors import SensorModel, VELOCITY_SOURCES
-from .core.sim.servo import (DEFAULT_WINDUP_TIME, GRAVITY_MODES, Servo,
+from .core.sim.servo import (DEFAULT_WINDUP_TIME, FeedforwardTrack, GRAVITY_MODES, Servo,
                              servo_integral_rate_into, servo_torque_into)
 from .core.sim.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
 from .parameters import Change, ParameterSpec
@@ -135,7 +151,8 @@ def _pd_rate(x, ref, j, tau_held, servo, d, gh, fv, fc, vc, out):
     The state is [θ, θ̇, I], I the servo's integral term (N m). With ``ref`` of shape
     (K, 2, n) (K > 0) the torque is the continuous servo torque towards θd = ref[j, 0],
     θ̇d = ref[j, 1] (:func:`.core.sim.servo.servo_torque_into`, ``servo`` its
-    :class:`~.core.sim.servo.ServoConstants`); with K = 0 it is ``tau_held`` (n,) and I
+    :class:`~.core.sim.servo.ServoConstants`), plus τ_ff = ref[j, 2] when ``ref`` has shape
+    (K, 3, n); with K = 0 it is ``tau_held`` (n,) and I
     does not move (a digital servo advances it at its ticks). θ̈ comes from the plant's
     compiled single-state kernel (the arithmetic of ``PlanarArm.forward_dynamics``); ``d``,
     ``gh`` are the arm's constants and ``fv``, ``fc``, ``vc`` its viscous and Coulomb
@@ -147,7 +164,12 @@ def _pd_rate(x, ref, j, tau_held, servo, d, gh, fv, fc, vc, out):
     if ref.shape[0] > 0:
         raw = np.empty(n)
         tau = np.empty(n)
-        servo_torque_into(servo, theta, theta_dot, ref[j, 0], ref[j, 1], x[2 * n:], raw, tau)
+        if ref.shape[1] > 2:  # a feed-forward torque in ref[j, 2]
+            servo_torque_into(servo, theta, theta_dot, ref[j, 0], ref[j, 1], x[2 * n:], raw,
+                              tau, ref[j, 2])
+        else:
+            servo_torque_into(servo, theta, theta_dot, ref[j, 0], ref[j, 1], x[2 * n:], raw,
+                              tau)
         servo_integral_rate_into(servo, theta, ref[j, 0], raw, tau, out[2 * n:])
     else:
         tau = tau_held
@@ -162,8 +184,9 @@ def _rkg_pd_steps(x, h, steps, ref, tau_held, servo, d, gh, fv, fc, vc):
     Return ``x`` (3n,) advanced by ``steps`` Runge-Kutta-Gill steps of width ``h``.
 
     The compiled twin of :func:`.core.integration.rkg.rkg_step` (Gill's coefficients imported
-    from there) applied to :func:`_pd_rate`: ``ref`` (2 steps + 1, 2, n) holds θd, θ̇d at the
-    stage times t + k h/2, or has shape (0, 2, n) for the held torque ``tau_held``. The
+    from there) applied to :func:`_pd_rate`: ``ref`` (2 steps + 1, 2 or 3, n) holds θd, θ̇d
+    (and τ_ff) at the stage times t + k h/2, or has shape (0, 2, n) for the held torque
+    ``tau_held``. The
     other arguments are those of :func:`_pd_rate`.
     """
     m = x.shape[0]
@@ -224,6 +247,12 @@ class ArmSimulator:
         the arm's own model on the 'measured' or 'desired' position ('none': without),
         back-calculation time constant.
 
+    Attributes
+    ----------
+    feedforward : FeedforwardTrack or None
+        A feed-forward torque on the simulation's time axis, added to the servo's torque
+        (zero outside its points); None: the servo alone.
+
     """
 
     def __init__(self, arm: PlanarArm, kp, kd, reference: Reference, max_step: float,
@@ -254,6 +283,7 @@ class ArmSimulator:
         self.t = 0.0
         self._tick = 0                                        # index of the next tick
         self._held_tau = None
+        self.feedforward: Optional[FeedforwardTrack] = None
         if self.compiled:
             self._check_compiled()
         self._update_digital()
@@ -271,7 +301,8 @@ class ArmSimulator:
         theta, theta_dot = self.x[:n].copy(), self.x[n:2 * n].copy()
         theta_d, theta_d_dot = self.reference.evaluate(float(self.t))
         if self.control_period is None:
-            tau = self.servo.torque(theta, theta_dot, theta_d, theta_d_dot, self.x[2 * n:])
+            tau = self.servo.torque(theta, theta_dot, theta_d, theta_d_dot, self.x[2 * n:],
+                                    self._feedforward_at(self.t))
         else:
             tau = self._held_tau.copy()
         return theta, theta_dot, tau, theta_d, theta_d_dot
@@ -290,8 +321,9 @@ class ArmSimulator:
         with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
             while self.t < t_end - _TIME_TOL:
                 if self.control_period is None:
-                    self._integrate_continuous(self.t, t_end)
-                    self.t = t_end
+                    stop = self._feedforward_edge(t_end)
+                    self._integrate_continuous(self.t, stop)
+                    self.t = stop
                 else:
                     stop = min(t_end, self._tick * self.control_period)
                     self._integrate_held(self.t, stop)
@@ -301,6 +333,18 @@ class ArmSimulator:
 
     # -- internals ------------------------------------------------------------------------
 
+    def _feedforward_at(self, t):
+        """Return τ_ff at time(s) ``t`` ((n,) or (T, n)), or None without a feed-forward."""
+        return None if self.feedforward is None else self.feedforward.evaluate(t)
+
+    def _feedforward_edge(self, t_end: float) -> float:
+        """Return the feed-forward's start or end if it lies before ``t_end``, else t_end."""
+        if self.feedforward is not None:
+            for edge in (self.feedforward.start, self.feedforward.end):
+                if self.t + _TIME_TOL < edge < t_end - _TIME_TOL:
+                    return edge
+        return t_end
+
     def _steps(self, span: float) -> int:
         return max(1, int(math.ceil(span / self.max_step - 1e-9)))
 
@@ -308,7 +352,8 @@ class ArmSimulator:
         """Return ẋ (3n,) under the continuous servo; ``u`` (2, n) holds θd and θ̇d."""
         n = self.n
         theta, theta_dot = x[:n], x[n:2 * n]
-        raw, tau = self.servo.torques(theta, theta_dot, u[0], u[1], x[2 * n:])
+        raw, tau = self.servo.torques(theta, theta_dot, u[0], u[1], x[2 * n:],
+                                      u[2] if u.shape[0] > 2 else None)
         out = np.empty(3 * n)
         out[:n] = theta_dot
         out[n:2 * n] = self.arm.forward_dynamics(theta, theta_dot, tau)
@@ -330,7 +375,13 @@ class ArmSimulator:
         stage_t = t_a + 0.5 * h * np.arange(2 * steps + 1)
         stage_t[-1] = t_b
         theta_d, theta_d_dot = self.reference.evaluate(stage_t)     # (2s+1, n) each
-        u = np.stack([theta_d, theta_d_dot], axis=1)                # (2s+1, 2, n)
+        rows = [theta_d, theta_d_dot]
+        if self.feedforward is not None:
+            # τ_ff jumps at the track's start and end (advance() integrates up to them): at
+            # the interval's ends take its value from inside the interval
+            inset = min(_TIME_TOL, 0.25 * (t_b - t_a))
+            rows.append(self._feedforward_at(np.clip(stage_t, t_a + inset, t_b - inset)))
+        u = np.stack(rows, axis=1)                                  # (2s+1, 2 or 3, n)
         if self.compiled:
             self.x = _rkg_pd_steps(self.x, h, steps, u, self._no_tau, *self._constants)
             return
@@ -392,7 +443,7 @@ class ArmSimulator:
             theta, theta_dot, integral = self.x[:n], self.x[n:2 * n], self.x[2 * n:]
             theta_d, theta_d_dot = self.reference.evaluate(float(tick_time))
             raw, self._held_tau = self.servo.torques(theta, theta_dot, theta_d, theta_d_dot,
-                                                     integral)
+                                                     integral, self._feedforward_at(tick_time))
             rate = self.servo.integral_rate(theta, theta_d, raw, self._held_tau)
             self.x = np.concatenate([self.x[:2 * n], integral + self.control_period * rate])
             self._tick += 1
@@ -754,6 +805,10 @@ class SimArm(Node):
         self._command_pub = self.create_publisher(JointState, 'joint_commands', state_qos)
         self._reference_pub = self.create_publisher(
             JointTrajectory, 'reference_trajectory', reference_qos)
+        self._feedforward = FeedforwardReceiver(self._names, config.tau_limit)
+        self._feedforward_logged = {}              # reason -> clock time (s) of its last log
+        self._feedforward_on = False
+        self.create_subscription(JointTrajectory, '~/feedforward', self._on_feedforward, 10)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self._timer = self.create_timer(1.0 / self._rate, self._on_timer)
@@ -897,8 +952,48 @@ class SimArm(Node):
             self._next_ref_index = self._index + 1
             due = self._index + 1
         for index in range(self._index + 1, due + 1):
+            origin = self._origin_ns / _NANO
+            self._feedforward_event(self._feedforward.expire(origin + self.sim.t))
+            self.sim.feedforward = self._feedforward.track(origin)
             self.sim.advance(index / self._rate)
             self._publish_sample(index)
+
+    # -- feed-forward ---------------------------------------------------------------------
+
+    def _on_feedforward(self, msg: JointTrajectory):
+        """Take a feed-forward trajectory (applied at the next step); never raises."""
+        receiver = self._feedforward
+        try:
+            if self._origin_ns is None:
+                event = receiver.refuse('not_started', 'the simulation has not started')
+            else:
+                stamp = msg.header.stamp.sec * _NANO + msg.header.stamp.nanosec
+                times = [p.time_from_start.sec + p.time_from_start.nanosec / _NANO
+                         for p in msg.points]
+                event = receiver.offer(self._origin_ns / _NANO + self.sim.t, stamp / _NANO,
+                                       msg.joint_names, times, [p.effort for p in msg.points])
+            self._feedforward_event(event)
+        except Exception as error:  # nothing may escape a callback
+            self._feedforward_event(receiver.refuse('bad_shape', f'unreadable ({error!r})'))
+
+    def _feedforward_event(self, event):
+        """Log a fall-back to the servo alone (once a second per reason) or a resumption."""
+        if event is None:
+            return
+        applied, self._feedforward_on = self._feedforward_on, event.applied
+        if event.applied:
+            if not applied:
+                self.get_logger().info('feed-forward applied: servo + feed-forward')
+            return
+        now = self.get_clock().now().nanoseconds / _NANO
+        if now - self._feedforward_logged.get(event.reason, -math.inf) >= 1.0:
+            self._feedforward_logged[event.reason] = now
+            text = (f'feed-forward {event.reason} ({self._feedforward.counts[event.reason]} '
+                    f'so far): {event.message}; the servo runs alone')
+            if event.reason in ('stopped', 'expired'):  # the normal ends of a feed-forward
+                self.get_logger().info(text)
+            else:
+                self.get_logger().warning(text)
 
     def _publish_sample(self, index: int):
         self._index = index

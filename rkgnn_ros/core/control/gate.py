@@ -378,6 +378,10 @@ class FeedforwardGate:
         """Switch the feed-forward off at once: the model's rollout diverged."""
         self._switch_off(reason)
 
+    def switch_off(self, reason: str) -> None:
+        """Switch the feed-forward off at once for a reason of the caller's (e.g. disabled)."""
+        self._switch_off(reason)
+
     def assess(self, model, validation: Sequence[Dataset], torque_scale: Optional[float] = None,
                rollout_nrmse: Optional[float] = None) -> Assessment:
         """
