@@ -147,6 +147,21 @@ PARAMETERS = (
     ParameterSpec('prediction.on_state', False,
                   'Also predict on every accepted joint_states sample (at most once per '
                   'model_step).'),
+    ParameterSpec('feedforward.enabled', False,
+                  'Publish the learned feed-forward on ~/feedforward (cases torque and '
+                  'pd_gains) whenever the model passes the gate; false: never (and stop '
+                  'at once).'),
+    ParameterSpec('feedforward.max_error', 0.05,
+                  "Gate: the largest held-out torque error (RMSE / std of the joint's torque, "
+                  'worst joint) on the newest validation samples.', 0.0, 10.0, low_open=True),
+    ParameterSpec('feedforward.max_effort', (),
+                  'Clip of the feed-forward per joint (N m): one value per joint or one for '
+                  'all; empty: the feed-forward stays off.', low=0.0,
+                  ptype=_T.DOUBLE_ARRAY, constraints='each > 0'),
+    ParameterSpec('feedforward.forward_topic', '',
+                  'Also publish the feed-forward here (e.g. a controller trajectory topic or '
+                  '/sim_arm/feedforward); empty: only ~/feedforward. Read-only.',
+                  change=Change.START),
     ParameterSpec('model_file', '',
                   'Model YAML: loaded at start if present (published, start genome), written '
                   'atomically on ~/save_model and at shutdown; empty: no file.'),
@@ -271,6 +286,10 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
                     f'{len(kp)} and {len(kd)} values')
         if joints and len(kp) != len(joints):
             return f'kp and kd have {len(kp)} values for {len(joints)} joints'
+    clip = values['feedforward.max_effort']
+    if any(v <= 0.0 for v in clip) or (joints and len(clip) not in (1, len(joints))):
+        return (f'feedforward.max_effort must hold one value > 0 per joint or one for all, '
+                f'got {list(clip)}')
     algorithm, settings = optimizer_settings(values)
     cls = PaperEA if algorithm == 'paper' else CMAES
     try:
