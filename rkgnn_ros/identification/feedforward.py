@@ -47,13 +47,14 @@ The model is fitted and judged every :data:`REFIT_PERIOD_S` (a failing verdict s
 the feed-forward off at once; it comes back at the next passing one), in a thread of its
 own: a fit takes 0.1-2 s, too long for the executor, and while it runs the node's other
 threads get less of the interpreter, so the data's freshness is judged in the pass after a
-fit. Publishing and logging happen in the executor thread, woken by a guard condition, like
-the rest of the node's outputs.
+fit. The thread keeps the node's priority: a thread that holds the interpreter lock and is
+not scheduled (a lowered priority on a loaded machine) stalls every other thread of the
+node. Publishing and logging happen in the executor thread, woken by a guard condition,
+like the rest of the node's outputs.
 """
 
 from collections import deque
 import math
-import os
 import threading
 import time
 import traceback
@@ -74,7 +75,6 @@ PERIOD_S = 0.1         # the thread's pass: a switch-off (stale data) takes at m
 REFIT_PERIOD_S = 5.0   # s between two fits of the feed-forward's model
 ROLLOUT_S = 1.0        # s of the newest validation samples the model is rolled out over
 RAMP_S = 2.0           # s over which the efforts rise from 0 after each switch-on
-THREAD_NICE = 10
 JOIN_TIMEOUT_S = 10.0
 
 
@@ -156,10 +156,6 @@ class FeedforwardSender:
         return True
 
     def _run(self) -> None:
-        try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), THREAD_NICE)
-        except (AttributeError, OSError):  # not Linux, or not permitted
-            pass
         while not self._stop.wait(PERIOD_S):
             try:
                 self.step()
