@@ -38,7 +38,7 @@ from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identification.feedforward import FeedforwardSender
-from rkgnn_ros.identification.parameters import make_config
+from rkgnn_ros.identification.parameters import ConfigurationError, make_config
 from rkgnn_ros.stream_capture import PlannedReference
 from trajectory_msgs.msg import JointTrajectory
 
@@ -194,3 +194,11 @@ def test_a_model_that_turns_non_finite_on_the_plan_is_stopped(rig):
     assert new and not any(m.points for m in new)  # only the stop (an empty trajectory)
     assert all(np.all(np.isfinite(p.effort)) for m in received for p in m.points)
     assert 'non-finite torque on the plan' in sender.diagnostics().status[0].message
+
+
+def test_the_clip_parameter_takes_one_value_per_joint_one_for_all_or_none():
+    for clip in ((), (5.0,), (30.0, 20.0, 5.0)):
+        make_config(joints=list(JOINTS), **{'feedforward.max_effort': clip})
+    for clip in ((30.0, 20.0), (30.0, 0.0, 5.0)):
+        with pytest.raises(ConfigurationError, match='feedforward.max_effort'):
+            make_config(joints=list(JOINTS), **{'feedforward.max_effort': clip})

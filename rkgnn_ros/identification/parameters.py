@@ -287,9 +287,9 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
         if joints and len(kp) != len(joints):
             return f'kp and kd have {len(kp)} values for {len(joints)} joints'
     clip = values['feedforward.max_effort']
-    if any(v <= 0.0 for v in clip) or (joints and len(clip) not in (1, len(joints))):
-        return (f'feedforward.max_effort must hold one value > 0 per joint or one for all, '
-                f'got {list(clip)}')
+    if any(v <= 0.0 for v in clip) or (joints and len(clip) not in (0, 1, len(joints))):
+        return (f'feedforward.max_effort must hold one value > 0 per joint, one for all or '
+                f'none, got {list(clip)}')
     algorithm, settings = optimizer_settings(values)
     cls = PaperEA if algorithm == 'paper' else CMAES
     try:
