@@ -68,6 +68,8 @@ class ArmModel:
 
 
 class FakeCapture:
+    """A buffer capture that always holds the same segments."""
+
     def __init__(self, segments):
         self._segments = segments
 

@@ -80,7 +80,7 @@ class Probe:
         assert wait_for(future.done, PATIENCE)
         return future.result()
 
-    def set(self, **values):
+    def set_parameters(self, **values):
         result = self.call(self.set_client, SetParameters.Request(parameters=[
             Parameter(name.replace('__', '.'), value=value).to_parameter_msg()
             for name, value in values.items()]))
@@ -143,27 +143,27 @@ def test_the_clip_holds(rig):
     probe = rig
     clip = np.array([2.0, 1.0, 0.2])  # below the gravity torques: every point is clipped
     count = len(probe.feedforward)
-    probe.set(feedforward__max_effort=clip.tolist())
+    probe.set_parameters(feedforward__max_effort=clip.tolist())
     assert wait_for(lambda: len(probe.with_points(count)) >= 3, PATIENCE), probe.status[-3:]
     late = probe.with_points(count)[2:]
     efforts = np.array([p.effort for m in late for p in m.points])
     assert np.all(np.abs(efforts) <= clip)
     assert np.any(np.isclose(np.abs(efforts), clip))  # the clip was reached
-    probe.set(feedforward__max_effort=CLIP.tolist())
+    probe.set_parameters(feedforward__max_effort=CLIP.tolist())
 
 
 def test_a_model_that_fails_the_gate_never_publishes(rig):
     probe = rig
-    probe.set(feedforward__enabled=False)
+    probe.set_parameters(feedforward__enabled=False)
     assert wait_for(lambda: probe.status and 'enabled is false' in probe.status[-1], PATIENCE)
     count = len(probe.feedforward)
-    probe.set(feedforward__max_error=1e-6, feedforward__enabled=True)
+    probe.set_parameters(feedforward__max_error=1e-6, feedforward__enabled=True)
     # two verdicts (5 s apart, each with its own figure) that the model fails, and
     # nothing sent meanwhile
     assert wait_for(lambda: len({s for s in probe.status if 'exceeds max_error' in s}) >= 2,
                     PATIENCE), probe.status[-3:]
     assert not probe.with_points(count)
-    probe.set(feedforward__max_error=0.05)
+    probe.set_parameters(feedforward__max_error=0.05)
     assert wait_for(lambda: probe.with_points(count), PATIENCE), probe.status[-3:]
 
 
@@ -172,7 +172,7 @@ def test_switching_off_stops_the_servos_feedforward_at_once(rig):
     assert wait_for(lambda: probe.applied() is not None
                     and np.max(np.abs(probe.applied())) > 0.5, PATIENCE)
     count = len(probe.feedforward)
-    probe.set(feedforward__enabled=False)
+    probe.set_parameters(feedforward__enabled=False)
     assert wait_for(lambda: any(not m.points for m in probe.feedforward[count:]), PATIENCE)
     assert wait_for(lambda: np.allclose(probe.applied(), 0.0, atol=1e-9), PATIENCE)
     assert not probe.with_points(count)
@@ -180,5 +180,5 @@ def test_switching_off_stops_the_servos_feedforward_at_once(rig):
 
 def test_case_three_says_why_not(rig):
     probe = rig
-    probe.set(feedforward__enabled=True, case='unknown')
+    probe.set_parameters(feedforward__enabled=True, case='unknown')
     assert wait_for(lambda: probe.status and 'not identifiable' in probe.status[-1], PATIENCE)

@@ -150,7 +150,8 @@ class Arm:
         self.probe.create_subscription(JointState, 'joint_commands',
                                        lambda m: self.commands.__setitem__(stamp_ns(m), m), qos)
         self.rosout = Rosout(self.probe)
-        self.send = self.probe.create_publisher(JointTrajectory, '/sim_arm/feedforward', 10).publish
+        self.send = self.probe.create_publisher(JointTrajectory, '/sim_arm/feedforward',
+                                                10).publish
         executor.add_node(self.probe)
         self.node = SimArm(context=context, parameter_overrides=[
             Parameter(name, value=value) for name, value in overrides.items()])

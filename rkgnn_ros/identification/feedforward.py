@@ -36,12 +36,13 @@ After each switch-on the efforts rise linearly from zero over :data:`RAMP_S` (bu
 engagement): a torque step of several N m would jolt the arm, and the jolt itself, a kink
 in θ̇ that no 100 Hz derivative follows, made the next verdict fail (held-out error 0.08-0.13
 against 0.002-0.02 otherwise, in a run through the nodes) and the feed-forward toggle.
-On every switch-off (at once, no ramp) it publishes an empty trajectory (which stops the feed-forward of a
-joint_trajectory_controller or of ``sim_arm``), logs the reason and says it at once in
-``/diagnostics`` (a status of its own, ``<node>: feedforward``); it comes back only after a
-new passing assessment. In case 2 the known PD law gives the applied torque only while no
-feed-forward is added, so while it is on the model and its verdict are kept (staleness and
-non-finite plans still switch it off) and it is refitted once it is off.
+On every switch-off (at once, no ramp) it publishes an empty trajectory (which stops the
+feed-forward of a joint_trajectory_controller or of ``sim_arm``), logs the reason and says
+it at once in ``/diagnostics`` (a status of its own, ``<node>: feedforward``); it comes
+back only after a new passing assessment. In case 2 the known PD law gives the applied
+torque only while no feed-forward is added, so while it is on the model and its verdict
+are kept (staleness and non-finite plans still switch it off) and it is refitted once it
+is off.
 
 The model is fitted and judged every :data:`REFIT_PERIOD_S` (a failing verdict switches
 the feed-forward off at once; it comes back at the next passing one), in a thread of its
