@@ -38,7 +38,8 @@ in θ̇ that no 100 Hz derivative follows, made the next verdict fail (held-out 
 against 0.002-0.02 otherwise, in a run through the nodes) and the feed-forward toggle.
 On every switch-off (at once, no ramp) it publishes an empty trajectory (which stops the
 feed-forward of a joint_trajectory_controller or of ``sim_arm``), logs the reason and says
-it at once in ``/diagnostics`` (a status of its own, ``<node>: feedforward``); it comes
+it at once in ``/diagnostics`` (a status of its own: name ``<node name>: feedforward``,
+hardware id ``<node's full name>/feedforward``, beside the node's own status); it comes
 back only after a new passing assessment. In case 2 the known PD law gives the applied
 torque only while no feed-forward is added, so while it is on the model and its verdict
 are kept (staleness and non-finite plans still switch it off) and it is refitted once it
@@ -341,7 +342,7 @@ class FeedforwardSender:
         status = DiagnosticStatus(
             level=level, name=f'{node.get_name()}: feedforward',
             message='on' if self._on else f'off: {self._reason}',
-            hardware_id=node.get_fully_qualified_name(),
+            hardware_id=f'{node.get_fully_qualified_name()}/feedforward',
             values=[KeyValue(key=k, value=str(v)) for k, v in pairs])
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = node.get_clock().now().to_msg()
