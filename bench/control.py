@@ -19,7 +19,11 @@ Arms: the paper's 3-link arm under its PD, a 2-link and a 6-link planar arm (fri
 every joint) under PD gains of their own. Each model is fitted on one 10 s run on
 ``paper_reference`` (100 Hz, the servo alone) and used on three held-out references that
 no model saw: ``heldout_reference`` (other sines), faster smaller sines and a 0.05-1 Hz
-chirp, 10 s each, about the hanging pose.
+chirp, 10 s each, about the hanging pose. The fitting run is recorded from 1 s after its
+start, as ``bench/generalization.py`` does and as the identifier's buffer is after its
+first window: at t = 0 the PD meets uncompensated gravity and θ̈ peaks for some 20 ms,
+which no smoother of 100 Hz samples follows (with that transient in the 8 s the linear fit
+trains on, its feed-forward tracked 8.9× the floor on the paper's arm instead of 1.01×).
 
 The feed-forward goes out as the identifier will send it: on the points of the plan every
 20 ms (``sim_arm``'s ``reference_dt``), θ̈d from the points
@@ -35,17 +39,23 @@ Models (per n):
   20 ms point spacing);
 - ``least_squares``: the base parameters of the arm's rigid-body regressor fitted to the
   measured torque of the fitting run (case 1; θ̈ the Savitzky-Golay derivative of θ̇);
-- ``ours_case1``, ``ours_case2``: ``identify.fit_best`` on the fitting run (torque
-  measured; PD gains known), the default pipeline, seed ``--seed``, ``--budget`` seconds of
-  wall time each.
+- ``ours_case1``, ``ours_case2``: the model the identifier's feed-forward uses in cases 1
+  and 2 (:func:`~rkgnn_ros.core.control.model.feedforward_model`: the equation-error fit of
+  ``LinearDynamics`` on the tied trigonometric basis of a planar arm), fitted as the node
+  fits it: on the older 80 % of the fitting run, the newest 20 % held out for the gate
+  (``gate_error``: the gate's metric there); torque measured, or from the known PD gains;
+- ``rbf_case1``, ``rbf_case2``: the RBF model of the online search, ``identify.fit_best``
+  on the whole fitting run (torque measured; PD gains known), seed ``--seed``,
+  ``--budget`` seconds of wall time each (``--no-rbf`` leaves them out).
 
 Metric: ``tracking_rmse``, the RMSE of θd − θ (rad) over each held-out run, mean over
 joints, mean over the three runs. A feed-forward that makes the loop diverge scores
 ``null`` with ``diverged``. Top level, for the paper's arm: ``ratio_vs_pd`` = pd_only / the
 best of ours, ``ratio_to_true`` = the best of ours / true_model (goals: >= 5 and <= 1.5).
-``online`` (before / after switching the feed-forward on through the nodes) is filled by a
-later benchmark. The wall-time budget makes our fits depend on the machine's load; the
-JSON records the load. Writes ``bench/results/control.json``.
+``online`` (before / after switching the feed-forward on through the nodes) comes from
+``bench/control_online.py`` and is kept when this script rewrites the file. The RBF fits'
+wall-time budget makes them depend on the machine's load; the JSON records the load.
+Writes ``bench/results/control.json``.
 """
 
 import argparse
@@ -63,8 +73,10 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.control.feedforward import plan_feedforward  # noqa: E402
 from rkgnn_ros.core.control.gate import paired_torques, torque_error  # noqa: E402
+from rkgnn_ros.core.control.model import feedforward_model  # noqa: E402
 from rkgnn_ros.core.differentiate import centred_derivative  # noqa: E402
 from rkgnn_ros.core.fitting.identify import fit_best  # noqa: E402
+from rkgnn_ros.core.fitting.validation import split_validation  # noqa: E402
 from rkgnn_ros.core.sim.parameters import ArmParameters  # noqa: E402
 from rkgnn_ros.core.sim.plant import PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.servo import FeedforwardTrack, Servo  # noqa: E402
@@ -72,10 +84,14 @@ from rkgnn_ros.core.sim.simulate import simulate, SimulationError  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import (Chirp, hanging_pose, heldout_reference,  # noqa: E402
                                              paper_reference, SumOfSines)
 
-MODELS = ('pd_only', 'true_model', 'least_squares', 'ours_case1', 'ours_case2')
+MODELS = ('pd_only', 'true_model', 'least_squares', 'ours_case1', 'ours_case2', 'rbf_case1',
+          'rbf_case2')
+OURS = ('ours_case1', 'ours_case2')
+VALIDATION_FRACTION = 0.2
 RATE = 100.0
 DURATION = 10.0
 POINT_SPACING = 0.02
+SETTLE = 1.0
 
 
 # ----------------------------------------------------------------------------- the arms
@@ -171,14 +187,24 @@ def run_arm(n, args, log):
     """Measure every model on the n-link arm; return its row."""
     arm, servo = arm_and_servo(n)
     references = heldout_references(n)
-    fit_run = simulate(arm, servo, paper_reference(n), DURATION, rate=RATE)
+    # the recorded window starts SETTLE s into the run, past the start's transient
+    fit_run = simulate(arm, servo, paper_reference(n), SETTLE + DURATION, rate=RATE)
+    fit_run = fit_run.slice(int(round(SETTLE * RATE)), fit_run.n_samples)
     pd_runs = {name: simulate(arm, servo, ref, DURATION, rate=RATE)
                for name, ref in references.items()}
     row = {}
     row['pd_only'] = measure(arm, servo, references, pd_runs, None)
     log(f'n = {n}: pd_only {row["pd_only"]["tracking_rmse"]:.4g} rad')
     models = {'true_model': arm, 'least_squares': LeastSquaresArm(arm, fit_run)}
-    for key, case in (('ours_case1', 'torque'), ('ours_case2', 'pd_gains')):
+    train, held, _ = split_validation([fit_run], VALIDATION_FRACTION)
+    gate_errors = {}
+    for key, case in zip(OURS, ('torque', 'pd_gains')):
+        gains = (None, None) if case == 'torque' else (servo.kp, servo.kd)
+        models[key] = feedforward_model(train, case, *gains)
+        gate_errors[key] = float(np.max(torque_error(*paired_torques(models[key], held))))
+    for key, case in (('rbf_case1', 'torque'), ('rbf_case2', 'pd_gains')):
+        if args.no_rbf:
+            continue
         t0 = time.perf_counter()
         gains = {} if case == 'torque' else {'kp': servo.kp, 'kd': servo.kd}
         result = fit_best(fit_run, case, time_budget=args.budget, seed=args.seed, **gains)
@@ -187,8 +213,10 @@ def run_arm(n, args, log):
             f'{result.final_cost:.4g}')
     for key, model in models.items():
         row[key] = measure(arm, servo, references, pd_runs, model)
-        if key.startswith('ours'):
+        if key.startswith('rbf'):
             row[key]['fit_cost'] = float(model.info.get('cost', math.nan))
+        if key in gate_errors:
+            row[key]['gate_error'] = gate_errors[key]
         log(f'n = {n}: {key} {row[key]["tracking_rmse"]} rad, held-out torque error '
             f'{row[key].get("heldout_torque_error")}')
     return row
@@ -196,12 +224,21 @@ def run_arm(n, args, log):
 
 def ratios(row):
     """Return (pd_only / best of ours, best of ours / true_model) for one arm's row."""
-    ours = [row[k]['tracking_rmse'] for k in ('ours_case1', 'ours_case2')
-            if row[k]['tracking_rmse'] is not None]
+    ours = [row[k]['tracking_rmse'] for k in OURS if row[k]['tracking_rmse'] is not None]
     if not ours:
         return None, None
     best = min(ours)
     return row['pd_only']['tracking_rmse'] / best, best / row['true_model']['tracking_rmse']
+
+
+def previous_online(path):
+    """Return the ``online`` entry of an existing results file (None values if none)."""
+    try:
+        with open(path, encoding='utf-8') as f:
+            online = json.load(f).get('online')
+    except (OSError, ValueError):
+        online = None
+    return online if isinstance(online, dict) else {'before_rmse': None, 'after_rmse': None}
 
 
 def main(argv=None):
@@ -212,6 +249,7 @@ def main(argv=None):
                         help='wall-time seconds of each fit_best')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--quick', action='store_true', help='3 s fits: a check, not a result')
+    parser.add_argument('--no-rbf', action='store_true', help='leave the RBF models out')
     parser.add_argument('--out', default=os.path.join(HERE, 'results', 'control.json'))
     args = parser.parse_args(argv)
     if args.quick:
@@ -229,15 +267,20 @@ def main(argv=None):
     if '3' in result:
         result['ratio_vs_pd'], result['ratio_to_true'] = ratios(result['3'])
     result['goal'] = {'ratio_vs_pd': '>= 5', 'ratio_to_true': '<= 1.5'}
-    result['online'] = {'before_rmse': None, 'after_rmse': None}
+    result['online'] = previous_online(args.out)
     result['meta'] = {
         'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
         'command': 'nice -n 10 python bench/control.py ' + ' '.join(argv or sys.argv[1:]),
         'quick': args.quick, 'seed': args.seed, 'fit_budget_s': args.budget,
         'load_start': load_start, 'load_end': os.getloadavg(),
         'wall_s': round(time.perf_counter() - start, 1),
-        'fitting_run': f'paper_reference, {DURATION:.0f} s at {RATE:.0f} Hz, the servo alone',
+        'fitting_run': f'paper_reference, {DURATION:.0f} s at {RATE:.0f} Hz from '
+                       f't = {SETTLE:g} s, the servo alone',
         'heldout': list(heldout_references(3)),
+        'ours': "the identifier's feed-forward model in cases 1 and 2: "
+                'core/control/model.py feedforward_model (LinearDynamics, tied planar '
+                f'trigonometric basis), fitted on the older {1 - VALIDATION_FRACTION:.0%} of '
+                "the fitting run; rbf_*: the online search's RBF model (fit_best)",
         'feedforward': f'points every {POINT_SPACING * 1000:.0f} ms, θ̈d by the Hermite '
                        'interpolant, linear at the servo, not gated or clipped',
         'metric': 'tracking_rmse: RMSE of θd − θ (rad) over 10 s, mean over joints, mean '

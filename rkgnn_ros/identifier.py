@@ -57,28 +57,25 @@ Published
     ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): the state, the search's
     figures, the case in effect, where θ̇ and the commands come from, what is published
     and why, the scores, the prediction latency, a ``drops.<reason>`` per reason.
+    ``~/feedforward`` (trajectory_msgs/JointTrajectory): the plan's torque from the gated
+    model (:mod:`~rkgnn_ros.identification.feedforward`), also on ``feedforward.forward_topic``.
 Services
     ``~/reset`` (std_srvs/Trigger): clear the buffer and restart the search.
     ``~/save_model`` (std_srvs/Trigger): write the published model to ``model_file``.
     ``~/pause`` (std_srvs/SetBool): True pauses the search, False resumes it.
 Node parameters
-    :data:`~rkgnn_ros.identification.parameters.PARAMETERS` (``ros2 param describe``
-    shows each, and what a change does: restart the search, rebuild the buffer, handed to
-    the optimizer between generations, or taken at once); defaults in
-    ``config/identifier.yaml``. ``identified.*`` are outputs, set by the node as the model
-    improves; sets from outside are refused. An invalid value at start makes the node
-    refuse to start (exit code 1), naming the parameter; a value of another type (an
-    integer for a double) is refused by rclpy.
+    :data:`~rkgnn_ros.identification.parameters.PARAMETERS` (``ros2 param describe`` says
+    what each change does); defaults in ``config/identifier.yaml``. ``identified.*`` are
+    outputs: sets from outside are refused. An invalid value at start makes the node refuse
+    to start (exit code 1), naming it; a value of another type is refused by rclpy.
 
 Threads
 -------
 The executor thread runs the callbacks, publishes and sets parameters, and nothing else
-does. The ingest thread takes the two streams (:mod:`~rkgnn_ros.identification.ingest`),
-the worker thread runs the search (:mod:`~rkgnn_ros.identification.worker`), the
-prediction thread predicts (:mod:`~rkgnn_ros.identification.prediction`); they hand what
-is to be published or logged to the executor through an outbox
-(:mod:`~rkgnn_ros.identification.publishing`). Objects alive at start are frozen out of the
-cyclic garbage collector and no QoS-event handlers are created: the executor stays cheap.
+does. The ingest, worker, prediction and feed-forward threads (the parts of those names in
+:mod:`rkgnn_ros.identification`) hand what is to be published or logged to the executor
+(outboxes and guard conditions). Objects alive at start are frozen out of the cyclic
+garbage collector and no QoS-event handlers are created: the executor stays cheap.
 """
 
 import gc
@@ -94,6 +91,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.core.fitting.identify import precompile
 from rkgnn_ros.core.fitting.online import model_update
+from rkgnn_ros.identification.feedforward import FeedforwardSender
 from rkgnn_ros.identification.ingest import Ingestion, PolledGroup
 from rkgnn_ros.identification.model_file import load_model_file, save_model_file
 from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierParameters,
@@ -149,7 +147,7 @@ class IdentifierNode(Node):
         stream_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                                 reliability=ReliabilityPolicy.BEST_EFFORT,
                                 durability=DurabilityPolicy.VOLATILE)
-        publishers = create_publishers(self, pub_events)
+        publishers = create_publishers(self, pub_events, config['feedforward.forward_topic'])
 
         self._outbox = Outbox()
         self._ingestion = Ingestion(config, self._outbox.log, alive=self.context.ok,
@@ -163,6 +161,10 @@ class IdentifierNode(Node):
                                       self._predictor, self._ingestion,
                                       lambda: self._worker.status)
         self._outbox.connect(self.create_guard_condition(self._publishing.drain).trigger)
+        # the case in effect (``case: auto`` follows the streams) decides the feed-forward
+        self._feedforward = FeedforwardSender(self, self._ingestion,
+                                              lambda: self._ingestion.view()[0],
+                                              publishers=publishers)
         if model is not None:
             self._publishing.publish_model(model_update(model))
 
@@ -196,6 +198,7 @@ class IdentifierNode(Node):
 
         self._worker.start()
         self._predictor.start()
+        self._feedforward.start()
         self._ingestion.start(state_sub, command_sub)
         # everything built so far (modules, compiled kernels, rclpy) lives as long as the
         # node: keep it out of the cyclic garbage collector, whose full passes over it held
@@ -282,6 +285,7 @@ class IdentifierNode(Node):
             f'{self.get_name()}.shutdown')
         for part, what in ((self._worker, 'identification worker'),
                            (self._predictor, 'prediction thread'),
+                           (self._feedforward, 'feed-forward thread'),
                            (self._ingestion, 'ingest thread')):
             if not part.stop():
                 logger.warning(f'the {what} did not stop in time')

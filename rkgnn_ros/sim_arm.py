@@ -40,6 +40,26 @@ Topics (published)
     that state's command). Transient local so that a late subscriber gets the current one
     at once; a volatile subscriber is compatible too.
 
+Topics (subscribed)
+-------------------
+``~/feedforward`` (trajectory_msgs/JointTrajectory, reliable, depth 10)
+    A feed-forward torque, as a servo with an effort interface takes it: the points'
+    ``effort`` (one per joint, mapped by name; positions and velocities are ignored),
+    at ``header.stamp + time_from_start`` on the node's clock (a zero stamp: now), linear
+    between points, added to the servo's torque (before saturation) at the servo's time:
+    τ = servo + τ_ff; ``effort`` in ``joint_states`` stays the applied torque. The newest
+    sound trajectory replaces the one before; after its last point, or on an empty
+    trajectory, the servo runs alone. A malformed or stale one (unknown, missing or
+    repeated joints, a point without efforts, NaN or inf, an effort beyond ``tau_limit``,
+    times not increasing, its last point in the past) is not applied and drops the one
+    before: the servo runs alone, and the reason is counted and logged (at most once a
+    second per reason; :mod:`rkgnn_ros.core.control.receiver`); a clock jumping back drops
+    it too (its times are on the old timeline). The subscription is raw:
+    the size budgets of every JointTrajectory input (:mod:`rkgnn_ros.conversions`: 8 MiB,
+    10,000 points, 256 names of at most 256 bytes) are checked on the bytes first, and a
+    message over one is refused as ``over_budget``, plain CDR that is no JointTrajectory
+    as ``bad_shape``, both before rclpy builds the message.
+
 Timing
 ------
 Simulation time τ starts at 0 (the reference's time origin) at the first clock reading
@@ -78,12 +98,16 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
-from .conversions import make_joint_state, make_joint_trajectory
+from .cdr import is_plain_cdr, joint_trajectory_cdr_size, parse_joint_trajectory_cdr
+from .conversions import (make_joint_state, make_joint_trajectory, MAX_MESSAGE_JOINTS,
+                          MAX_NAME_BYTES, MAX_TRAJECTORY_BYTES, MAX_TRAJECTORY_POINTS)
+from .core.control.receiver import FeedforwardReceiver
 from .core.sim.arm_simulator import ArmSimulator, SimulationDiverged
 from .parameters import Change
 from .sim_arm_parameters import build_config, BY_NAME, ConfigurationError, PARAMETERS
@@ -94,6 +118,42 @@ NODE_NAME = 'sim_arm'
 CATCH_UP_LIMIT = 0.5
 
 _NANO = 1_000_000_000
+
+
+def _over_budget(names, points: int) -> Optional[str]:
+    """Return why a trajectory's names or number of points are over the budgets, or None."""
+    if len(names) > MAX_MESSAGE_JOINTS:
+        return f'{len(names)} joint names, over the budget of {MAX_MESSAGE_JOINTS}'
+    if points > MAX_TRAJECTORY_POINTS:
+        return f'{points} points, over the budget of {MAX_TRAJECTORY_POINTS}'
+    longest = max((len(name.encode('utf-8', 'surrogatepass')) for name in names), default=0)
+    if longest > MAX_NAME_BYTES:
+        return f'a joint name of {longest} bytes, over the budget of {MAX_NAME_BYTES}'
+    return None
+
+
+def read_feedforward(raw: bytes):
+    """
+    Return the JointTrajectory in ``raw`` (its serialized bytes), or ``(reason, message)``.
+
+    The reason is ``'over_budget'`` (bytes, names or points over the budgets of
+    :mod:`rkgnn_ros.conversions`, checked before anything is built from the points) or
+    ``'bad_shape'`` (plain CDR that does not form a JointTrajectory: never handed to
+    rclpy's deserializer, which prints on stderr for it).
+    """
+    if len(raw) > MAX_TRAJECTORY_BYTES:
+        return 'over_budget', f'{len(raw)} bytes, over the budget of {MAX_TRAJECTORY_BYTES}'
+    raw = bytes(raw)
+    if is_plain_cdr(raw):
+        size = joint_trajectory_cdr_size(raw)
+        reason = None if size is None else _over_budget(*size)
+        if reason is not None:
+            return 'over_budget', reason
+        if parse_joint_trajectory_cdr(raw) is None:
+            return 'bad_shape', f'{len(raw)} bytes of CDR that do not form a JointTrajectory'
+    msg = deserialize_message(raw, JointTrajectory)
+    reason = _over_budget(msg.joint_names, len(msg.points))
+    return msg if reason is None else ('over_budget', reason)
 
 
 class SimArm(Node):
@@ -156,6 +216,12 @@ class SimArm(Node):
         self._command_pub = self.create_publisher(JointState, 'joint_commands', state_qos)
         self._reference_pub = self.create_publisher(
             JointTrajectory, 'reference_trajectory', reference_qos)
+        self._feedforward = FeedforwardReceiver(self._names, config.tau_limit)
+        self._feedforward_logged = {}              # reason -> clock time (s) of its last log
+        self._feedforward_on = False
+        # raw: the size budgets are checked on the bytes, before the points become objects
+        self.create_subscription(JointTrajectory, '~/feedforward', self._on_feedforward, 10,
+                                 raw=True)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self._timer = self.create_timer(1.0 / self._rate, self._on_timer)
@@ -283,6 +349,9 @@ class SimArm(Node):
             self._origin_ns += shift
             self._start_ns += shift                # ``duration`` counts clock time run
             self._next_ref_index = self._index + 1
+            if self._feedforward.active:           # its times belong to the old timeline
+                self._feedforward_event(self._feedforward.refuse(
+                    'clock_jump', 'the clock jumped back: its times are on the old timeline'))
             return
         due = self._due_index(now_ns)
         if (due - self._index) / self._rate > CATCH_UP_LIMIT:
@@ -299,8 +368,51 @@ class SimArm(Node):
             self._next_ref_index = self._index + 1
             due = self._index + 1
         for index in range(self._index + 1, due + 1):
+            origin = self._origin_ns / _NANO
+            self._feedforward_event(self._feedforward.expire(origin + self.sim.t))
+            self.sim.feedforward = self._feedforward.track(origin)
             self.sim.advance(index / self._rate)
             self._publish_sample(index)
+
+    # -- feed-forward ---------------------------------------------------------------------
+
+    def _on_feedforward(self, raw: bytes):
+        """Take a feed-forward trajectory (applied at the next step); never raises."""
+        receiver = self._feedforward
+        try:
+            msg = read_feedforward(raw)
+            if isinstance(msg, tuple):
+                event = receiver.refuse(*msg)
+            elif self._origin_ns is None:
+                event = receiver.refuse('not_started', 'the simulation has not started')
+            else:
+                stamp = msg.header.stamp.sec * _NANO + msg.header.stamp.nanosec
+                times = [p.time_from_start.sec + p.time_from_start.nanosec / _NANO
+                         for p in msg.points]
+                event = receiver.offer(self._origin_ns / _NANO + self.sim.t, stamp / _NANO,
+                                       msg.joint_names, times, [p.effort for p in msg.points])
+            self._feedforward_event(event)
+        except Exception as error:  # nothing may escape a callback
+            self._feedforward_event(receiver.refuse('bad_shape', f'unreadable ({error!r})'))
+
+    def _feedforward_event(self, event):
+        """Log a fall-back to the servo alone (once a second per reason) or a resumption."""
+        if event is None:
+            return
+        applied, self._feedforward_on = self._feedforward_on, event.applied
+        if event.applied:
+            if not applied:
+                self.get_logger().info('feed-forward applied: servo + feed-forward')
+            return
+        now = self.get_clock().now().nanoseconds / _NANO
+        if now - self._feedforward_logged.get(event.reason, -math.inf) >= 1.0:
+            self._feedforward_logged[event.reason] = now
+            text = (f'feed-forward {event.reason} ({self._feedforward.counts[event.reason]} '
+                    f'so far): {event.message}; the servo runs alone')
+            if event.reason in ('stopped', 'expired'):  # the normal ends of a feed-forward
+                self.get_logger().info(text)
+            else:
+                self.get_logger().warning(text)
 
     def _publish_sample(self, index: int):
         self._index = index

@@ -24,6 +24,13 @@ joint trajectories with the uncertainty the identifier published beside each pre
 (``~/prediction_uncertainty``: the published predictor's recent error at that horizon, a
 band of ± one RMSE), which predictions were the model's and which a baseline's (the
 self-check, ``header.frame_id``), the evolution history and the prediction error over time.
+
+``--feedforward`` (``make demo DEMO_ARGS=--feedforward``; cases 1 and 2) also starts the
+learned feed-forward: the identifier forwards it to sim_arm's ``/sim_arm/feedforward``,
+``feedforward.enabled`` is set at ``--feedforward-at`` seconds (30 by default, so the figure
+has a stretch without it), and from then on the identifier sends it whenever its model
+passes the gate. The figure then has one more panel: the tracking error |θd − θ| over time,
+with the stretches where the feed-forward was on shaded, and the RMSE before and after.
 """
 
 import argparse
@@ -72,7 +79,68 @@ class Companions:
         return baseline, np.array([v if v is not None else np.full(n, np.nan) for v in sigma])
 
 
-def write_figure(path, snapshot, horizon, case, companions=None):
+class Tracking:
+    """The commands (θd by stamp) and the feed-forward's on/off status, for the figure."""
+
+    def __init__(self, node):
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import JointState
+        self.commands, self.status = {}, []
+        node.create_subscription(JointState, 'joint_commands', self._command,
+                                 qos_profile_sensor_data)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._diagnostics, 100)
+
+    def _command(self, msg):
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        self.commands[stamp] = np.array(msg.position, dtype=float)
+
+    def _diagnostics(self, msg):
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        for status in msg.status:
+            if status.name == 'identifier: feedforward':
+                self.status.append((stamp, status.message == 'on'))
+
+    def errors(self, meas_t, meas_theta):
+        """Return (t, |θd − θ| mean over joints) at the states whose command arrived."""
+        pairs = [(t, np.mean(np.abs(self.commands[t] - th)))
+                 for t, th in zip(meas_t, meas_theta) if t in self.commands]
+        return np.array(pairs).reshape(-1, 2).T
+
+
+def rmse_text(t, err, start, end):
+    """Return the RMSE of ``err`` over [start, end) as text."""
+    keep = (t >= start) & (t < end)
+    return f'{np.sqrt(np.mean(np.square(err[keep]))):.3g} rad' if keep.any() else 'n/a'
+
+
+def draw_tracking(ax, tracking, meas_t, meas_theta, start, enabled_at):
+    """Draw the tracking error, the feed-forward's on stretches and the enable time."""
+    t, err = tracking.errors(meas_t, meas_theta)
+    if t.size:
+        ax.semilogy(t - start, np.maximum(err, 1e-7), 'k', lw=0.8, label='|θd − θ|')
+    on_since = None
+    for stamp, on in tracking.status + [(np.inf, False)]:
+        if on and on_since is None:
+            on_since = stamp
+        elif not on and on_since is not None:
+            end = min(stamp, t[-1] if t.size else stamp)
+            ax.axvspan(on_since - start, end - start, color='C2', alpha=0.15)
+            on_since = None
+    if enabled_at is not None and t.size:
+        window = 20.0
+        ax.axvline(enabled_at - start, color='C3', lw=1, label='feedforward.enabled')
+        ax.set_title(f'tracking error (shaded: feed-forward on); RMSE over {window:g} s '
+                     f'before: {rmse_text(t, err, enabled_at - window, enabled_at)}, after: '
+                     f'{rmse_text(t, err, enabled_at, enabled_at + window)}', fontsize=9)
+    ax.set_xlabel('t [s]')
+    ax.set_ylabel('mean |θd − θ| [rad]')
+    ax.legend(loc='upper right', fontsize=8)
+    ax.grid(alpha=0.3)
+
+
+def write_figure(path, snapshot, horizon, case, companions=None, tracking=None,
+                 enabled_at=None):
     """Write measured vs predicted trajectories, evolution history and prediction error."""
     import matplotlib
     matplotlib.use('Agg')
@@ -82,7 +150,8 @@ def write_figure(path, snapshot, horizon, case, companions=None):
         raise RuntimeError('no joint_states were received')
     start = meas_t.min()
     n = meas_theta.shape[1]
-    fig, axes = plt.subplots(n + 2, 1, figsize=(11, 2.3 * (n + 2)))
+    rows = n + 2 + (tracking is not None)
+    fig, axes = plt.subplots(rows, 1, figsize=(11, 2.3 * rows))
     reach = [k for k, off in enumerate(offs) if off[-1] >= horizon - 1e-9]
     ahead_t = np.array([t0s[k] + horizon for k in reach]) - start
     ahead_th = np.array([thetas[k][-1] for k in reach])
@@ -127,10 +196,27 @@ def write_figure(path, snapshot, horizon, case, companions=None):
     ax.set_xlabel('t [s]')
     ax.set_ylabel(f'{horizon:g} s-ahead θ RMSE\n[% of θ range, 10 s window]')
     ax.grid(alpha=0.3)
+    if tracking is not None:
+        draw_tracking(axes[n + 2], tracking, meas_t, meas_theta, start, enabled_at)
     fig.tight_layout()
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+def enable_feedforward(node, executor):
+    """Set the identifier's ``feedforward.enabled``; return the time (s, node clock)."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+    client = node.create_client(SetParameters, 'identifier/set_parameters')
+    if not client.wait_for_service(timeout_sec=10.0):
+        raise RuntimeError('the identifier offers no set_parameters service')
+    future = client.call_async(SetParameters.Request(
+        parameters=[Parameter('feedforward.enabled', value=True).to_parameter_msg()]))
+    executor.spin_until_future_complete(future, timeout_sec=10.0)
+    if future.result() is None or not future.result().results[0].successful:
+        raise RuntimeError(f'feedforward.enabled was refused: {future.result()}')
+    return node.get_clock().now().nanoseconds * 1e-9
 
 
 def main(argv=None):
@@ -144,10 +230,16 @@ def main(argv=None):
                                                       'demo.png'))
     parser.add_argument('--domain-id', type=int, default=None)
     parser.add_argument('--print-every', type=float, default=5.0)
+    parser.add_argument('--feedforward', action='store_true',
+                        help='switch the learned feed-forward on (cases 1 and 2)')
+    parser.add_argument('--feedforward-at', type=float, default=30.0,
+                        help='seconds after the start at which feedforward.enabled is set')
     args = parser.parse_args(argv)
     case = args.case if args.case == 'auto' else CASES[args.case]
-    identifier_args = (['-p', f'prediction.horizon:={float(args.horizon)}'] if case == 'auto'
-                       else identifier_arguments(case, args.horizon))
+    extra = ['-p', 'feedforward.forward_topic:=/sim_arm/feedforward'] if args.feedforward \
+        else []
+    identifier_args = (['-p', f'prediction.horizon:={float(args.horizon)}'] + extra
+                       if case == 'auto' else identifier_arguments(case, args.horizon, extra))
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -165,11 +257,19 @@ def main(argv=None):
         companions = Companions(monitor.node, args.horizon)
         executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(monitor.node)
+        tracking = Tracking(monitor.node) if args.feedforward else None
+        enabled_at = None
         t_start = time.monotonic()
         next_print = t_start + args.print_every
         while time.monotonic() - t_start < args.duration:
             executor.spin_once(timeout_sec=0.1)
             nodes.check()
+            if tracking is not None and enabled_at is None and \
+                    time.monotonic() - t_start >= args.feedforward_at:
+                enabled_at = enable_feedforward(monitor.node, executor)
+                print(f'[{time.monotonic() - t_start:5.0f} s] feedforward.enabled set: the '
+                      'identifier sends the feed-forward whenever its model passes the gate',
+                      flush=True)
             if time.monotonic() >= next_print:
                 next_print += args.print_every
                 snap = monitor.snapshot()
@@ -188,7 +288,7 @@ def main(argv=None):
                       f'({snap[0].size} states, {len(snap[2])} predictions)', flush=True)
         snap = monitor.snapshot()
         _, _, score = prediction_score(snap, args.horizon, window=10.0)
-        write_figure(args.out, snap, args.horizon, case, companions)
+        write_figure(args.out, snap, args.horizon, case, companions, tracking, enabled_at)
         print(f'final {args.horizon:g} s-ahead θ RMSE (last 10 s): {score:.2%} of the θ range',
               flush=True)
         print(f'figure: {args.out}', flush=True)

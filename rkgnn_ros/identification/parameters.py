@@ -32,7 +32,10 @@ from types import MappingProxyType
 from typing import Dict, Mapping, Optional, Sequence, Tuple
 
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import InvalidTopicNameException
+from rclpy.expand_topic_name import expand_topic_name
 from rclpy.parameter import Parameter
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from rkgnn_ros.conversions import MAX_NAME_BYTES
 from rkgnn_ros.core.fitting.identify import normalize_case
 from rkgnn_ros.core.fitting.online import OnlineSettings
@@ -52,6 +55,7 @@ MIN_SIGMA = CMAES.SIGMA_FLOOR  # es.sigma, genome units
 MIN_PREDICTION_RATE = 0.1    # Hz, when prediction.rate is not 0 (off)
 MAX_PREDICTION_POINTS = 10_000  # prediction.horizon / model_step
 MAX_PATH_BYTES = 4096        # model_file (PATH_MAX on Linux)
+MAX_EFFORT = 1e6             # feedforward.max_effort, N m
 
 _T = Parameter.Type
 _RESTART = Change.RESTART
@@ -194,6 +198,21 @@ PARAMETERS = (
                   "none) or 'always' (the start state too, by the causal fit: a driver that "
                   'differences noisy encoders). ' + _RESTARTS, choices=VELOCITY_ESTIMATES,
                   change=_RESTART),
+    ParameterSpec('feedforward.enabled', False,
+                  'Publish the learned feed-forward on ~/feedforward (cases torque and '
+                  'pd_gains) whenever the model passes the gate; false: never (and stop '
+                  'at once).'),
+    ParameterSpec('feedforward.max_error', 0.05,
+                  "Gate: the largest held-out torque error (RMSE / std of the joint's torque, "
+                  'worst joint) on the newest validation samples.', 0.0, 10.0, low_open=True),
+    ParameterSpec('feedforward.max_effort', (),
+                  'Clip of the feed-forward per joint (N m): one value per joint or one for '
+                  'all; empty: the feed-forward stays off.', low=0.0, high=MAX_EFFORT,
+                  ptype=_T.DOUBLE_ARRAY, max_items=MAX_JOINTS, constraints='each > 0'),
+    ParameterSpec('feedforward.forward_topic', '',
+                  'Also publish the feed-forward here (e.g. a controller trajectory topic or '
+                  '/sim_arm/feedforward); empty: only ~/feedforward. Read-only.',
+                  max_bytes=MAX_NAME_BYTES, change=Change.START),
     ParameterSpec('model_file', '',
                   'Model YAML: loaded at start if present (published, start genome), written '
                   'atomically on ~/save_model and at shutdown; empty: no file. Only a regular '
@@ -341,6 +360,16 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
                     f'{len(kp)} and {len(kd)} values')
         if joints and len(kp) != len(joints):
             return f'kp and kd have {len(kp)} values for {len(joints)} joints'
+    clip = values['feedforward.max_effort']
+    if any(v <= 0.0 for v in clip) or (joints and len(clip) not in (0, 1, len(joints))):
+        return (f'feedforward.max_effort must hold one value > 0 per joint, one for all or '
+                f'none, got {list(clip)}')
+    topic = values['feedforward.forward_topic']
+    if topic:
+        try:  # as create_publisher will expand it (any node name and namespace will do)
+            validate_full_topic_name(expand_topic_name(topic, 'identifier', '/'))
+        except (InvalidTopicNameException, ValueError, RuntimeError) as exc:
+            return f'feedforward.forward_topic is not a topic name: {exc}'
     algorithm, settings = optimizer_settings(values)
     cls = PaperEA if algorithm == 'paper' else CMAES
     try:

@@ -50,12 +50,14 @@ EVOLUTION_LABELS = GenerationStats._fields
 OUTBOX_LIMIT = 10000  # items kept when nothing drains the outbox (no executor spins)
 
 
-def create_publishers(node, events) -> dict:
+def create_publishers(node, events, forward_topic: str = '') -> dict:
     """
     Create the identifier's publishers on ``node`` (``events``: their event callbacks).
 
     ``~/model`` is reliable, transient local, depth 1 (a late subscriber gets the last
-    model at once); the others are volatile, depth 10.
+    model at once); the others are volatile, depth 10. ``feedforward`` is ``~/feedforward``
+    (:mod:`~rkgnn_ros.identification.feedforward`), ``feedforward_forward`` the same on
+    ``forward_topic`` when it is not empty.
     """
     model_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                            reliability=ReliabilityPolicy.RELIABLE,
@@ -65,7 +67,10 @@ def create_publishers(node, events) -> dict:
               'prediction_uncertainty': (JointTrajectory, '~/prediction_uncertainty', 10),
               'prediction_scores': (Float64MultiArray, '~/prediction_scores', 10),
               'evolution': (Float64MultiArray, '~/evolution', 10),
-              'diagnostics': (DiagnosticArray, '/diagnostics', 10)}
+              'diagnostics': (DiagnosticArray, '/diagnostics', 10),
+              'feedforward': (JointTrajectory, '~/feedforward', 10)}
+    if forward_topic:
+        topics['feedforward_forward'] = (JointTrajectory, forward_topic, 10)
     return {key: node.create_publisher(kind, topic, qos, event_callbacks=events)
             for key, (kind, topic, qos) in topics.items()}
 

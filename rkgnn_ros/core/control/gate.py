@@ -202,6 +202,31 @@ def torque_scale_problem(case: str, torque_scale: Optional[float]) -> Optional[s
     return None
 
 
+def model_case(model) -> Tuple[str, Optional[np.ndarray], Optional[np.ndarray]]:
+    """
+    Return a model's identification case and known gains: ``(case, kp, kd)``.
+
+    An :class:`~rkgnn_ros.core.fitting.identify.RKGNNModel` says them as ``case``, ``kp``,
+    ``kd``, a fitted :class:`~rkgnn_ros.core.fitting.linear.LinearDynamics` as ``case_``,
+    ``kp_``, ``kd_``; a model with neither (the simulated arm) is taken as case 1.
+    """
+    case = getattr(model, 'case', None) or getattr(model, 'case_', None) or 'torque'
+    gains = []
+    for name in ('kp', 'kd'):
+        value = getattr(model, name, None)
+        gains.append(getattr(model, name + '_', None) if value is None else value)
+    return case, gains[0], gains[1]
+
+
+def model_parameters(model) -> np.ndarray:
+    """Return a model's parameters (``genome`` or ``coef_``) as a flat array (empty: none)."""
+    for name in ('genome', 'coef_'):
+        value = getattr(model, name, None)
+        if value is not None:
+            return np.asarray(value, dtype=float).ravel()
+    return np.empty(0)
+
+
 def _trimmed(data: Dataset) -> Tuple[slice, np.ndarray]:
     """Return the rows kept and θ̈ (rows, n) of one segment; an empty slice if too short."""
     if data.n_samples < CENTRED_ORDER + 2:
@@ -219,9 +244,9 @@ def paired_torques(model, validation: Sequence[Dataset],
 
     Parameters
     ----------
-    model : RKGNNModel
-        The identified model (``case``, ``inverse_dynamics``; ``kp``, ``kd`` in case 2,
-        ``controller_torque`` in case 3). A model without ``case`` (e.g. the simulated
+    model : object
+        The model (``inverse_dynamics``; its case and gains as :func:`model_case` reads
+        them, ``controller_torque`` in case 3). A model without a case (e.g. the simulated
         arm) is judged as in case 1, against the measured torque.
     validation : sequence of Dataset
         Held-out segments.
@@ -240,7 +265,7 @@ def paired_torques(model, validation: Sequence[Dataset],
         If the samples lack what the case needs (torque, or the desired trajectory).
 
     """
-    case = getattr(model, 'case', 'torque')
+    case, kp, kd = model_case(model)
     predicted, reference = [], []
     for data in validation:
         keep, acc = _trimmed(data)
@@ -260,7 +285,7 @@ def paired_torques(model, validation: Sequence[Dataset],
                                  'desired trajectory')
             theta_d, theta_d_dot = data.theta_d[keep], data.theta_d_dot[keep]
             if case == 'pd_gains':
-                tau = (model.kp * (theta_d - theta) + model.kd * (theta_d_dot - theta_dot))
+                tau = kp * (theta_d - theta) + kd * (theta_d_dot - theta_dot)
             else:
                 with np.errstate(all='ignore'):
                     tau = torque_scale * np.asarray(
@@ -351,6 +376,10 @@ class FeedforwardGate:
 
     def model_diverged(self, reason: str = 'the model diverged') -> None:
         """Switch the feed-forward off at once: the model's rollout diverged."""
+        self._switch_off(reason)
+
+    def switch_off(self, reason: str) -> None:
+        """Switch the feed-forward off at once for a reason of the caller's (e.g. disabled)."""
         self._switch_off(reason)
 
     def assess(self, model, validation: Sequence[Dataset], torque_scale: Optional[float] = None,
@@ -460,10 +489,10 @@ class FeedforwardGate:
         if getattr(model, 'n_joints', None) != self.settings.n_joints:
             return Assessment(False, f'the model has {getattr(model, "n_joints", None)} '
                                      f'joints, the gate {self.settings.n_joints}')
-        problem = torque_scale_problem(getattr(model, 'case', 'torque'), torque_scale)
+        problem = torque_scale_problem(model_case(model)[0], torque_scale)
         if problem is not None:
             return Assessment(False, problem)
-        if not np.all(np.isfinite(getattr(model, 'genome', np.zeros(1)))):
+        if not np.all(np.isfinite(model_parameters(model))):
             return Assessment(False, 'the model has non-finite parameters')
         if rollout_nrmse is not None and not math.isfinite(rollout_nrmse):
             return Assessment(False, 'the model diverges on the validation samples')

@@ -25,7 +25,10 @@ split into equal steps. The state is [θ, θ̇, I], I the servo's integral term.
 control rate the servo is continuous (the reference is evaluated at every stage time, I is
 integrated with the plant); with one, a digital servo computes the torque from the true
 state at t = j / control_rate and holds it (zero-order hold), its integral advancing once
-per tick, and the steps end exactly at every tick.
+per tick, and the steps end exactly at every tick. A feed-forward torque
+(:attr:`ArmSimulator.feedforward`, a :class:`~.servo.FeedforwardTrack`) is added to the
+servo's torque at the servo's time; the continuous steps end at its start and end, where it
+jumps.
 
 The steps run compiled (:func:`_rkg_pd_steps`: the stage loop with the shared stage update
 :func:`..integration.rkg.gill_stage`, the plant's compiled forward dynamics and the servo's
@@ -42,7 +45,8 @@ import numpy as np
 
 from .plant import PlanarArm
 from .plant_kernels import forward_dynamics_kernel
-from .servo import DEFAULT_WINDUP_TIME, Servo, servo_integral_rate_into, servo_torque_into
+from .servo import (DEFAULT_WINDUP_TIME, FeedforwardTrack, Servo, servo_integral_rate_into,
+                    servo_torque_into)
 from .trajectories import Reference
 from ..integration.rkg import gill_node, gill_stage, rkg_step
 
@@ -64,7 +68,8 @@ def _pd_rate(x, ref, j, tau_held, servo, d, gh, fv, fc, vc, out):
     The state is [θ, θ̇, I], I the servo's integral term (N m). With ``ref`` of shape
     (K, 2, n) (K > 0) the torque is the continuous servo torque towards θd = ref[j, 0],
     θ̇d = ref[j, 1] (:func:`.servo.servo_torque_into`, ``servo`` its
-    :class:`~.servo.ServoConstants`); with K = 0 it is ``tau_held`` (n,) and I
+    :class:`~.servo.ServoConstants`), plus τ_ff = ref[j, 2] when ``ref`` has shape
+    (K, 3, n); with K = 0 it is ``tau_held`` (n,) and I
     does not move (a digital servo advances it at its ticks). θ̈ comes from the plant's
     compiled single-state kernel (the arithmetic of ``PlanarArm.forward_dynamics``); ``d``,
     ``gh`` are the arm's constants and ``fv``, ``fc``, ``vc`` its viscous and Coulomb
@@ -76,7 +81,12 @@ def _pd_rate(x, ref, j, tau_held, servo, d, gh, fv, fc, vc, out):
     if ref.shape[0] > 0:
         raw = np.empty(n)
         tau = np.empty(n)
-        servo_torque_into(servo, theta, theta_dot, ref[j, 0], ref[j, 1], x[2 * n:], raw, tau)
+        if ref.shape[1] > 2:  # a feed-forward torque in ref[j, 2]
+            servo_torque_into(servo, theta, theta_dot, ref[j, 0], ref[j, 1], x[2 * n:], raw,
+                              tau, ref[j, 2])
+        else:
+            servo_torque_into(servo, theta, theta_dot, ref[j, 0], ref[j, 1], x[2 * n:], raw,
+                              tau)
         servo_integral_rate_into(servo, theta, ref[j, 0], raw, tau, out[2 * n:])
     else:
         tau = tau_held
@@ -92,8 +102,9 @@ def _rkg_pd_steps(x, h, steps, ref, tau_held, servo, d, gh, fv, fc, vc):
 
     The stage loop of :func:`..integration.rkg.rkg_step` with its compiled stage update
     (:func:`..integration.rkg.gill_stage`) applied to :func:`_pd_rate`: ``ref``
-    (2 steps + 1, 2, n) holds θd, θ̇d at the stage times t + k h/2, or has shape (0, 2, n)
-    for the held torque ``tau_held``. The other arguments are those of :func:`_pd_rate`.
+    (2 steps + 1, 2 or 3, n) holds θd, θ̇d (and τ_ff) at the stage times t + k h/2, or has
+    shape (0, 2, n) for the held torque ``tau_held``. The other arguments are those of
+    :func:`_pd_rate`.
     """
     m = x.shape[0]
     x = x.copy()
@@ -138,6 +149,12 @@ class ArmSimulator:
         the arm's own model on the 'measured' or 'desired' position ('none': without),
         back-calculation time constant.
 
+    Attributes
+    ----------
+    feedforward : FeedforwardTrack or None
+        A feed-forward torque on the simulation's time axis, added to the servo's torque
+        (zero outside its points); None: the servo alone.
+
     """
 
     def __init__(self, arm: PlanarArm, kp, kd, reference: Reference, max_step: float,
@@ -168,6 +185,7 @@ class ArmSimulator:
         self.t = 0.0
         self._tick = 0                                        # index of the next tick
         self._held_tau = None
+        self.feedforward: Optional[FeedforwardTrack] = None
         if self.compiled:
             self._check_compiled()
         self._update_digital()
@@ -185,7 +203,8 @@ class ArmSimulator:
         theta, theta_dot = self.x[:n].copy(), self.x[n:2 * n].copy()
         theta_d, theta_d_dot = self.reference.evaluate(float(self.t))
         if self.control_period is None:
-            tau = self.servo.torque(theta, theta_dot, theta_d, theta_d_dot, self.x[2 * n:])
+            tau = self.servo.torque(theta, theta_dot, theta_d, theta_d_dot, self.x[2 * n:],
+                                    self._feedforward_at(self.t))
         else:
             tau = self._held_tau.copy()
         return theta, theta_dot, tau, theta_d, theta_d_dot
@@ -204,8 +223,9 @@ class ArmSimulator:
         with np.errstate(over='ignore', invalid='ignore', divide='ignore'):
             while self.t < t_end - TIME_TOL:
                 if self.control_period is None:
-                    self._integrate_continuous(self.t, t_end)
-                    self.t = t_end
+                    stop = self._feedforward_edge(t_end)
+                    self._integrate_continuous(self.t, stop)
+                    self.t = stop
                 else:
                     stop = min(t_end, self._tick * self.control_period)
                     self._integrate_held(self.t, stop)
@@ -215,14 +235,27 @@ class ArmSimulator:
 
     # -- internals ------------------------------------------------------------------------
 
+    def _feedforward_at(self, t):
+        """Return τ_ff at time(s) ``t`` ((n,) or (T, n)), or None without a feed-forward."""
+        return None if self.feedforward is None else self.feedforward.evaluate(t)
+
+    def _feedforward_edge(self, t_end: float) -> float:
+        """Return the feed-forward's start or end if it lies before ``t_end``, else t_end."""
+        if self.feedforward is not None:
+            for edge in (self.feedforward.start, self.feedforward.end):
+                if self.t + TIME_TOL < edge < t_end - TIME_TOL:
+                    return edge
+        return t_end
+
     def _steps(self, span: float) -> int:
         return max(1, int(math.ceil(span / self.max_step - 1e-9)))
 
     def _f_pd(self, x, u):
-        """Return ẋ (3n,) under the continuous servo; ``u`` (2, n) holds θd and θ̇d."""
+        """Return ẋ (3n,) under the continuous servo; ``u`` (2 or 3, n): θd, θ̇d, τ_ff."""
         n = self.n
         theta, theta_dot = x[:n], x[n:2 * n]
-        raw, tau = self.servo.torques(theta, theta_dot, u[0], u[1], x[2 * n:])
+        raw, tau = self.servo.torques(theta, theta_dot, u[0], u[1], x[2 * n:],
+                                      u[2] if u.shape[0] > 2 else None)
         out = np.empty(3 * n)
         out[:n] = theta_dot
         out[n:2 * n] = self.arm.forward_dynamics(theta, theta_dot, tau)
@@ -244,7 +277,13 @@ class ArmSimulator:
         stage_t = t_a + 0.5 * h * np.arange(2 * steps + 1)
         stage_t[-1] = t_b
         theta_d, theta_d_dot = self.reference.evaluate(stage_t)     # (2s+1, n) each
-        u = np.stack([theta_d, theta_d_dot], axis=1)                # (2s+1, 2, n)
+        rows = [theta_d, theta_d_dot]
+        if self.feedforward is not None:
+            # τ_ff jumps at the track's start and end (advance() integrates up to them): at
+            # the interval's ends take its value from inside the interval
+            inset = min(TIME_TOL, 0.25 * (t_b - t_a))
+            rows.append(self._feedforward_at(np.clip(stage_t, t_a + inset, t_b - inset)))
+        u = np.stack(rows, axis=1)                                  # (2s+1, 2 or 3, n)
         if self.compiled:
             self.x = _rkg_pd_steps(self.x, h, steps, u, self._no_tau, *self._constants)
             return
@@ -306,7 +345,7 @@ class ArmSimulator:
             theta, theta_dot, integral = self.x[:n], self.x[n:2 * n], self.x[2 * n:]
             theta_d, theta_d_dot = self.reference.evaluate(float(tick_time))
             raw, self._held_tau = self.servo.torques(theta, theta_dot, theta_d, theta_d_dot,
-                                                     integral)
+                                                     integral, self._feedforward_at(tick_time))
             rate = self.servo.integral_rate(theta, theta_d, raw, self._held_tau)
             self.x = np.concatenate([self.x[:2 * n], integral + self.control_period * rate])
             self._tick += 1
