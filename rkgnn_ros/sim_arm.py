@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The ``sim_arm`` node: the planar arm under its servo, simulated in real time.
+The ``sim_arm`` node: the planar arm (or a URDF arm) under its servo, simulated in real time.
 
 The plant of :mod:`rkgnn_ros.core.sim.plant` (``PlanarArm``) tracks a reference of
 :mod:`rkgnn_ros.core.sim.trajectories` under the servo of :mod:`rkgnn_ros.core.sim.servo`:
@@ -39,6 +39,9 @@ Topics (published)
     stamped with the stamp of the state it was published with (``time_from_start`` 0 is
     that state's command). Transient local so that a late subscriber gets the current one
     at once; a volatile subscriber is compatible too.
+``robot_description`` (std_msgs/String, reliable, transient local, depth 1)
+    With a URDF arm (:mod:`rkgnn_ros.arm_model`): its URDF with the locked joints fixed,
+    once at start, for robot_state_publisher and rviz.
 
 Timing
 ------
@@ -87,8 +90,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.task import Future
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
+from .arm_model import build_urdf_arm, reference_limit_warning, URDF_PARAMETERS
 from .conversions import make_joint_state, make_joint_trajectory
 from .core.integration.rkg import ALPHA, BETA, D, E, G, GAMMA, rkg_step
 from .core.sim.plant import (ArmParameters, forward_dynamics_kernel, MASS_MODELS,
@@ -245,8 +250,9 @@ class ArmSimulator:
         self.max_speed = float(max_speed)
         self.control_period = 1.0 / control_rate if control_rate else None
         self.compiled = bool(compiled)
-        # the servo's record and the plant's compiled-kernel constants
-        self._constants = (self.servo.constants(),) + tuple(arm.kernel_constants())
+        # the servo's record and the plant's compiled-kernel constants (planar arm only)
+        self._constants = ((self.servo.constants(),) + tuple(arm.kernel_constants())
+                           if self.compiled else None)
         self._no_ref = np.empty((0, 2, n))
         self._no_tau = np.zeros(n)
         theta_d, theta_d_dot = reference.evaluate(0.0)
@@ -511,7 +517,7 @@ PARAMETERS = (
           'Seconds of clock time from the start of the simulation after which the node exits '
           'cleanly (exit code 0); 0 = run forever.',
           0.0, 1e9),
-)
+) + URDF_PARAMETERS
 
 _BY_NAME = {spec.name: spec for spec in PARAMETERS}
 
@@ -520,7 +526,8 @@ class SimConfig(NamedTuple):
     """The validated settings of a :class:`SimArm`."""
 
     joint_names: Tuple[str, ...]
-    arm: PlanarArm
+    arm: PlanarArm                   # or a UrdfArm (robot_description)
+    robot_description: str           # the URDF arm's (reduced) URDF, '' for the planar arm
     kp: np.ndarray
     kd: np.ndarray
     ki: np.ndarray
@@ -551,7 +558,7 @@ def _joint_vector(values: dict, name: str, n: int, *, positive: bool,
         arr = np.full(n, arr[0])
     if arr.shape != (n,):
         raise ConfigurationError(
-            f'{name} has {arr.size} values but joint_names has {n} joints; give one per joint'
+            f'{name} has {arr.size} values but the arm has {n} joints; give one per joint'
             + (' or one for every joint' if broadcast else ''))
     if not np.all(np.isfinite(arr)):
         raise ConfigurationError(f'{name} must be finite, got {arr.tolist()}')
@@ -562,13 +569,15 @@ def _joint_vector(values: dict, name: str, n: int, *, positive: bool,
     return arr
 
 
-def _build_reference(values: dict, n: int) -> Reference:
+def _build_reference(values: dict, n: int, offsets=None) -> Reference:
     kind = values['reference.type']
     if kind not in REFERENCE_TYPES:
         raise ConfigurationError(
             f'reference.type must be one of {list(REFERENCE_TYPES)}, got {kind!r}')
+    offsets = hanging_pose(n) if offsets is None else offsets
     if kind == 'paper':
-        return paper_reference(n)
+        paper = paper_reference(n)
+        return SumOfSines(offsets, paper.amplitudes, paper.frequencies_hz, paper.phases)
     amplitude = values['reference.amplitude']
     if kind == 'sines':
         low, high = values['reference.min_frequency'], values['reference.max_frequency']
@@ -579,8 +588,8 @@ def _build_reference(values: dict, n: int) -> Reference:
         rng = np.random.default_rng(values['reference.seed'])
         return SumOfSines.random(n, rng, n_terms=values['reference.n_terms'],
                                  amplitude=amplitude, max_frequency_hz=high,
-                                 min_frequency_hz=low)
-    return Chirp(hanging_pose(n), np.full(n, amplitude),
+                                 min_frequency_hz=low, offsets=offsets)
+    return Chirp(offsets, np.full(n, amplitude),
                  values['reference.chirp_start_frequency'],
                  values['reference.chirp_end_frequency'], values['reference.chirp_duration'])
 
@@ -595,15 +604,15 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
     array parameters or cross-parameter rules need it.
     """
     warnings = []
-    names = tuple(str(name) for name in values['joint_names'])
+    urdf = build_urdf_arm(values, ConfigurationError)
+    names = (urdf.joint_names if urdf is not None
+             else tuple(str(name) for name in values['joint_names']))
     if not names or any(not name for name in names):
         raise ConfigurationError(
             f'joint_names must list at least one non-empty name, got {list(names)}')
     if len(set(names)) != len(names):
         raise ConfigurationError(f'joint_names must be unique, got {list(names)}')
     n = len(names)
-    masses = _joint_vector(values, 'masses', n, positive=True)
-    lengths = _joint_vector(values, 'lengths', n, positive=True)
     viscous = _joint_vector(values, 'viscous', n, positive=False)
     coulomb = _joint_vector(values, 'coulomb', n, positive=False)
     kp = _joint_vector(values, 'kp', n, positive=False)
@@ -627,22 +636,24 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
                           velocity=values['sensors.velocity'],
                           velocity_cutoff=values['sensors.velocity_cutoff'],
                           effort=values['sensors.effort'])
-    if values['mass_model'] not in MASS_MODELS:
-        raise ConfigurationError(
-            f'mass_model must be one of {list(MASS_MODELS)}, got {values["mass_model"]!r}')
     try:
-        arm = PlanarArm(ArmParameters(
-            masses=masses, lengths=lengths, mass_model=values['mass_model'],
-            gravity=values['gravity'], viscous=viscous, coulomb=coulomb,
-            coulomb_velocity=values['coulomb_velocity']))
+        if urdf is None:
+            arm = _planar_arm(values, n, viscous, coulomb)
+        else:
+            arm = urdf.arm
+            arm.set_friction(viscous, coulomb)
     except ValueError as error:     # messages name the field, e.g. 'gravity must be finite'
+        if isinstance(error, ConfigurationError):
+            raise
         raise ConfigurationError(str(error)) from None
     try:
-        reference = _build_reference(values, n)
+        reference = _build_reference(values, n, None if urdf is None else urdf.home)
     except ValueError as error:
         if isinstance(error, ConfigurationError):
             raise
         raise ConfigurationError(f'reference.*: {error}') from None
+    if urdf is not None:
+        warnings.append(reference_limit_warning(arm, reference) or '')
 
     reference_dt = values['reference_dt']
     horizon = values['reference_horizon']
@@ -676,7 +687,8 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
             f'{0.5 * stiffness:.0f} Hz for the fastest eigenvalue of the closed loop: the '
             'digital PD may chatter or diverge')
     config = SimConfig(
-        joint_names=names, arm=arm, kp=kp, kd=kd, ki=ki,
+        joint_names=names, arm=arm,
+        robot_description='' if urdf is None else urdf.description, kp=kp, kd=kd, ki=ki,
         gravity_compensation=values['gravity_compensation'],
         tau_limit=np.where(tau_limit > 0.0, tau_limit, np.inf) if np.any(tau_limit) else None,
         windup_time=float(values['windup_time']), sensors=sensors, reference=reference,
@@ -688,7 +700,20 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
         max_speed=float(values['max_speed']), reference_horizon=float(horizon),
         reference_dt=float(reference_dt), reference_rate=float(values['reference_rate']),
         duration=float(values['duration']))
-    return config, warnings
+    return config, [warning for warning in warnings if warning]
+
+
+def _planar_arm(values: dict, n: int, viscous, coulomb) -> PlanarArm:
+    """Return the planar arm of the parameters (n joints)."""
+    masses = _joint_vector(values, 'masses', n, positive=True)
+    lengths = _joint_vector(values, 'lengths', n, positive=True)
+    if values['mass_model'] not in MASS_MODELS:
+        raise ConfigurationError(
+            f'mass_model must be one of {list(MASS_MODELS)}, got {values["mass_model"]!r}')
+    return PlanarArm(ArmParameters(
+        masses=masses, lengths=lengths, mass_model=values['mass_model'],
+        gravity=values['gravity'], viscous=viscous, coulomb=coulomb,
+        coulomb_velocity=values['coulomb_velocity']))
 
 
 # -- the node -----------------------------------------------------------------------------
@@ -722,7 +747,8 @@ class SimArm(Node):
         config = self.config
         self.sim = ArmSimulator(config.arm, config.kp, config.kd, config.reference,
                                 config.integration_step, config.control_rate or None,
-                                config.max_speed, ki=config.ki, tau_limit=config.tau_limit,
+                                config.max_speed, compiled=isinstance(config.arm, PlanarArm),
+                                ki=config.ki, tau_limit=config.tau_limit,
                                 gravity_compensation=config.gravity_compensation,
                                 windup_time=config.windup_time)
         self._names = list(config.joint_names)
@@ -754,6 +780,10 @@ class SimArm(Node):
         self._command_pub = self.create_publisher(JointState, 'joint_commands', state_qos)
         self._reference_pub = self.create_publisher(
             JointTrajectory, 'reference_trajectory', reference_qos)
+        if config.robot_description:
+            self._description_pub = self.create_publisher(String, 'robot_description',
+                                                          reference_qos)
+            self._description_pub.publish(String(data=config.robot_description))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self._timer = self.create_timer(1.0 / self._rate, self._on_timer)
@@ -762,8 +792,10 @@ class SimArm(Node):
                    else f'continuous {servo}')
         sensors = config.sensors
         published = f'velocity {sensors.velocity!r}' + ('' if sensors.effort else ', no effort')
+        arm = (config.arm.describe() if config.robot_description
+               else f'planar arm, {config.arm.params.mass_model} masses')
         self.get_logger().info(
-            f'{len(self._names)} joints {self._names}, {config.arm.params.mass_model} masses, '
+            f'{len(self._names)} joints {self._names}, {arm}, '
             f'{control}, reference {config.reference_type!r}, publishing at '
             f'{self._rate:g} Hz ({published}), integration_step {config.integration_step:g} s '
             f'(stable below {config.stable_step:.3g} s at the start state)')

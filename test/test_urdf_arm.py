@@ -25,30 +25,11 @@ from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import SumOfSines  # noqa: E402
 from rkgnn_ros.core.sim.urdf_arm import (example_robot_urdf, read_description,  # noqa: E402
                                          reduce_urdf, UrdfArm, UrdfError)
+from urdf_helpers import planar_urdf  # noqa: E402
 
 UR5 = 'example-robot-data:ur_description/urdf/ur5_robot.urdf'
 PANDA = 'example-robot-data:panda_description/urdf/panda.urdf'
 PANDA_6 = [f'panda_joint{i}' for i in range(1, 7)]
-
-
-def planar_urdf(masses, lengths, joint_type='revolute', limits=True, inertial=True):
-    """Return a URDF of the planar arm of core/sim/plant.py: point masses at the link tips."""
-    links = ['<link name="base"/>']
-    joints = []
-    parent = 'base'
-    for i, (m, length) in enumerate(zip(masses, lengths)):
-        name = f'link{i + 1}'
-        mass = (f'<inertial><origin xyz="{length} 0 0"/><mass value="{m}"/><inertia ixx="0" '
-                'ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>') if inertial else ''
-        links.append(f'<link name="{name}">{mass}</link>')
-        origin = '0 0 0' if i == 0 else f'{lengths[i - 1]} 0 0'
-        limit = '<limit lower="-3" upper="3" effort="100" velocity="5"/>' if limits else ''
-        # axis -y: a positive angle turns x towards +z, gravity acts along -z
-        joints.append(f'<joint name="joint{i + 1}" type="{joint_type}"><parent link="{parent}"/>'
-                      f'<child link="{name}"/><origin xyz="{origin}"/><axis xyz="0 -1 0"/>'
-                      f'{limit}</joint>')
-        parent = name
-    return '<robot name="planar">' + ''.join(links + joints) + '</robot>'
 
 
 @pytest.fixture(scope='module')

@@ -381,6 +381,12 @@ class UrdfArm:
             raise UrdfError(f'{self.source}: joint(s) {light} move no inertia (the links '
                             'beyond them have no <inertial> mass)')
 
+    def set_friction(self, viscous=None, coulomb=None) -> None:
+        """Set the joint friction (N m s/rad, N m): n values each or a scalar, >= 0."""
+        n = self.n_joints
+        self.viscous = _friction('viscous', viscous, n)
+        self.coulomb = _friction('coulomb', coulomb, n)
+
     # -- description ----------------------------------------------------------------------
 
     @property
