@@ -1,0 +1,202 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Real arms: a 6-joint URDF arm online, a recording identified offline, namespaced arms.
+
+``--part urdf``: the installed ``sim_arm`` simulates a UR5 (``config/sim_arm_ur5.yaml``:
+example-robot-data's URDF, six joints, PD without gravity compensation) at 100 Hz and the
+installed ``identifier`` identifies it, case 1 and case 3, for ``--duration`` s each. Every
+prediction's θ 2 s ahead is scored against the motion that followed, and so is following
+the reference (θd 2 s ahead, from ``joint_commands``) on the same targets; each figure is
+the RMSE over predictions started in the 5 s bin ending at 60 s, divided by the θ range,
+mean over joints. ``urdf_6dof`` → case → ``prediction_nrmse_60s``,
+``follow_reference_nrmse`` (goal: the first at most a third of the second).
+
+Each part updates its own key of ``bench/results/real_arms.json`` and keeps the others.
+"""
+
+import argparse
+import datetime
+import json
+import os
+import sys
+import threading
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.dirname(HERE))
+
+from rkgnn_ros.evaluation import ahead_errors  # noqa: E402
+from rkgnn_ros.monitor import identifier_arguments, Monitor, NodeProcesses  # noqa: E402
+
+RESULTS = os.path.join(HERE, 'results', 'real_arms.json')
+UR5_CONFIG = 'sim_arm_ur5.yaml'
+BIN_S = 5.0
+
+
+class CommandMonitor(Monitor):
+    """A :class:`Monitor` that also records ``joint_commands`` (θd at the state stamps)."""
+
+    def __init__(self, context, horizon):
+        super().__init__(context, horizon)
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import JointState
+        self.command_lock = threading.Lock()
+        self.command_t, self.command_theta = [], []
+        self.node.create_subscription(JointState, 'joint_commands', self._on_command,
+                                      qos_profile_sensor_data)
+
+    def _on_command(self, msg):
+        if len(msg.position) == 0:
+            return
+        with self.command_lock:
+            self.command_t.append(self._stamp(msg.header))
+            self.command_theta.append(np.array(msg.position, dtype=float))
+
+    def commands(self):
+        """Return the recorded (t, θd), sorted by stamp."""
+        with self.command_lock:
+            t, theta = np.array(self.command_t), np.array(self.command_theta)
+        order = np.argsort(t)
+        return t[order], theta[order]
+
+
+def binned(t0, errors, start, theta_range, end):
+    """Return the range-normalised RMSE of the errors started in the bin ending at ``end``."""
+    sel = (t0 - start > end - BIN_S) & (t0 - start <= end)
+    if not np.any(sel):
+        return None
+    rmse = np.sqrt(np.mean(np.square(errors[sel]), axis=0))
+    return float(np.mean(rmse / theta_range))
+
+
+def follow_reference_errors(t0s, horizon, meas_t, meas_theta, cmd_t, cmd_theta):
+    """Return (t0, θd(t0 + h) - θ(t0 + h)) for the prediction starts ``t0s``."""
+    out_t, out_e = [], []
+    for t0 in t0s:
+        target = t0 + horizon
+        if not (meas_t[0] <= target <= meas_t[-1] and cmd_t[0] <= target <= cmd_t[-1]):
+            continue
+        theta = [np.interp(target, meas_t, meas_theta[:, j]) for j in range(meas_theta.shape[1])]
+        theta_d = [np.interp(target, cmd_t, cmd_theta[:, j]) for j in range(cmd_theta.shape[1])]
+        out_t.append(t0)
+        out_e.append(np.array(theta_d) - np.array(theta))
+    return np.asarray(out_t), np.asarray(out_e)
+
+
+def run_urdf_case(case, duration, horizon, domain, log_dir):
+    """Run sim_arm (UR5) + identifier for one case; return the figures."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rkgnn_ros.monitor import config
+    sim_args = ['--params-file', config(UR5_CONFIG)]
+    nodes = NodeProcesses([('sim_arm', sim_args),
+                           ('identifier', identifier_arguments(case, horizon))],
+                          domain, log_dir, prefix=f'real_arms_case{case}_')
+    try:
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        monitor = CommandMonitor(ctx, horizon)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(monitor.node)
+        t_start = time.monotonic()
+        while time.monotonic() - t_start < duration:
+            executor.spin_once(timeout_sec=0.1)
+            nodes.check()
+        snap = monitor.snapshot()
+        cmd_t, cmd_theta = monitor.commands()
+        executor.shutdown()
+        monitor.node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    finally:
+        codes = nodes.stop()
+    meas_t, meas_theta, t0s, offs, thetas, evolution, _ = snap
+    order = np.argsort(meas_t)
+    meas_t, meas_theta = meas_t[order], meas_theta[order]
+    start = meas_t[0]
+    theta_range = np.ptp(meas_theta, axis=0)
+    pt0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, horizon)
+    ft0, ferr = follow_reference_errors(pt0, horizon, meas_t, meas_theta, cmd_t, cmd_theta)
+    curve = []
+    for end in np.arange(BIN_S, duration + 1e-9, BIN_S):
+        model = binned(pt0, err, start, theta_range, end)
+        follow = binned(ft0, ferr, start, theta_range, end)
+        if model is not None:
+            curve.append([float(end), model, follow])
+    at60 = next(((m, f) for t, m, f in curve if abs(t - 60.0) < 1e-9), (None, None))
+    return {'prediction_nrmse_60s': at60[0], 'follow_reference_nrmse': at60[1],
+            'ratio_60s': (None if None in at60 or not at60[1] else at60[0] / at60[1]),
+            'curve_t_model_follow': curve, 'states': int(meas_t.size),
+            'predictions': len(t0s), 'scored': int(pt0.size),
+            'generations': int(evolution[-1][0]) if len(evolution) else 0,
+            'exit_codes': codes}
+
+
+def part_urdf(args, log_dir):
+    """Run the 6-joint URDF arm online, cases 1 and 3; return the figures."""
+    out = {'meta': {'date': datetime.date.today().isoformat(), 'arm': 'UR5 (example-robot-'
+                    'data ur5_robot.urdf), 6 moving joints, PD without gravity compensation, '
+                    'config/sim_arm_ur5.yaml', 'rate_hz': 100.0,
+                    'duration_s': args.duration, 'horizon_s': args.horizon,
+                    'metric': '2 s-ahead θ RMSE over predictions started in the 5 s bin '
+                              'ending at t, divided by the θ range, mean over joints; '
+                              'follow_reference: θd instead of the prediction, same targets'}}
+    for i, case in enumerate(args.cases.split(',')):
+        domain = args.domain + i
+        print(f'== urdf_6dof case {case}: {args.duration:.0f} s on ROS_DOMAIN_ID={domain}',
+              flush=True)
+        result = run_urdf_case(case, args.duration, args.horizon, domain, log_dir)
+        for t, model, follow in result['curve_t_model_follow']:
+            print(f'  t = {t:4.0f} s  model {model:8.2%}  follow reference '
+                  f'{follow if follow is None else f"{follow:8.2%}"}', flush=True)
+        print(f'  case {case}: at 60 s model {result["prediction_nrmse_60s"]}, follow '
+              f'{result["follow_reference_nrmse"]}, ratio {result["ratio_60s"]}', flush=True)
+        out[case] = result
+    return out
+
+
+def update_results(key, value, path=RESULTS):
+    """Write ``value`` under ``key`` of the results file, keeping the other keys."""
+    results = {}
+    if os.path.exists(path):
+        with open(path, encoding='utf-8') as f:
+            results = json.load(f)
+    results[key] = value
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    with open(path, 'w', encoding='utf-8') as f:
+        json.dump(results, f, indent=2)
+    print(f'wrote {key} to {path}', flush=True)
+
+
+def main(argv=None):
+    """Run the chosen part; return the exit code."""
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
+    parser.add_argument('--part', choices=('urdf',), default='urdf')
+    parser.add_argument('--cases', default='1,3')
+    parser.add_argument('--duration', type=float, default=65.0)
+    parser.add_argument('--horizon', type=float, default=2.0)
+    parser.add_argument('--domain', type=int, default=14,
+                        help='ROS_DOMAIN_ID of the first run (next runs: +1, ...)')
+    args = parser.parse_args(argv)
+    log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
+    if args.part == 'urdf':
+        update_results('urdf_6dof', part_urdf(args, log_dir))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
