@@ -26,6 +26,7 @@ setup(
         'console_scripts': [
             'sim_arm = rkgnn_ros.sim_arm:main',
             'identifier = rkgnn_ros.identifier:main',
+            'identify_bag = rkgnn_ros.identify_bag:main',
         ],
     },
 )
