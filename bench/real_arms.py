@@ -24,6 +24,15 @@ the RMSE over predictions started in the 5 s bin ending at 60 s, divided by the 
 mean over joints. ``urdf_6dof`` → case → ``prediction_nrmse_60s``,
 ``follow_reference_nrmse`` (goal: the first at most a third of the second).
 
+``--part bag``: the installed ``sim_arm`` (the paper's arm) and ``identifier`` (case 1,
+default parameters) run for ``--record`` s while a recorder writes ``joint_states``,
+``joint_commands``, ``reference_trajectory`` and ``identifier/model`` into an MCAP
+recording (rosbags). The installed ``identify_bag`` then identifies it with
+``config/identifier.yaml``, the last 10 s held out. ``bag`` → ``fit_s`` (the whole
+identify_bag run, wall time), ``heldout_nrmse_10s`` (its model predicting the held-out 10 s
+from their first state, as the node predicts), ``online_heldout_nrmse_10s`` (the online
+identifier's last model recorded before the held-out part, scored the same way).
+
 Each part updates its own key of ``bench/results/real_arms.json`` and keeps the others.
 """
 
@@ -169,6 +178,113 @@ def part_urdf(args, log_dir):
     return out
 
 
+class Recorder:
+    """Records topics as serialized messages (what ros2 bag record stores)."""
+
+    TOPICS = (('joint_states', 'sensor_msgs/msg/JointState'),
+              ('joint_commands', 'sensor_msgs/msg/JointState'),
+              ('reference_trajectory', 'trajectory_msgs/msg/JointTrajectory'),
+              ('identifier/model', 'std_msgs/msg/String'))
+
+    def __init__(self, context):
+        from rclpy.node import Node
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import String
+        from trajectory_msgs.msg import JointTrajectory
+        classes = {'sensor_msgs/msg/JointState': JointState, 'std_msgs/msg/String': String,
+                   'trajectory_msgs/msg/JointTrajectory': JointTrajectory}
+        self.node = Node('real_arms_recorder', context=context)
+        self.lock = threading.Lock()
+        self.messages = []
+        for topic, kind in self.TOPICS:
+            latched = topic in ('identifier/model', 'reference_trajectory')
+            qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                         else DurabilityPolicy.VOLATILE))
+            self.node.create_subscription(
+                classes[kind], topic, lambda raw, t=topic, k=kind: self._add(t, k, raw), qos,
+                raw=True)
+
+    def _add(self, topic, kind, raw):
+        with self.lock:
+            self.messages.append(('/' + topic, kind, time.time_ns(), bytes(raw)))
+
+    def write(self, path):
+        """Write what was recorded as an MCAP recording at ``path``."""
+        from rkgnn_ros.recording import RecordingWriter
+        with self.lock:
+            messages = sorted(self.messages, key=lambda m: m[2])
+        with RecordingWriter(path, 'mcap') as bag:
+            for topic, kind, log_ns, raw in messages:
+                bag.write(topic, kind, log_ns, raw)
+        return len(messages)
+
+
+def part_bag(args, log_dir):
+    """Record sim_arm + identifier, identify the recording with identify_bag; return figures."""
+    import shutil
+    import subprocess
+    import tempfile
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rkgnn_ros.monitor import config, executable
+    domain = args.domain
+    folder = tempfile.mkdtemp(prefix='real_arms_bag_')
+    bag = os.path.join(folder, 'sim_arm_60s')
+    print(f'== bag: recording {args.record:.0f} s of sim_arm + identifier (case 1) on '
+          f'ROS_DOMAIN_ID={domain}', flush=True)
+    nodes = NodeProcesses([('sim_arm', []), ('identifier', identifier_arguments(1))],
+                          domain, log_dir, prefix='real_arms_bag_')
+    try:
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        recorder = Recorder(ctx)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(recorder.node)
+        t_start = None  # the recording's time starts with the first joint_states
+        while t_start is None or time.monotonic() - t_start < args.record:
+            executor.spin_once(timeout_sec=0.1)
+            nodes.check()
+            if t_start is None and any(m[0] == '/joint_states' for m in recorder.messages):
+                t_start = time.monotonic()
+        executor.shutdown()
+        count = recorder.write(bag)
+        recorder.node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    finally:
+        codes = nodes.stop()
+    print(f'  wrote {count} messages to {bag}', flush=True)
+    out = os.path.join(folder, 'identified')
+    command = [executable('identify_bag'), bag, '--params-file', config('identifier.yaml'),
+               '--heldout', '10', '--budget', str(args.budget), '--out', out]
+    print('  ' + ' '.join(command), flush=True)
+    t0 = time.monotonic()
+    done = subprocess.run(command, text=True)
+    fit_s = time.monotonic() - t0
+    if done.returncode != 0:
+        raise RuntimeError(f'identify_bag exited {done.returncode}')
+    with open(os.path.join(out, 'report.json'), encoding='utf-8') as f:
+        report = json.load(f)
+    result = {'fit_s': fit_s, 'heldout_nrmse_10s': report['heldout']['nrmse'],
+              'online_heldout_nrmse_10s': report['heldout']['online_nrmse'],
+              'ratio': (report['heldout']['nrmse'] / report['heldout']['online_nrmse']
+                        if report['heldout']['online_nrmse'] else None),
+              'recorded_s': args.record, 'messages': count, 'budget_s': args.budget,
+              'generations': report['fit']['generations'], 'how': report['heldout']['how'],
+              'training_s': report['data']['training']['seconds'],
+              'drops': report['data']['drops'], 'exit_codes': codes,
+              'meta': {'date': datetime.date.today().isoformat(),
+                       'arm': 'paper 3-link planar arm, sim_arm defaults, 100 Hz',
+                       'identifier': 'case 1, config/identifier.yaml',
+                       'metric': 'θ-NRMSE (RMSE / std of θ, mean over joints) of the '
+                                 'prediction of the last 10 s from their first state'}}
+    print(f'  fit_s {fit_s:.1f}, held-out θ-NRMSE {result["heldout_nrmse_10s"]:.4g}, the '
+          f'online model {result["online_heldout_nrmse_10s"]}', flush=True)
+    shutil.rmtree(folder, ignore_errors=True)
+    return result
+
+
 def update_results(key, value, path=RESULTS):
     """Write ``value`` under ``key`` of the results file, keeping the other keys."""
     results = {}
@@ -185,16 +301,22 @@ def update_results(key, value, path=RESULTS):
 def main(argv=None):
     """Run the chosen part; return the exit code."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
-    parser.add_argument('--part', choices=('urdf',), default='urdf')
+    parser.add_argument('--part', choices=('urdf', 'bag'), default='urdf')
     parser.add_argument('--cases', default='1,3')
     parser.add_argument('--duration', type=float, default=65.0)
     parser.add_argument('--horizon', type=float, default=2.0)
+    parser.add_argument('--record', type=float, default=60.0,
+                        help='bag: seconds recorded from the first joint_states')
+    parser.add_argument('--budget', type=float, default=90.0,
+                        help='bag: identify_bag --budget')
     parser.add_argument('--domain', type=int, default=14,
                         help='ROS_DOMAIN_ID of the first run (next runs: +1, ...)')
     args = parser.parse_args(argv)
     log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
     if args.part == 'urdf':
         update_results('urdf_6dof', part_urdf(args, log_dir))
+    elif args.part == 'bag':
+        update_results('bag', part_bag(args, log_dir))
     return 0
 
 
