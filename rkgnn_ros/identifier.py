@@ -64,6 +64,7 @@ frozen out of the cyclic garbage collector and no QoS-event handlers are created
 keep the executor thread cheap.
 """
 
+from functools import partial
 import gc
 import sys
 
@@ -75,7 +76,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.core.fitting.identify import precompile
-from rkgnn_ros.core.fitting.online import model_update
+from rkgnn_ros.core.fitting.online import model_update, OnlineIdentification
+from rkgnn_ros.identification.clock import NodeSeconds
 from rkgnn_ros.identification.ingest import Ingestion, PolledGroup
 from rkgnn_ros.identification.model_file import load_model_file, save_model_file
 from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierParameters,
@@ -145,13 +147,16 @@ class IdentifierNode(Node):
         }
 
         self._outbox = Outbox()
+        # every time rule on the node's clock (use_sim_time), never running backwards
+        seconds = NodeSeconds(lambda: self.get_clock().now().nanoseconds)
         self._ingestion = Ingestion(config, self._outbox.log, alive=self.context.ok,
-                                    on_state=lambda: self._predictor.request())
+                                    on_state=lambda: self._predictor.request(), clock=seconds)
         self._predictor = Predictor(self._ingestion, self._outbox.put,
                                     lambda: self._params.config)
         model = self._load_model_file(config)
         self._worker = SearchWorker(self._ingestion, self._predictor, self._outbox,
-                                    alive=self.context.ok, published=model)
+                                    alive=self.context.ok, published=model,
+                                    policy=partial(OnlineIdentification, clock=seconds))
         self._publishing = Publishing(self, self._outbox, publishers, self._params,
                                       self._predictor, self._ingestion,
                                       lambda: self._worker.status)

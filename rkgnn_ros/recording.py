@@ -205,9 +205,11 @@ def find_topics(recording: Recording, namespace: str = '', states: str = '',
     return Topics(states, commands, controller_state, model)
 
 
-def read_messages(recording: Recording, topics: Topics) -> Tuple[List[Message], str]:
+def read_messages(recording: Recording, topics) -> Tuple[List[Message], str]:
     """
     Return the messages of ``topics`` in recording order, and why reading stopped early.
+
+    ``topics`` is a :class:`Topics` or any sequence of topic names ('' ignored).
 
     The second value is '' when the whole file was read; otherwise it says where and why
     it broke (a truncated or corrupt file), and the messages before are returned.
