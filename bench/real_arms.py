@@ -33,6 +33,14 @@ identify_bag run, wall time), ``heldout_nrmse_10s`` (its model predicting the he
 from their first state, as the node predicts), ``online_heldout_nrmse_10s`` (the online
 identifier's last model recorded before the held-out part, scored the same way).
 
+``--part namespaces``: three installed sim_arm + identifier pairs under ``/arm1`` ..
+``/arm3`` in one ROS domain for ``--duration`` s, each arm with joint names of its own (and
+other masses). ``namespaces`` → ``arms``, ``models`` (identifiers whose model names their
+own arm's joints), ``cross_talk`` (models naming another arm's joints, ``missing_joint``
+drops the identifiers counted, and joint_states samples of another arm seen on an arm's
+topic), with each process's CPU (% of one core over the run, from /proc) and the
+identifiers' receipt-to-publish prediction latency (their /diagnostics).
+
 Each part updates its own key of ``bench/results/real_arms.json`` and keeps the others.
 """
 
@@ -285,6 +293,113 @@ def part_bag(args, log_dir):
     return result
 
 
+def _cpu_seconds(pid):
+    """Return the CPU time (user + system, s) of a process so far, None if it is gone."""
+    try:
+        with open(f'/proc/{pid}/stat', encoding='utf-8') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def part_namespaces(args, log_dir):
+    """Run three namespaced arm pairs in one domain; return the figures."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+    from rkgnn_ros.core.fitting.identify import RKGNNModel
+    arms = ('arm1', 'arm2', 'arm3')
+    names = {arm: [f'{arm}_joint{i}' for i in (1, 2, 3)] for arm in arms}
+    domain = args.domain
+    print(f'== namespaces: {len(arms)} arm pairs for {args.duration:.0f} s on '
+          f'ROS_DOMAIN_ID={domain}', flush=True)
+    groups = []
+    for k, arm in enumerate(arms):
+        masses = [6.0 - k, 4.0, 3.0 + 0.5 * k]
+        ns = ['-r', f'__ns:=/{arm}']
+        groups.append(NodeProcesses(
+            [('sim_arm', ns + ['-p', f'joint_names:={names[arm]}', '-p', f'masses:={masses}']),
+             ('identifier', ns)], domain, log_dir, prefix=f'real_arms_{arm}_'))
+    lock = threading.Lock()
+    models, diagnostics, foreign = {}, {}, dict.fromkeys(arms, 0)
+    states = dict.fromkeys(arms, 0)
+
+    def on_state(arm, msg):
+        with lock:
+            states[arm] += 1
+            if list(msg.name) != names[arm]:
+                foreign[arm] += 1
+
+    def on_diagnostics(msg):
+        for status in msg.status:
+            with lock:
+                diagnostics[status.hardware_id] = {kv.key: kv.value for kv in status.values}
+
+    try:
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        node = Node('real_arms_namespaces', context=ctx)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        for arm in arms:
+            node.create_subscription(String, f'/{arm}/identifier/model',
+                                     lambda m, a=arm: models.__setitem__(a, m.data), latched)
+            node.create_subscription(JointState, f'/{arm}/joint_states',
+                                     lambda m, a=arm: on_state(a, m), 100)
+        node.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        pids = {f'/{arm}/{name}': proc.pid for arm, group in zip(arms, groups)
+                for name, proc in zip(group.names, group.procs)}
+        cpu0 = {key: _cpu_seconds(pid) for key, pid in pids.items()}
+        t_start = time.monotonic()
+        while time.monotonic() - t_start < args.duration:
+            executor.spin_once(timeout_sec=0.1)
+            for group in groups:
+                group.check()
+        elapsed = time.monotonic() - t_start
+        cpu = {key: round(100.0 * (_cpu_seconds(pid) - cpu0[key]) / elapsed, 1)
+               for key, pid in pids.items()}
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    finally:
+        codes = [group.stop() for group in groups]
+    own, cross = 0, 0
+    for arm in arms:
+        if arm in models:
+            joints = list(RKGNNModel.from_yaml(models[arm]).joint_names)
+            own += joints == names[arm]
+            cross += joints != names[arm]
+    missing = {key: int(values.get('drops.missing_joint', 0))
+               for key, values in diagnostics.items()}
+    latency = {key: {'p50_ms': float(values.get('prediction_latency_p50_ms', 'nan')),
+                     'p99_ms': float(values.get('prediction_latency_p99_ms', 'nan'))}
+               for key, values in diagnostics.items()}
+    cross_talk = cross + sum(missing.values()) + sum(foreign.values())
+    result = {'arms': len(arms), 'models': own, 'cross_talk': cross_talk,
+              'foreign_models': cross, 'missing_joint_drops': missing,
+              'foreign_states': foreign, 'states_seen': states, 'cpu_percent': cpu,
+              'prediction_latency': latency, 'duration_s': args.duration,
+              'exit_codes': codes,
+              'meta': {'date': datetime.date.today().isoformat(),
+                       'setup': 'installed sim_arm (planar arm, masses per arm) + identifier '
+                                '(case 1, defaults) under /arm1../arm3, one ROS domain',
+                       'cpu': '% of one core over the run, user + system, /proc; the '
+                              'machine has 2 cores shared with other jobs',
+                       'latency': "identifiers' /diagnostics at the end: receipt of the "
+                                  'newest state to the publish of its prediction (10 Hz '
+                                  'timer, so up to one state period of waiting is in it)'}}
+    print(f'  models {own}/{len(arms)}, cross talk {cross_talk}, CPU {cpu}', flush=True)
+    print(f'  latency {latency}', flush=True)
+    return result
+
+
 def update_results(key, value, path=RESULTS):
     """Write ``value`` under ``key`` of the results file, keeping the other keys."""
     results = {}
@@ -301,7 +416,7 @@ def update_results(key, value, path=RESULTS):
 def main(argv=None):
     """Run the chosen part; return the exit code."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
-    parser.add_argument('--part', choices=('urdf', 'bag'), default='urdf')
+    parser.add_argument('--part', choices=('urdf', 'bag', 'namespaces'), default='urdf')
     parser.add_argument('--cases', default='1,3')
     parser.add_argument('--duration', type=float, default=65.0)
     parser.add_argument('--horizon', type=float, default=2.0)
@@ -317,6 +432,8 @@ def main(argv=None):
         update_results('urdf_6dof', part_urdf(args, log_dir))
     elif args.part == 'bag':
         update_results('bag', part_bag(args, log_dir))
+    elif args.part == 'namespaces':
+        update_results('namespaces', part_namespaces(args, log_dir))
     return 0
 
 
