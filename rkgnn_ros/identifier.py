@@ -25,6 +25,8 @@ Subscribed (best effort, depth 100: matches best-effort and reliable publishers 
     ``joint_states`` (sensor_msgs/JointState): θ, θ̇ and, in case 'torque', τ (effort).
     ``joint_commands`` (sensor_msgs/JointState): θd (position), θ̇d (velocity).
     ``reference_trajectory`` (trajectory_msgs/JointTrajectory, optional): the plan.
+    ``controller_state`` parameter's topic (control_msgs, optional): θd, θ̇d of a
+    joint_trajectory_controller (:mod:`~rkgnn_ros.identification.ros2_control`).
 Published
     ``~/model`` (std_msgs/String, reliable, transient local, depth 1): the model YAML
     (``RKGNNModel.to_yaml``) when the best improves, at most every
@@ -84,6 +86,7 @@ from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierP
                                                  network_spec)
 from rkgnn_ros.identification.prediction import Predictor
 from rkgnn_ros.identification.publishing import EVOLUTION_LABELS, Outbox, Publishing
+from rkgnn_ros.identification.ros2_control import subscribe_controller_state
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change
 from sensor_msgs.msg import JointState
@@ -175,6 +178,7 @@ class IdentifierNode(Node):
             callback_group=polled, event_callbacks=sub_events, raw=True)
         self.create_subscription(JointTrajectory, 'reference_trajectory', self._on_reference,
                                  stream_qos, event_callbacks=sub_events)
+        subscribe_controller_state(self, config['controller_state'], self._ingestion, stream_qos)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_model', self._on_save_model)
         self.create_service(SetBool, '~/pause', self._on_pause)

@@ -119,11 +119,13 @@ def _config(values: Dict[str, object], window: float, path: str):
     """Return the node's Config of ``values`` with the buffer window set to ``window``."""
     from rkgnn_ros.identification.parameters import (ConfigurationError, make_config,
                                                      OUTPUTS, PARAMETERS)
+    from rkgnn_ros.identification.ros2_control import controller_gains
     known = {spec.name: spec for spec in PARAMETERS}
     outputs = {spec.name for spec in OUTPUTS}
     given = {}
+    gains = {name: value for name, value in values.items() if name.startswith('gains.')}
     for name, value in values.items():
-        if name in outputs or name in ('use_sim_time', 'model_file'):
+        if name in outputs or name in gains or name in ('use_sim_time', 'model_file'):
             continue
         if name not in known:
             raise IdentifyError(f'{path}: unknown parameter {name!r} of the identifier')
@@ -133,6 +135,7 @@ def _config(values: Dict[str, object], window: float, path: str):
     given['window'] = min(600.0, max(float(window), float(given.get('window', 1.0))))
     given['min_window'] = min(float(given.get('min_window', 5.0)), given['window'])
     try:
+        given = controller_gains(given, gains, IdentifyError)
         return make_config(**given)
     except (ConfigurationError, TypeError, ValueError) as error:
         raise IdentifyError(f'{path}: {error}')

@@ -37,6 +37,7 @@ from rkgnn_ros.core.fitting.identify import normalize_case
 from rkgnn_ros.core.fitting.online import OnlineSettings
 from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
 from rkgnn_ros.core.model.network import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
+from rkgnn_ros.identification.ros2_control import declare_controller_gains
 from rkgnn_ros.parameters import Change, ParameterSpec
 
 __all__ = ['PARAMETERS', 'OUTPUTS', 'Config', 'ConfigurationError', 'IdentifierParameters',
@@ -150,6 +151,10 @@ PARAMETERS = (
     ParameterSpec('model_file', '',
                   'Model YAML: loaded at start if present (published, start genome), written '
                   'atomically on ~/save_model and at shutdown; empty: no file.'),
+    ParameterSpec('controller_state', '',
+                  "A joint_trajectory_controller's controller_state topic: its reference "
+                  '(θd, θ̇d) joins the command stream (needs control_msgs); empty: none.',
+                  change=Change.START),
 )
 
 OUTPUTS = (
@@ -333,6 +338,7 @@ class IdentifierParameters:
 
     def __init__(self, node):
         values = {spec.name: spec.plain(spec.declare(node)) for spec in PARAMETERS}
+        values = declare_controller_gains(node, values, ConfigurationError)
         for spec in OUTPUTS:
             spec.declare(node)
         reason = check_parameters(values, list(values), at_start=True)
