@@ -36,6 +36,8 @@ Published
     sample (header stamp copied, ``points[0]`` that state exactly), at ``prediction.rate``
     Hz and with ``prediction.on_state`` on each accepted state (at most once per
     ``model_step``); never with a non-finite value (counted ``prediction_non_finite``).
+    ``~/predicted_state`` (sensor_msgs/JointState): with each prediction, its state
+    ``prediction.lookahead`` s ahead, stamped at that time (plot it against joint_states).
     ``~/evolution`` (std_msgs/Float64MultiArray, layout label :data:`EVOLUTION_LABELS`):
     once per generation, at most 20 Hz.
     ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): one status named after the
@@ -143,6 +145,8 @@ class IdentifierNode(Node):
                                            event_callbacks=pub_events),
             'prediction': self.create_publisher(JointTrajectory, '~/prediction', 10,
                                                 event_callbacks=pub_events),
+            'predicted_state': self.create_publisher(JointState, '~/predicted_state', 10,
+                                                     event_callbacks=pub_events),
             'evolution': self.create_publisher(Float64MultiArray, '~/evolution', 10,
                                                event_callbacks=pub_events),
             'diagnostics': self.create_publisher(DiagnosticArray, '/diagnostics', 10,

@@ -145,6 +145,10 @@ PARAMETERS = (
                   constraints='>= model_step'),
     ParameterSpec('prediction.rate', 10.0, 'Rate (Hz) of ~/prediction (0: only on_state).',
                   0.0, 1000.0),
+    ParameterSpec('prediction.lookahead', 0.5,
+                  'Seconds ahead of the newest state that ~/predicted_state shows (a JointState '
+                  'stamped at the time it predicts, for plotting against joint_states); 0: '
+                  'not published.', 0.0, 60.0, constraints='<= prediction.horizon'),
     ParameterSpec('prediction.on_state', False,
                   'Also predict on every accepted joint_states sample (at most once per '
                   'model_step).'),
@@ -261,6 +265,9 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
     if values['min_window'] > values['window']:
         return (f"min_window ({values['min_window']}) must be <= window "
                 f"({values['window']})")
+    if values['prediction.lookahead'] > values['prediction.horizon']:
+        return (f"prediction.lookahead ({values['prediction.lookahead']}) must be <= "
+                f"prediction.horizon ({values['prediction.horizon']})")
     if values['prediction.horizon'] < values['model_step']:
         return (f"prediction.horizon ({values['prediction.horizon']}) must be >= model_step "
                 f"({values['model_step']})")

@@ -38,9 +38,10 @@ from typing import Callable, NamedTuple, Optional, Tuple
 
 from builtin_interfaces.msg import Time
 import numpy as np
-from rkgnn_ros.conversions import serialize_joint_trajectory
+from rkgnn_ros.conversions import make_joint_state, serialize_joint_trajectory
 from rkgnn_ros.core.fitting.identify import RKGNNModel
 from rkgnn_ros.core.fitting.online import ClosedLoop
+from sensor_msgs.msg import JointState
 
 __all__ = ['LATENCY_WINDOW', 'Prediction', 'Predictor']
 
@@ -77,6 +78,25 @@ class Prediction(NamedTuple):
 
     data: bytes
     received_ns: Optional[int]  # None: predicted again from the same state
+    state: Optional[JointState] = None  # ~/predicted_state: the state prediction.lookahead on
+
+
+def _state_ahead(stamp, joints, t, positions, velocities, lookahead: float):
+    """
+    Return the predicted JointState ``lookahead`` s after the state stamped ``stamp``.
+
+    Interpolated linearly between the prediction's points, stamped at the time it predicts
+    (the state's stamp plus the look-ahead), effort NaN; None when ``lookahead`` is 0.
+    """
+    if lookahead <= 0.0:
+        return None
+    ahead = min(float(lookahead), float(t[-1]))
+    position = [float(np.interp(ahead, t, positions[:, j])) for j in range(len(joints))]
+    velocity = [float(np.interp(ahead, t, velocities[:, j])) for j in range(len(joints))]
+    sec, nanosec = divmod(stamp[0] * 1_000_000_000 + stamp[1] + int(round(ahead * 1e9)),
+                          1_000_000_000)
+    return make_joint_state(Time(sec=int(sec), nanosec=int(nanosec)), list(joints), position,
+                            velocity, None)
 
 
 class _Published(NamedTuple):
@@ -187,7 +207,9 @@ class Predictor:
         self._last_predicted_ns = latest.received_ns
         self._publish(Prediction(serialize_joint_trajectory(
             Time(sec=sec, nanosec=nanosec), joints, t, positions, velocities),
-            latest.received_ns if new else None))
+            latest.received_ns if new else None,
+            _state_ahead(latest.stamp, joints, t, positions, velocities,
+                         cfg['prediction.lookahead'])))
         self.inputs = what
         return True
 

@@ -18,7 +18,8 @@ Publishing: everything the identifier tells the world, from the executor thread 
 The worker, ingest and prediction threads never touch a publisher, a parameter or the
 logger: they put what they have to say into the :class:`Outbox` (a bounded queue whose
 ``put`` triggers a guard condition), and :meth:`Publishing.drain`, the guard condition's
-callback, handles it in the executor thread: a prediction goes to ``~/prediction``; a new
+callback, handles it in the executor thread: a prediction goes to ``~/prediction`` (and
+its state ``prediction.lookahead`` ahead to ``~/predicted_state``); a new
 model to ``~/model`` (its YAML was made in the worker), to the ``identified.*`` output
 parameters and to the predictor; generation statistics to ``~/evolution``; log lines to
 the node's logger. :meth:`Publishing.publish_diagnostics` (a 1 Hz timer) gathers
@@ -144,6 +145,8 @@ class Publishing:
         if isinstance(item, Prediction):
             self._publishers['prediction'].publish(item.data)
             self._predictor.published(item)
+            if item.state is not None and 'predicted_state' in self._publishers:
+                self._publishers['predicted_state'].publish(item.state)
         elif isinstance(item, LogLine):
             self.log(item.level, item.text)
         elif isinstance(item, GenerationStats):
