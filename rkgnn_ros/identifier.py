@@ -49,12 +49,10 @@ Services
     ``~/pause`` (std_srvs/SetBool): True pauses the search, False resumes it.
 Node parameters
     :data:`~rkgnn_ros.identification.parameters.PARAMETERS` (``ros2 param describe``
-    shows each, and what a change does: restart the search, rebuild the buffer, handed to
-    the optimizer between generations, or taken at once); defaults in
-    ``config/identifier.yaml``. ``identified.*`` are outputs, set by the node as the model
-    improves; sets from outside are refused. An invalid value at start makes the node
-    refuse to start (exit code 1), naming the parameter; a value of another type (an
-    integer for a double) is refused by rclpy.
+    shows each and what a change does); defaults in ``config/identifier.yaml``.
+    ``identified.*`` are outputs, refused from outside. An invalid value at start (or of
+    another type) makes the node refuse to start (exit code 1), naming the parameter.
+    Every time rule runs on the node's clock (``use_sim_time``: identification/clock.py).
 
 Threads
 -------
