@@ -351,6 +351,9 @@ def identify(args) -> dict:
         _say(args.quiet, f'reading {args.bag} ({recording.storage}): states {topics.states}, '
                          f'commands {topics.commands or topics.controller_state or "none"}')
         messages, truncated = read_messages(recording, topics)
+        truncated = '; '.join(filter(None, (recording.note, truncated)))
+        if truncated:
+            _say(args.quiet, f'  warning: {truncated}; using what was read')
     except RecordingError as error:
         raise IdentifyError(str(error))
     state_times = [m.log_ns for m in messages if m.topic == topics.states]

@@ -75,6 +75,7 @@ class Recording:
     types: Dict[str, str] = field(default_factory=dict)
     counts: Dict[str, int] = field(default_factory=dict)
     storage: str = ''
+    note: str = ''   # how it was read when not whole (an MCAP without its index)
 
     def close(self) -> None:
         """Close the reader (errors at close are not the caller's concern)."""
@@ -121,17 +122,37 @@ def open_recording(path: str) -> Recording:
         raise RecordingError(f'{path}: unknown storage format {storage!r} (a rosbag2 folder, '
                              'an .mcap or a .db3 file)')
     reader = AnyReader([where], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+    note = ''
     try:
         reader.open()
     except Exception as error:  # noqa: B902 - rosbags and its storages raise many types
-        raise RecordingError(f'{path}: cannot open the {storage} recording: '
-                             f'{_one_line(error)}') from None
-    recording = Recording(str(path), reader, storage=storage)
+        reader, note = _scan_instead(where, storage, error)
+        if reader is None:
+            raise RecordingError(f'{path}: cannot open the {storage} recording: '
+                                 f'{_one_line(error)}') from None
+    recording = Recording(str(path), reader, storage=storage, note=note)
     for connection in reader.connections:
         recording.types.setdefault(connection.topic, connection.msgtype)
         recording.counts[connection.topic] = (recording.counts.get(connection.topic, 0)
                                               + connection.msgcount)
     return recording
+
+
+def _scan_instead(where: Path, storage: str, error: BaseException):
+    """Return an MCAP read from its start when its index is gone, with a note (or None)."""
+    from .mcap_scan import McapScan, scan_target
+    target = scan_target(where) if storage in ('mcap', 'a folder') else None
+    if target is None:
+        return None, ''
+    try:
+        scan = McapScan(target)
+    except (OSError, ValueError):
+        return None, ''
+    if not scan.connections:
+        return None, ''
+    note = (f'the mcap file has no index ({_one_line(error)}): read record by record'
+            + (f', {scan.broken}' if scan.broken else ''))
+    return scan, note
 
 
 def _one_line(error: BaseException) -> str:
