@@ -41,6 +41,14 @@ drops the identifiers counted, and joint_states samples of another arm seen on a
 topic), with each process's CPU (% of one core over the run, from /proc) and the
 identifiers' receipt-to-publish prediction latency (their /diagnostics).
 
+``--part peer``: the least-squares peer on the same UR5, offline: 40 s simulated under the
+same servo (the paper's sines about the home pose) fit the arm's parameters by least
+squares on Pinocchio's joint-torque regressor (θ̈ by central differences of θ̇); the fitted
+arm then predicts, in closed loop with the servo's known gains, 2 s ahead from every
+0.25 s of a held-out 20 s run (other sines), scored like the online figure against
+following the reference. ``urdf_6dof_peer`` → ``prediction_nrmse``,
+``follow_reference_nrmse``, ``true_model_nrmse``.
+
 Each part updates its own key of ``bench/results/real_arms.json`` and keeps the others.
 """
 
@@ -400,6 +408,104 @@ def part_namespaces(args, log_dir):
     return result
 
 
+def _ur5_setup():
+    """Return the UR5 of config/sim_arm_ur5.yaml: (arm, kp, kd, home)."""
+    import yaml
+    from rkgnn_ros.core.sim.urdf_arm import UrdfArm
+    path = os.path.join(os.path.dirname(HERE), 'config', UR5_CONFIG)
+    with open(path, encoding='utf-8') as f:
+        values = yaml.safe_load(f)['/**/sim_arm']['ros__parameters']
+    arm = UrdfArm(values['robot_description'], joints=values['urdf']['joints'],
+                  gravity=values['gravity'], viscous=values['viscous'],
+                  coulomb=values['coulomb'])
+    return (arm, np.array(values['kp']), np.array(values['kd']),
+            np.array(values['urdf']['home']))
+
+
+class _FittedArm:
+    """The arm of least-squares parameters ``p``: θ̈ = M⁻¹ (τ - h) from the regressor."""
+
+    def __init__(self, arm, p):
+        self.arm, self.p = arm, p
+
+    def accel(self, theta, theta_dot, tau):
+        n = theta.size
+        zero = np.zeros(n)
+        h = self.arm.regressor(theta, theta_dot, zero) @ self.p
+        g = self.arm.regressor(theta, zero, zero) @ self.p
+        m = np.stack([self.arm.regressor(theta, zero, e) @ self.p - g for e in np.eye(n)], 1)
+        return np.linalg.solve(m, tau - h)
+
+
+def _closed_loop_rollout(accel, kp, kd, reference, t0, x0, horizon, h=0.002):
+    """Return θ at t0 + horizon of the PD loop from x0 (RK4 with step h)."""
+    n = x0.size // 2
+
+    def f(t, x):
+        theta_d, theta_d_dot = reference.evaluate(t)
+        tau = kp * (theta_d - x[:n]) + kd * (theta_d_dot - x[n:])
+        return np.concatenate([x[n:], accel(x[:n], x[n:], tau)])
+
+    x, t = x0.copy(), t0
+    for _ in range(int(round(horizon / h))):
+        k1 = f(t, x)
+        k2 = f(t + h / 2, x + h / 2 * k1)
+        k3 = f(t + h / 2, x + h / 2 * k2)
+        k4 = f(t + h, x + h * k3)
+        x, t = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4), t + h
+    return x[:n]
+
+
+def part_peer(args):
+    """Fit the UR5 by least squares on its regressor; score 2 s-ahead predictions."""
+    from rkgnn_ros.core.sim.servo import Servo
+    from rkgnn_ros.core.sim.simulate import simulate
+    from rkgnn_ros.core.sim.trajectories import paper_reference, SumOfSines
+    arm, kp, kd, home = _ur5_setup()
+    paper = paper_reference(arm.n_joints)
+    train_ref = SumOfSines(home, paper.amplitudes, paper.frequencies_hz, paper.phases)
+    test_ref = SumOfSines.random(arm.n_joints, np.random.default_rng(7), n_terms=4,
+                                 amplitude=0.45, max_frequency_hz=0.7, min_frequency_hz=0.15,
+                                 offsets=home)
+    print('== urdf_6dof_peer: least squares on the UR5 regressor', flush=True)
+    train = simulate(arm, Servo(kp, kd), train_ref, 40.0, rate=100.0)
+    acc = np.gradient(train.theta_dot, train.t, axis=0)
+    rows = slice(1, -1)  # central differences only
+    y = arm.regressor(train.theta[rows], train.theta_dot[rows], acc[rows])
+    p, *_ = np.linalg.lstsq(y.reshape(-1, y.shape[-1]), train.tau[rows].reshape(-1),
+                            rcond=1e-10)
+    fitted = _FittedArm(arm, p)
+    test = simulate(arm, Servo(kp, kd), test_ref, 20.0, rate=100.0)
+    theta_range = np.ptp(test.theta, axis=0)
+    horizon = args.horizon
+    starts = np.arange(0, int((test.t[-1] - horizon) * 100) + 1, 25)
+    errors = {'model': [], 'true': [], 'follow': []}
+    for k in starts:
+        t0, x0 = test.t[k], np.concatenate([test.theta[k], test.theta_dot[k]])
+        target = test.theta[k + int(round(horizon * 100))]
+        errors['model'].append(_closed_loop_rollout(fitted.accel, kp, kd, test_ref, t0, x0,
+                                                    horizon) - target)
+        errors['true'].append(_closed_loop_rollout(
+            lambda q, v, tau: arm.forward_dynamics(q, v, tau), kp, kd, test_ref, t0, x0,
+            horizon) - target)
+        errors['follow'].append(test_ref.evaluate(t0 + horizon)[0] - target)
+    figures = {name: float(np.mean(np.sqrt(np.mean(np.square(e), axis=0)) / theta_range))
+               for name, e in errors.items()}
+    result = {'prediction_nrmse': figures['model'], 'follow_reference_nrmse': figures['follow'],
+              'true_model_nrmse': figures['true'], 'predictions': int(starts.size),
+              'torque_fit_rmse': float(np.sqrt(np.mean(np.square(
+                  y.reshape(-1, y.shape[-1]) @ p - train.tau[rows].reshape(-1))))),
+              'meta': {'date': datetime.date.today().isoformat(),
+                       'setup': 'UR5 of config/sim_arm_ur5.yaml; fit on 40 s of the paper '
+                                'sines about home (θ̈ central differences of θ̇), '
+                                'predictions every 0.25 s over a held-out 20 s run (4 random '
+                                'sines, seed 7), closed loop with the known PD, RK4 2 ms',
+                       'metric': '2 s-ahead θ RMSE / θ range, mean over joints'}}
+    print(f'  least squares {figures["model"]:.3%}, true model {figures["true"]:.3%}, '
+          f'follow reference {figures["follow"]:.3%} of the θ range', flush=True)
+    return result
+
+
 def update_results(key, value, path=RESULTS):
     """Write ``value`` under ``key`` of the results file, keeping the other keys."""
     results = {}
@@ -416,7 +522,8 @@ def update_results(key, value, path=RESULTS):
 def main(argv=None):
     """Run the chosen part; return the exit code."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0].strip())
-    parser.add_argument('--part', choices=('urdf', 'bag', 'namespaces'), default='urdf')
+    parser.add_argument('--part', choices=('urdf', 'bag', 'namespaces', 'peer'),
+                        default='urdf')
     parser.add_argument('--cases', default='1,3')
     parser.add_argument('--duration', type=float, default=65.0)
     parser.add_argument('--horizon', type=float, default=2.0)
@@ -434,6 +541,8 @@ def main(argv=None):
         update_results('bag', part_bag(args, log_dir))
     elif args.part == 'namespaces':
         update_results('namespaces', part_namespaces(args, log_dir))
+    elif args.part == 'peer':
+        update_results('urdf_6dof_peer', part_peer(args))
     return 0
 
 
