@@ -49,7 +49,7 @@ import xml.etree.ElementTree as ElementTree
 
 import numpy as np
 
-from .stability import ClosedLoopAnalysis, gain_matrix
+from .stability import ClosedLoopAnalysis
 
 __all__ = ['UrdfArm', 'UrdfError', 'example_robot_urdf', 'read_description', 'reduce_urdf']
 
@@ -541,14 +541,7 @@ class UrdfArm(ClosedLoopAnalysis):
         ∂θ̈/∂θ̇ = ∂ABA/∂θ̇ - M⁻¹ (Kd + ∂F/∂θ̇).
         """
         n = self.n_joints
-        theta = self._joint_array('theta', theta)
-        theta_dot = self._joint_array('theta_dot', theta_dot)
-        kp = gain_matrix('kp', kp, n)
-        kd = gain_matrix('kd', kd, n)
-        theta_d = theta if theta_d is None else self._joint_array('theta_d', theta_d)
-        theta_d_dot = (theta_dot if theta_d_dot is None
-                       else self._joint_array('theta_d_dot', theta_d_dot))
-        arrays = np.broadcast_arrays(theta, theta_dot, theta_d, theta_d_dot)
+        kp, kd, arrays = self._loop_arguments(theta, theta_dot, kp, kd, theta_d, theta_d_dot)
         batch = arrays[0].shape[:-1]
         pin, model, data = self._pin, self.model, self._data
         out = np.empty(batch + (2 * n,), dtype=complex)
