@@ -12,7 +12,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'config'),
+         glob('config/*.yaml') + glob('config/*.xml')),
         (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
@@ -26,6 +27,7 @@ setup(
         'console_scripts': [
             'sim_arm = rkgnn_ros.sim_arm:main',
             'identifier = rkgnn_ros.identifier:main',
+            'identify_bag = rkgnn_ros.identify_bag:main',
         ],
     },
 )

@@ -27,6 +27,8 @@ Subscribed (best effort, depth 100: matches best-effort and reliable publishers 
     ``joint_commands`` (sensor_msgs/JointState, optional): θd (position), θ̇d (velocity).
     ``reference_trajectory`` (trajectory_msgs/JointTrajectory): the plan; it stands in for
     ``joint_commands`` where that topic is silent, and predictions end where it ends.
+    ``controller_state`` parameter's topic (control_msgs, optional): θd, θ̇d of a
+    joint_trajectory_controller (:mod:`~rkgnn_ros.identification.ros2_control`).
     Size budgets (:mod:`rkgnn_ros.conversions`): a JointState of at most 64 KiB, a
     JointTrajectory of at most 8 MiB and 10,000 points, at most 256 joint names of at most
     256 bytes each; a message over any is dropped, counted as ``over_budget``. A stamp far
@@ -50,6 +52,8 @@ Published
     ``~/prediction_uncertainty`` (trajectory_msgs/JointTrajectory): the same stamp, joints
     and times, positions = the expected θ error (rad, the published predictor's recent
     RMSE per horizon), ``frame_id`` ``rmse:<source>``.
+    ``~/predicted_state`` (sensor_msgs/JointState): with each prediction, its state
+    ``prediction.lookahead`` s ahead, stamped at that time (plot it against joint_states).
     ``~/prediction_scores`` (std_msgs/Float64MultiArray, 1 Hz): a row per scored horizon,
     columns :data:`SCORE_LABELS` (windowed RMSE / θ range; layout ``rows``, the labels).
     ``~/evolution`` (std_msgs/Float64MultiArray, labels :data:`EVOLUTION_LABELS`): per
@@ -64,10 +68,11 @@ Services
     ``~/save_model`` (std_srvs/Trigger): write the published model to ``model_file``.
     ``~/pause`` (std_srvs/SetBool): True pauses the search, False resumes it.
 Node parameters
-    :data:`~rkgnn_ros.identification.parameters.PARAMETERS` (``ros2 param describe`` says
-    what each change does); defaults in ``config/identifier.yaml``. ``identified.*`` are
-    outputs: sets from outside are refused. An invalid value at start makes the node refuse
-    to start (exit code 1), naming it; a value of another type is refused by rclpy.
+    :data:`~rkgnn_ros.identification.parameters.PARAMETERS` (``ros2 param describe``
+    shows each and what a change does); defaults in ``config/identifier.yaml``.
+    ``identified.*`` are outputs, refused from outside. An invalid value at start (or of
+    another type) makes the node refuse to start (exit code 1), naming the parameter.
+    Every time rule runs on the node's clock (``use_sim_time``: identification/clock.py).
 
 Threads
 -------
@@ -78,19 +83,19 @@ does. The ingest, worker, prediction and feed-forward threads (the parts of thos
 garbage collector and no QoS-event handlers are created: the executor stays cheap.
 """
 
+from functools import partial
 import gc
 import sys
 
 import rclpy
-from rclpy.clock import JumpThreshold
-from rclpy.duration import Duration
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.core.fitting.identify import precompile
-from rkgnn_ros.core.fitting.online import model_update
+from rkgnn_ros.core.fitting.online import model_update, OnlineIdentification
+from rkgnn_ros.identification.clock import NodeSeconds, watch_clock_jumps
 from rkgnn_ros.identification.feedforward import FeedforwardSender
 from rkgnn_ros.identification.ingest import Ingestion, PolledGroup
 from rkgnn_ros.identification.model_file import load_model_file, save_model_file
@@ -99,6 +104,7 @@ from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierP
 from rkgnn_ros.identification.prediction import Predictor
 from rkgnn_ros.identification.publishing import (create_publishers, EVOLUTION_LABELS, Outbox,
                                                  Publishing, SCORE_LABELS)
+from rkgnn_ros.identification.ros2_control import subscribe_controller_state
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change
 from sensor_msgs.msg import JointState
@@ -106,8 +112,6 @@ from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main']
-
-CLOCK_JUMP_S = 1.0  # a node clock jumping back by more clears the buffer
 
 
 class IdentifierNode(Node):
@@ -150,13 +154,16 @@ class IdentifierNode(Node):
         publishers = create_publishers(self, pub_events, config['feedforward.forward_topic'])
 
         self._outbox = Outbox()
+        # every time rule on the node's clock (use_sim_time), never running backwards
+        clock = NodeSeconds(lambda: self.get_clock().now().nanoseconds)
         self._ingestion = Ingestion(config, self._outbox.log, alive=self.context.ok,
-                                    on_state=lambda: self._predictor.request())
+                                    on_state=lambda: self._predictor.request(), clock=clock)
         self._predictor = Predictor(self._ingestion, self._outbox.put,
                                     lambda: self._params.config)
         model = self._load_model_file(config)
         self._worker = SearchWorker(self._ingestion, self._predictor, self._outbox,
-                                    alive=self.context.ok, published=model)
+                                    alive=self.context.ok, published=model,
+                                    policy=partial(OnlineIdentification, clock=clock))
         self._publishing = Publishing(self, self._outbox, publishers, self._params,
                                       self._predictor, self._ingestion,
                                       lambda: self._worker.status)
@@ -184,6 +191,7 @@ class IdentifierNode(Node):
                                    durability=DurabilityPolicy.VOLATILE)
         self.create_subscription(JointTrajectory, 'reference_trajectory', self._on_reference,
                                  reference_qos, event_callbacks=sub_events, raw=True)
+        subscribe_controller_state(self, config['controller_state'], self._ingestion, stream_qos)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_model', self._on_save_model)
         self.create_service(SetBool, '~/pause', self._on_pause)
@@ -191,10 +199,7 @@ class IdentifierNode(Node):
         self._make_prediction_timer()
         self.create_timer(1.0, self._publishing.publish_diagnostics)
         # /clock reset under use_sim_time: the buffered data belong to the old timeline
-        self._clock_jumps = self.get_clock().create_jump_callback(
-            JumpThreshold(min_forward=None, min_backward=Duration(seconds=-CLOCK_JUMP_S),
-                          on_clock_change=False),
-            post_callback=self._on_clock_jump)
+        self._clock_jumps = watch_clock_jumps(self, self._ingestion)
 
         self._worker.start()
         self._predictor.start()
@@ -248,12 +253,6 @@ class IdentifierNode(Node):
 
     def _on_reference(self, raw: bytes) -> None:
         self._ingestion.handle_reference(raw, self.get_clock().now().nanoseconds * 1e-9)
-
-    def _on_clock_jump(self, jump) -> None:
-        try:
-            self._ingestion.clock_reset(-jump.delta.nanoseconds * 1e-9)
-        except Exception:  # noqa: B902 - a callback must never raise
-            self._ingestion.internal_error('clock')
 
     def _on_reset(self, request, response):
         self._ingestion.clear()  # first: whatever the worker takes from now on is new

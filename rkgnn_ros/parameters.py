@@ -158,7 +158,8 @@ class ParameterSpec:
         Declare the parameter on ``node``; return its value (given at start, else default).
 
         An array without a default is declared by type and set to ``[]`` when no value was
-        given (rclpy leaves it unset). Outputs ignore values given at start.
+        given (rclpy leaves it unset; a read-only one, which rclpy refuses to set, stays
+        unset and reads as ``[]``). Outputs ignore values given at start.
         """
         kind = self.kind
         output = self.change == Change.OUTPUT
@@ -166,6 +167,8 @@ class ParameterSpec:
             param = node.declare_parameter(self.name, kind, self.descriptor(),
                                            ignore_override=output)
             if param.type_ == _T.NOT_SET:  # no value given, or `[]` in a params file
+                if self.read_only:
+                    return []
                 node.set_parameters([Parameter(self.name, kind, [])])
             return node.get_parameter(self.name).value
         return node.declare_parameter(self.name, self.default, self.descriptor(),

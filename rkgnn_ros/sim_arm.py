@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The ``sim_arm`` node: the planar arm under its servo, simulated in real time.
+The ``sim_arm`` node: the planar arm (or a URDF arm) under its servo, simulated in real time.
 
 The plant of :mod:`rkgnn_ros.core.sim.plant` (``PlanarArm``) tracks a reference of
 :mod:`rkgnn_ros.core.sim.trajectories` under the servo of :mod:`rkgnn_ros.core.sim.servo`:
@@ -39,6 +39,9 @@ Topics (published)
     stamped with the stamp of the state it was published with (``time_from_start`` 0 is
     that state's command). Transient local so that a late subscriber gets the current one
     at once; a volatile subscriber is compatible too.
+``robot_description`` (std_msgs/String, reliable, transient local, depth 1)
+    With a URDF arm (:mod:`rkgnn_ros.arm_model`): its URDF with the locked joints fixed,
+    once at start, for robot_state_publisher and rviz.
 
 Topics (subscribed)
 -------------------
@@ -102,6 +105,7 @@ from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
 from .cdr import is_plain_cdr, joint_trajectory_cdr_size, parse_joint_trajectory_cdr
@@ -109,6 +113,7 @@ from .conversions import (make_joint_state, make_joint_trajectory, MAX_MESSAGE_J
                           MAX_NAME_BYTES, MAX_TRAJECTORY_BYTES, MAX_TRAJECTORY_POINTS)
 from .core.control.receiver import FeedforwardReceiver
 from .core.sim.arm_simulator import ArmSimulator, SimulationDiverged
+from .core.sim.plant import PlanarArm
 from .parameters import Change
 from .sim_arm_parameters import build_config, BY_NAME, ConfigurationError, PARAMETERS
 
@@ -184,7 +189,8 @@ class SimArm(Node):
         config = self.config
         self.sim = ArmSimulator(config.arm, config.kp, config.kd, config.reference,
                                 config.integration_step, config.control_rate or None,
-                                config.max_speed, ki=config.ki, tau_limit=config.tau_limit,
+                                config.max_speed, compiled=isinstance(config.arm, PlanarArm),
+                                ki=config.ki, tau_limit=config.tau_limit,
                                 gravity_compensation=config.gravity_compensation,
                                 windup_time=config.windup_time)
         self._names = list(config.joint_names)
@@ -222,6 +228,10 @@ class SimArm(Node):
         # raw: the size budgets are checked on the bytes, before the points become objects
         self.create_subscription(JointTrajectory, '~/feedforward', self._on_feedforward, 10,
                                  raw=True)
+        if config.robot_description:
+            self._description_pub = self.create_publisher(String, 'robot_description',
+                                                          reference_qos)
+            self._description_pub.publish(String(data=config.robot_description))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self._timer = self.create_timer(1.0 / self._rate, self._on_timer)
@@ -230,8 +240,10 @@ class SimArm(Node):
                    else f'continuous {servo}')
         sensors = config.sensors
         published = f'velocity {sensors.velocity!r}' + ('' if sensors.effort else ', no effort')
+        arm = (config.arm.describe() if config.robot_description
+               else f'planar arm, {config.arm.params.mass_model} masses')
         self.get_logger().info(
-            f'{len(self._names)} joints {self._names}, {config.arm.params.mass_model} masses, '
+            f'{len(self._names)} joints {self._names}, {arm}, '
             f'{control}, reference {config.reference_type!r}, publishing at '
             f'{self._rate:g} Hz ({published}), integration_step {config.integration_step:g} s '
             f'(stable below {config.stable_step:.3g} s at the start state)')

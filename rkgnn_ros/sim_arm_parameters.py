@@ -20,8 +20,9 @@ The ``sim_arm`` node's parameters: their table, and the simulated system they de
 row (name, default, description, range, what a change does); :func:`build_config` checks
 what rclpy's descriptors cannot (array lengths and elements, choices, cross-parameter
 rules, a stable integration step) and builds the arm, its servo settings, the sensors and
-the reference into one :class:`SimConfig`. Nothing here touches a node, so the rules are
-tested on plain dictionaries of values.
+the reference into one :class:`SimConfig`. The arm is the planar arm of ``masses``,
+``lengths``, ... or, with ``robot_description``, a URDF arm (:mod:`rkgnn_ros.arm_model`).
+Nothing here touches a node, so the rules are tested on plain dictionaries of values.
 """
 
 from functools import partial
@@ -30,6 +31,7 @@ from typing import List, NamedTuple, Optional, Tuple
 
 import numpy as np
 
+from .arm_model import build_urdf_arm, reference_limit_warning, URDF_PARAMETERS
 from .core.integration.rkg import STABILITY_LIMIT as RK4_REAL_STABILITY_LIMIT
 from .core.sim.parameters import ArmParameters, MASS_MODELS
 from .core.sim.plant import PlanarArm
@@ -155,7 +157,7 @@ PARAMETERS = (
           'Seconds of clock time from the start of the simulation after which the node exits '
           'cleanly (exit code 0); 0 = run forever.',
           0.0, 1e9),
-)
+) + URDF_PARAMETERS
 
 #: The rows of :data:`PARAMETERS` by name.
 BY_NAME = {spec.name: spec for spec in PARAMETERS}
@@ -165,7 +167,8 @@ class SimConfig(NamedTuple):
     """The validated settings of a :class:`SimArm`."""
 
     joint_names: Tuple[str, ...]
-    arm: PlanarArm
+    arm: PlanarArm                   # or a UrdfArm (robot_description)
+    robot_description: str           # the URDF arm's (reduced) URDF, '' for the planar arm
     kp: np.ndarray
     kd: np.ndarray
     ki: np.ndarray
@@ -196,7 +199,7 @@ def _joint_vector(values: dict, name: str, n: int, *, positive: bool,
         arr = np.full(n, arr[0])
     if arr.shape != (n,):
         raise ConfigurationError(
-            f'{name} has {arr.size} values but joint_names has {n} joints; give one per joint'
+            f'{name} has {arr.size} values but the arm has {n} joints; give one per joint'
             + (' or one for every joint' if broadcast else ''))
     if not np.all(np.isfinite(arr)):
         raise ConfigurationError(f'{name} must be finite, got {arr.tolist()}')
@@ -207,13 +210,15 @@ def _joint_vector(values: dict, name: str, n: int, *, positive: bool,
     return arr
 
 
-def _build_reference(values: dict, n: int) -> Reference:
+def _build_reference(values: dict, n: int, offsets=None) -> Reference:
     kind = values['reference.type']
     if kind not in REFERENCE_TYPES:
         raise ConfigurationError(
             f'reference.type must be one of {list(REFERENCE_TYPES)}, got {kind!r}')
+    offsets = hanging_pose(n) if offsets is None else offsets
     if kind == 'paper':
-        return paper_reference(n)
+        paper = paper_reference(n)
+        return SumOfSines(offsets, paper.amplitudes, paper.frequencies_hz, paper.phases)
     amplitude = values['reference.amplitude']
     if kind == 'sines':
         low, high = values['reference.min_frequency'], values['reference.max_frequency']
@@ -224,8 +229,8 @@ def _build_reference(values: dict, n: int) -> Reference:
         rng = np.random.default_rng(values['reference.seed'])
         return SumOfSines.random(n, rng, n_terms=values['reference.n_terms'],
                                  amplitude=amplitude, max_frequency_hz=high,
-                                 min_frequency_hz=low)
-    return Chirp(hanging_pose(n), np.full(n, amplitude),
+                                 min_frequency_hz=low, offsets=offsets)
+    return Chirp(offsets, np.full(n, amplitude),
                  values['reference.chirp_start_frequency'],
                  values['reference.chirp_end_frequency'], values['reference.chirp_duration'])
 
@@ -240,15 +245,15 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
     array parameters or cross-parameter rules need it.
     """
     warnings = []
-    names = tuple(str(name) for name in values['joint_names'])
+    urdf = build_urdf_arm(values, ConfigurationError)
+    names = (urdf.joint_names if urdf is not None
+             else tuple(str(name) for name in values['joint_names']))
     if not names or any(not name for name in names):
         raise ConfigurationError(
             f'joint_names must list at least one non-empty name, got {list(names)}')
     if len(set(names)) != len(names):
         raise ConfigurationError(f'joint_names must be unique, got {list(names)}')
     n = len(names)
-    masses = _joint_vector(values, 'masses', n, positive=True)
-    lengths = _joint_vector(values, 'lengths', n, positive=True)
     viscous = _joint_vector(values, 'viscous', n, positive=False)
     coulomb = _joint_vector(values, 'coulomb', n, positive=False)
     kp = _joint_vector(values, 'kp', n, positive=False)
@@ -272,22 +277,24 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
                           velocity=values['sensors.velocity'],
                           velocity_cutoff=values['sensors.velocity_cutoff'],
                           effort=values['sensors.effort'])
-    if values['mass_model'] not in MASS_MODELS:
-        raise ConfigurationError(
-            f'mass_model must be one of {list(MASS_MODELS)}, got {values["mass_model"]!r}')
     try:
-        arm = PlanarArm(ArmParameters(
-            masses=masses, lengths=lengths, mass_model=values['mass_model'],
-            gravity=values['gravity'], viscous=viscous, coulomb=coulomb,
-            coulomb_velocity=values['coulomb_velocity']))
+        if urdf is None:
+            arm = _planar_arm(values, n, viscous, coulomb)
+        else:
+            arm = urdf.arm
+            arm.set_friction(viscous, coulomb)
     except ValueError as error:     # messages name the field, e.g. 'gravity must be finite'
+        if isinstance(error, ConfigurationError):
+            raise
         raise ConfigurationError(str(error)) from None
     try:
-        reference = _build_reference(values, n)
+        reference = _build_reference(values, n, None if urdf is None else urdf.home)
     except ValueError as error:
         if isinstance(error, ConfigurationError):
             raise
         raise ConfigurationError(f'reference.*: {error}') from None
+    if urdf is not None:
+        warnings.append(reference_limit_warning(arm, reference) or '')
 
     reference_dt = values['reference_dt']
     horizon = values['reference_horizon']
@@ -321,7 +328,8 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
             f'{0.5 * stiffness:.0f} Hz for the fastest eigenvalue of the closed loop: the '
             'digital PD may chatter or diverge')
     config = SimConfig(
-        joint_names=names, arm=arm, kp=kp, kd=kd, ki=ki,
+        joint_names=names, arm=arm,
+        robot_description='' if urdf is None else urdf.description, kp=kp, kd=kd, ki=ki,
         gravity_compensation=values['gravity_compensation'],
         tau_limit=np.where(tau_limit > 0.0, tau_limit, np.inf) if np.any(tau_limit) else None,
         windup_time=float(values['windup_time']), sensors=sensors, reference=reference,
@@ -333,4 +341,17 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
         max_speed=float(values['max_speed']), reference_horizon=float(horizon),
         reference_dt=float(reference_dt), reference_rate=float(values['reference_rate']),
         duration=float(values['duration']))
-    return config, warnings
+    return config, [warning for warning in warnings if warning]
+
+
+def _planar_arm(values: dict, n: int, viscous, coulomb) -> PlanarArm:
+    """Return the planar arm of the parameters (n joints)."""
+    masses = _joint_vector(values, 'masses', n, positive=True)
+    lengths = _joint_vector(values, 'lengths', n, positive=True)
+    if values['mass_model'] not in MASS_MODELS:
+        raise ConfigurationError(
+            f'mass_model must be one of {list(MASS_MODELS)}, got {values["mass_model"]!r}')
+    return PlanarArm(ArmParameters(
+        masses=masses, lengths=lengths, mass_model=values['mass_model'],
+        gravity=values['gravity'], viscous=viscous, coulomb=coulomb,
+        coulomb_velocity=values['coulomb_velocity']))

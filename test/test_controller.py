@@ -373,3 +373,14 @@ def test_closed_loop_integrates_the_integral_term_instead_of_holding_it():
     # seen: 0.028 rad held, 3.6e-4 after 3 iterations, 9e-6 after 4
     assert held_error > 1e-2                            # holding it is visibly wrong
     assert np.linalg.norm(iterated - y[:N]) < 0.05 * held_error
+
+
+def test_data_sampled_coarser_than_the_filter_are_filtered_at_one_sample():
+    # model_step 0.1 s (the node's range allows it) is coarser than the default filter
+    # (0.03 s): the narrowest filter the samples allow is used instead of raising
+    data = simulate(ARM, SERVOS['pd'], paper_reference(N), 20.0, rate=10.0)
+    law = fit_controller(data)
+    assert law.filter_sigma == pytest.approx(data.dt)
+    # exact data at 10 Hz: the kernel's accuracy at that sampling, 0.1 % (seen: 0.06 %)
+    np.testing.assert_allclose(law.kp, KP, rtol=1e-3)
+    np.testing.assert_allclose(law.kd, KD, rtol=1e-3, atol=1e-3)

@@ -389,3 +389,18 @@ def test_validation_scores_a_model_on_the_held_out_segments(data):
     assert math.isnan(validation_nrmse(model, []))
     score = validation_nrmse(model, [data.slice(0, 100), data.slice(200, 300)])
     assert score > 0.0
+
+
+def test_a_law_learned_before_min_window_keeps_the_search_on_paired_data(data):
+    # the law is learned on 1.5 s (under min_window), then the commands stop: too few pairs
+    # to refit keep the law, so the search waits for paired data rather than being built
+    # closed loop on unpaired segments (it raised "case 'pd_gains' needs the desired
+    # trajectory")
+    rig = Rig(buffer_with(data, 1.5, case='torque'), settings(case='torque'))
+    assert not rig.step()
+    assert rig.lines('controller law learned', 'closed loop')
+    rig.buffer = buffer_with(data, 3.0, case='torque', commands=False)
+    for _ in range(3):
+        assert not rig.step(dt=1.0)
+    assert rig.status.state == 'waiting for data'
+    assert rig.policy._evo is None

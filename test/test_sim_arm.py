@@ -372,7 +372,7 @@ def test_valid_configurations_start(ros, overrides):
 def test_params_file_holds_the_declared_defaults(ros):
     context, _ = ros
     path = REPO / 'config' / 'sim_arm.yaml'
-    params = yaml.safe_load(path.read_text())['sim_arm']['ros__parameters']
+    params = yaml.safe_load(path.read_text())['/**/sim_arm']['ros__parameters']
 
     def flatten(tree, prefix=''):
         for key, value in tree.items():

@@ -41,6 +41,7 @@ from rkgnn_ros.core.fitting.identify import normalize_case
 from rkgnn_ros.core.fitting.online import OnlineSettings
 from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
 from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
+from rkgnn_ros.identification.ros2_control import declare_controller_gains
 from rkgnn_ros.parameters import Change, ParameterSpec
 
 __all__ = ['PARAMETERS', 'OUTPUTS', 'PARAMETER_CASES', 'Config', 'ConfigurationError',
@@ -173,6 +174,10 @@ PARAMETERS = (
                   'Rate (Hz) of ~/prediction (0: only on_state; otherwise at least '
                   f'{MIN_PREDICTION_RATE} Hz, one prediction every 10 s).', 0.0, 1000.0,
                   off_below=MIN_PREDICTION_RATE),
+    ParameterSpec('prediction.lookahead', 0.5,
+                  'Seconds ahead of the newest state that ~/predicted_state shows (a JointState '
+                  'stamped at the time it predicts, for plotting against joint_states); 0: '
+                  'not published.', 0.0, 60.0, constraints='<= prediction.horizon'),
     ParameterSpec('prediction.on_state', False,
                   'Also predict on every accepted joint_states sample (at most once per '
                   'model_step).'),
@@ -218,6 +223,10 @@ PARAMETERS = (
                   'atomically on ~/save_model and at shutdown; empty: no file. Only a regular '
                   'file (or a new path) is read or written: a directory, a device or a FIFO '
                   'is refused with the reason.', max_bytes=MAX_PATH_BYTES),
+    ParameterSpec('controller_state', '',
+                  "A joint_trajectory_controller's controller_state topic: its reference "
+                  '(θd, θ̇d) joins the command stream (needs control_msgs); empty: none.',
+                  change=Change.START, max_bytes=MAX_PATH_BYTES),
 )
 
 OUTPUTS = (
@@ -341,6 +350,9 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
     if values['min_window'] > values['window']:
         return (f"min_window ({values['min_window']}) must be <= window "
                 f"({values['window']})")
+    if values['prediction.lookahead'] > values['prediction.horizon']:
+        return (f"prediction.lookahead ({values['prediction.lookahead']}) must be <= "
+                f"prediction.horizon ({values['prediction.horizon']})")
     if values['prediction.horizon'] < values['model_step']:
         return (f"prediction.horizon ({values['prediction.horizon']}) must be >= model_step "
                 f"({values['model_step']})")
@@ -432,6 +444,9 @@ class IdentifierParameters:
 
     def __init__(self, node):
         values = {spec.name: spec.plain(spec.declare(node)) for spec in PARAMETERS}
+        if _check_one(_BY_NAME['joints'], values['joints'], True, None) is None:
+            # gains.<joint>.p / .d: declared only for a joint list within its budget
+            values = declare_controller_gains(node, values, ConfigurationError)
         for spec in OUTPUTS:
             spec.declare(node)
         reason = check_parameters(values, list(values), at_start=True)

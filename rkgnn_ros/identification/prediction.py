@@ -41,7 +41,8 @@ What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
   plan's end are included. ``~/prediction_uncertainty`` (same stamp, joints and times)
   carries, as positions, the expected θ error (rad): the published predictor's RMSE per
   horizon over the window, measured on this arm lately (NaN until scored), linear in
-  between (0 at the start, a measured state).
+  between (0 at the start, a measured state). ``~/predicted_state`` is the published
+  prediction's state ``prediction.lookahead`` ahead, stamped at that time, same frame_id.
 
 Case 1 closes the learned servo law around the arm model
 (:class:`~rkgnn_ros.core.fitting.online_records.ClosedLoop`): its integral term is the
@@ -61,10 +62,11 @@ from typing import Callable, NamedTuple, Optional, Tuple
 
 from builtin_interfaces.msg import Time
 import numpy as np
-from rkgnn_ros.conversions import serialize_joint_trajectory
+from rkgnn_ros.conversions import make_joint_state, serialize_joint_trajectory
 from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
+from sensor_msgs.msg import JointState
 
 __all__ = ['LATENCY_WINDOW', 'SCORE_LABELS', 'Prediction', 'Predictor', 'ScoreReport']
 
@@ -109,6 +111,28 @@ class Prediction(NamedTuple):
     data: bytes
     received_ns: Optional[int]  # None: predicted again from the same state
     uncertainty: Optional[bytes] = None  # ~/prediction_uncertainty, CDR
+    state: Optional[JointState] = None  # ~/predicted_state: the state prediction.lookahead on
+
+
+def _state_ahead(stamp, joints, t, positions, velocities, lookahead: float, frame: str):
+    """
+    Return the predicted JointState ``lookahead`` s after the state stamped ``stamp``.
+
+    Interpolated linearly between the prediction's points (its last one where it ends
+    sooner, at the plan's end), stamped at the time it predicts, effort NaN,
+    ``header.frame_id`` the prediction's; None when ``lookahead`` is 0.
+    """
+    if lookahead <= 0.0:
+        return None
+    ahead = min(float(lookahead), float(t[-1]))
+    position = [float(np.interp(ahead, t, positions[:, j])) for j in range(len(joints))]
+    velocity = [float(np.interp(ahead, t, velocities[:, j])) for j in range(len(joints))]
+    sec, nanosec = divmod(stamp[0] * 1_000_000_000 + stamp[1] + int(round(ahead * 1e9)),
+                          1_000_000_000)
+    state = make_joint_state(Time(sec=int(sec), nanosec=int(nanosec)), list(joints), position,
+                             velocity, None)
+    state.header.frame_id = frame
+    return state
 
 
 class ScoreReport(NamedTuple):
@@ -277,7 +301,9 @@ class Predictor:
         self._publish(Prediction(
             serialize_joint_trajectory(stamp, joints, t, positions, velocities, frame),
             latest.received_ns if new else None,
-            serialize_joint_trajectory(stamp, joints, t, sigma, None, f'rmse:{source}')))
+            serialize_joint_trajectory(stamp, joints, t, sigma, None, f'rmse:{source}'),
+            _state_ahead(latest.stamp, joints, t, positions, velocities,
+                         cfg['prediction.lookahead'], frame)))
         self.inputs = horizon.what
         self._report(check, latest.t)
         return True

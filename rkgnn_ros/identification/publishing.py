@@ -18,13 +18,14 @@ Publishing: everything the identifier tells the world, from the executor thread 
 The worker, ingest and prediction threads never touch a publisher, a parameter or the
 logger: they put what they have to say into the :class:`Outbox` (a bounded queue whose
 ``put`` triggers a guard condition), and :meth:`Publishing.drain`, the guard condition's
-callback, handles it in the executor thread: a prediction goes to ``~/prediction`` and
-its uncertainty to ``~/prediction_uncertainty``; the self-check's scores to
-``~/prediction_scores``; a new model to ``~/model`` (its YAML was made in the worker), to
-the ``identified.*`` output parameters and to the predictor; generation statistics to
-``~/evolution``; log lines to the node's logger. :meth:`Publishing.publish_diagnostics` (a
-1 Hz timer) gathers ``/diagnostics`` from the parts' read-only views.
-:func:`create_publishers` makes the publishers, so the node and its tests agree on them.
+callback, handles it in the executor thread: a prediction goes to ``~/prediction``, its
+uncertainty to ``~/prediction_uncertainty`` and its state ``prediction.lookahead`` ahead
+to ``~/predicted_state``; the self-check's scores to ``~/prediction_scores``; a new model
+to ``~/model`` (its YAML was made in the worker), to the ``identified.*`` output
+parameters and to the predictor; generation statistics to ``~/evolution``; log lines to
+the node's logger. :meth:`Publishing.publish_diagnostics` (a 1 Hz timer) gathers
+``/diagnostics`` from the parts' read-only views. :func:`create_publishers` makes the
+publishers, so the node and its tests agree on them.
 """
 
 from collections import deque
@@ -38,6 +39,7 @@ from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate,
                                            Status)
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.identification.prediction import Prediction, SCORE_LABELS, ScoreReport
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory
 
@@ -65,6 +67,7 @@ def create_publishers(node, events, forward_topic: str = '') -> dict:
     topics = {'model': (String, '~/model', model_qos),
               'prediction': (JointTrajectory, '~/prediction', 10),
               'prediction_uncertainty': (JointTrajectory, '~/prediction_uncertainty', 10),
+              'predicted_state': (JointState, '~/predicted_state', 10),
               'prediction_scores': (Float64MultiArray, '~/prediction_scores', 10),
               'evolution': (Float64MultiArray, '~/evolution', 10),
               'diagnostics': (DiagnosticArray, '/diagnostics', 10),
@@ -175,6 +178,8 @@ class Publishing:
             self._predictor.published(item)
             if item.uncertainty is not None:
                 self._publishers['prediction_uncertainty'].publish(item.uncertainty)
+            if item.state is not None and 'predicted_state' in self._publishers:
+                self._publishers['predicted_state'].publish(item.state)
         elif isinstance(item, ScoreReport):
             self._publishers['prediction_scores'].publish(
                 make_float64_multiarray(item.table, SCORE_LABELS))

@@ -231,6 +231,7 @@ def _solve(columns: List[np.ndarray], target: np.ndarray, keep: np.ndarray):
 def _fit_one(segments, features, theta_input, integral, feedforward, measured_velocity,
              sigma, min_samples):
     dt = segments[0].dt
+    sigma = max(float(sigma), dt)  # data sampled coarser than the filter: the narrowest one
     h, h_prime = gaussian_kernels(dt, sigma)
     m = h.size // 2
     limit, sat = _saturation(segments)
@@ -332,8 +333,8 @@ def fit_controller(data: Union[Dataset, Sequence[Dataset]],
     measured_velocity : bool
         Use the data's θ̇ (filtered like the rest) instead of h′ * θ.
     filter_sigma : float
-        Standard deviation of the Gaussian filter (s), at least one sample; about
-        4 σ at each end of every segment is not used.
+        Standard deviation of the Gaussian filter (s); one sample where it is less (data
+        sampled coarser); about 4 σ at each end of every segment is not used.
     min_samples : int
         Fewer usable filtered rows than this give None.
 

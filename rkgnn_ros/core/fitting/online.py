@@ -304,7 +304,7 @@ class OnlineIdentification:
         if settings.case == 'torque':
             paired = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, True),
                                     estimate_velocity)
-            law = self._update_law(paired, capture.time_origin)
+            law = self._update_law(paired, capture.time_origin) or self._laws.law
         if law is not None:  # the closed-loop search: θd shifted by the law's other terms
             segments = search_segments(paired, law)
         else:

@@ -33,8 +33,9 @@ jumps.
 The steps run compiled (:func:`_rkg_pd_steps`: the stage loop with the shared stage update
 :func:`..integration.rkg.gill_stage`, the plant's compiled forward dynamics and the servo's
 compiled torque), held at start to the numpy step on the same state; ``compiled=False``
-runs the numpy step itself. The fixed step, unlike :mod:`.simulate`'s adaptive solvers,
-costs the same every sample, which a real-time publisher needs.
+runs the numpy step itself (the only one for a URDF arm, whose dynamics are Pinocchio's).
+The fixed step, unlike :mod:`.simulate`'s adaptive solvers, costs the same every sample,
+which a real-time publisher needs.
 """
 
 import math
@@ -129,8 +130,8 @@ class ArmSimulator:
 
     Parameters
     ----------
-    arm : PlanarArm
-        The plant.
+    arm : PlanarArm or UrdfArm
+        The plant; a URDF arm (no compiled kernel) needs ``compiled=False``.
     kp, kd : array_like, shape (n,)
         Diagonal PD gains.
     reference : Reference
@@ -176,8 +177,9 @@ class ArmSimulator:
         self.max_speed = float(max_speed)
         self.control_period = 1.0 / control_rate if control_rate else None
         self.compiled = bool(compiled)
-        # the servo's record and the plant's compiled-kernel constants
-        self._constants = (self.servo.constants(),) + tuple(arm.kernel_constants())
+        # the servo's record and the plant's compiled-kernel constants (planar arm only)
+        self._constants = ((self.servo.constants(),) + tuple(arm.kernel_constants())
+                           if self.compiled else None)
         self._no_ref = np.empty((0, 2, n))
         self._no_tau = np.zeros(n)
         theta_d, theta_d_dot = reference.evaluate(0.0)

@@ -122,7 +122,7 @@ class Servo:
         Saturation |τ_i| <= tau_limit_i (N m), each > 0 or ``inf``. None: no limit.
     gravity : {'none', 'measured', 'desired'}
         Gravity compensation Ĝ(θ) or Ĝ(θd) from ``arm``'s own model.
-    arm : PlanarArm, optional
+    arm : PlanarArm or UrdfArm, optional
         The arm whose gravity is compensated; required unless ``gravity == 'none'``.
     windup_time : float
         Back-calculation time constant T_t (s), positive.
@@ -145,9 +145,9 @@ class Servo:
         if gravity not in GRAVITY_MODES:
             raise ValueError(f'gravity must be one of {GRAVITY_MODES}, got {gravity!r}')
         if gravity != 'none':
-            if not isinstance(arm, PlanarArm):
+            if not hasattr(arm, 'gravity_terms'):
                 raise ValueError(f"gravity compensation {gravity!r} needs the arm's model "
-                                 '(arm=PlanarArm)')
+                                 '(arm=PlanarArm or UrdfArm)')
             if arm.n_joints != n:
                 raise ValueError(f'the arm has {arm.n_joints} joints, the gains {n}')
         self.gravity = gravity

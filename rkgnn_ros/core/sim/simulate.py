@@ -199,6 +199,13 @@ def _piecewise(arm: PlanarArm, x0: np.ndarray, breaks: np.ndarray, t: np.ndarray
     return states
 
 
+def _check_plant(arm) -> None:
+    """Refuse anything that is not a plant (a PlanarArm, a UrdfArm: n_joints, dynamics)."""
+    if not all(hasattr(arm, name) for name in ('n_joints', 'n_states', 'dynamics')):
+        raise TypeError(f'arm must be a plant such as PlanarArm or UrdfArm, got '
+                        f'{type(arm).__name__}')
+
+
 def _sample_times(duration: float, rate: float, t0: float) -> np.ndarray:
     if not (np.isfinite(rate) and rate > 0.0):
         raise ValueError(f'rate must be positive, got {rate}')
@@ -263,7 +270,7 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
 
     Parameters
     ----------
-    arm : PlanarArm
+    arm : PlanarArm or UrdfArm
         The plant.
     controller : PDController or Servo
         Anything with ``n_joints`` and ``torque(theta, theta_dot, theta_d, theta_d_dot)``.
@@ -329,8 +336,7 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         If the state becomes non-finite or a joint speed exceeds ``max_speed``.
 
     """
-    if not isinstance(arm, PlanarArm):
-        raise TypeError(f'arm must be a PlanarArm, got {type(arm).__name__}')
+    _check_plant(arm)
     n = arm.n_joints
     if controller.n_joints != n:
         raise ValueError(f'controller has {controller.n_joints} joints, the arm {n}')
@@ -432,7 +438,7 @@ def simulate_open_loop(arm: PlanarArm, tau_samples, t, x0, hold: bool = True,
 
     Parameters
     ----------
-    arm : PlanarArm
+    arm : PlanarArm or UrdfArm
         The plant.
     tau_samples : array_like, shape (N, n)
         Torques at the sample times.
@@ -464,8 +470,7 @@ def simulate_open_loop(arm: PlanarArm, tau_samples, t, x0, hold: bool = True,
         desired trajectory.
 
     """
-    if not isinstance(arm, PlanarArm):
-        raise TypeError(f'arm must be a PlanarArm, got {type(arm).__name__}')
+    _check_plant(arm)
     n = arm.n_joints
     t = np.asarray(t, dtype=float)
     if t.ndim != 1 or t.size < 2 or not np.all(np.isfinite(t)):

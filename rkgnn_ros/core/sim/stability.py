@@ -83,15 +83,8 @@ class ClosedLoopAnalysis:
 
         """
         n = self.n_joints
-        theta = self._joint_array('theta', theta)
-        theta_dot = self._joint_array('theta_dot', theta_dot)
-        kp = gain_matrix('kp', kp, n)
-        kd = gain_matrix('kd', kd, n)
-        theta_d = theta if theta_d is None else self._joint_array('theta_d', theta_d)
-        theta_d_dot = (theta_dot if theta_d_dot is None
-                       else self._joint_array('theta_d_dot', theta_d_dot))
-        theta, theta_dot, theta_d, theta_d_dot = np.broadcast_arrays(
-            theta, theta_dot, theta_d, theta_d_dot)
+        kp, kd, (theta, theta_dot, theta_d, theta_d_dot) = self._loop_arguments(
+            theta, theta_dot, kp, kd, theta_d, theta_d_dot)
         x = np.concatenate([theta, theta_dot], axis=-1)             # (..., 2n)
         step = eps * np.maximum(1.0, np.abs(x))                      # (..., 2n)
         delta = np.eye(2 * n) * step[..., None, :]                   # (..., 2n, 2n) rows
@@ -103,6 +96,17 @@ class ClosedLoopAnalysis:
         f = np.concatenate([thd, self.forward_dynamics(th, thd, tau)], axis=-1)
         jac_t = (f[..., :2 * n, :] - f[..., 2 * n:, :]) / (2.0 * step[..., :, None])
         return np.linalg.eigvals(np.swapaxes(jac_t, -1, -2))
+
+    def _loop_arguments(self, theta, theta_dot, kp, kd, theta_d, theta_d_dot):
+        """Return Kp, Kd (n, n) and θ, θ̇, θd, θ̇d broadcast (θd, θ̇d default θ, θ̇)."""
+        n = self.n_joints
+        theta = self._joint_array('theta', theta)
+        theta_dot = self._joint_array('theta_dot', theta_dot)
+        theta_d = theta if theta_d is None else self._joint_array('theta_d', theta_d)
+        theta_d_dot = (theta_dot if theta_d_dot is None
+                       else self._joint_array('theta_d_dot', theta_d_dot))
+        return (gain_matrix('kp', kp, n), gain_matrix('kd', kd, n),
+                np.broadcast_arrays(theta, theta_dot, theta_d, theta_d_dot))
 
     def closed_loop_stiffness(self, theta: ArrayLike, theta_dot: ArrayLike, kp, kd,
                               **kwargs) -> Union[float, np.ndarray]:

@@ -1,0 +1,178 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Identification of a recording: the online policy run on data that is all there at once.
+
+A recording should be identified the way the running node identifies the live streams, so
+that a model fitted offline means what a model of the node means. :func:`identify_offline`
+therefore drives the node's own policy (:class:`~.online.OnlineIdentification`, with its
+warm start, controller law, held-out validation and publication rules) with a clock of its
+own: the data are handed over once, every stream is always fresh, and the clock moves one
+``model_publish_period`` per generation so each better model is published at once. It
+stops at a wall-time budget or a generation count; the last published model is the result.
+
+:func:`heldout_prediction` scores a model on data it never saw the way the node predicts:
+case 1 with a fitted controller law in closed loop along the recorded θd, otherwise
+open loop (recorded torque in case 1, recorded θd in cases 2 and 3), each segment from its
+first state.
+"""
+
+from dataclasses import replace
+import math
+import time
+from typing import Callable, List, NamedTuple, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .identify import nrmse, RKGNNModel
+from .online import OnlineIdentification
+from .online_records import (ClosedLoop, GenerationStats, LogLine, ModelUpdate, Observation,
+                             OnlineSettings, Status)
+from ..data import Dataset
+
+__all__ = ['OfflineResult', 'identify_offline', 'heldout_prediction']
+
+
+class OfflineResult(NamedTuple):
+    """What :func:`identify_offline` found."""
+
+    model: Optional[RKGNNModel]  # the last published model (None: no finite model)
+    loop: Optional[ClosedLoop]   # case 1 with a fitted law: the model closed with it
+    update: Optional[ModelUpdate]
+    history: List[GenerationStats]
+    log: List[LogLine]
+    generations: int
+    seconds: float
+    status: Status
+
+
+def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
+                     budget_s: float = 90.0, max_generations: int = 0,
+                     progress: Optional[Callable[[Status, float], None]] = None,
+                     progress_period_s: float = 2.0,
+                     wall: Callable[[], float] = time.monotonic) -> OfflineResult:
+    """
+    Run the online policy on a capture of recorded streams until the budget is spent.
+
+    Parameters
+    ----------
+    settings : OnlineSettings
+        The node's settings (from its parameters file).
+    capture : StreamCapture
+        The recorded streams (``segments()``, ``controller_samples()``), e.g. a
+        ``StreamBuffer.capture()`` of the recording's training part.
+    joints : sequence of str
+        The joint names.
+    budget_s : float
+        Wall-time budget (s) for the whole search, warm start included.
+    max_generations : int
+        Stop after this many generations as well (0: only the budget).
+    progress : callable, optional
+        Called with the status and the elapsed seconds every ``progress_period_s``.
+    progress_period_s : float
+        Seconds between two calls of ``progress``.
+    wall : callable
+        The wall clock of the budget (tests pass a fake one).
+
+    Returns
+    -------
+    OfflineResult
+
+    """
+    clock = [0.0]
+    status = [Status()]
+    policy = OnlineIdentification(clock=lambda: clock[0],
+                                  on_status=lambda new: status.__setitem__(0, new))
+    joints = tuple(joints)
+    settings = replace(settings, max_generations=int(max_generations))
+    history: List[GenerationStats] = []
+    log: List[LogLine] = []
+    update: Optional[ModelUpdate] = None
+    loop: Optional[ClosedLoop] = None
+    start = wall()
+    last_progress = -math.inf
+    data = capture
+    steps_without_generation = 0
+    while True:
+        received = {'state': clock[0], 'command': clock[0]}
+        result = policy.step(Observation(settings, joints, received, data=data))
+        data = None  # the recording is handed over once
+        for event in result.events:
+            if isinstance(event, GenerationStats):
+                history.append(event)
+            elif isinstance(event, LogLine):
+                log.append(event)
+            elif isinstance(event, ModelUpdate):
+                update, loop = event, event.loop
+        clock[0] += max(settings.model_publish_period, 1.0) + 1e-3
+        elapsed = wall() - start
+        if progress is not None and elapsed - last_progress >= progress_period_s:
+            last_progress = elapsed
+            progress(status[0], elapsed)
+        steps_without_generation = 0 if result.ran else steps_without_generation + 1
+        if elapsed >= budget_s or steps_without_generation >= 3:
+            break
+        if max_generations and policy.generation >= max_generations:
+            # one more step publishes the best of the last generation
+            result = policy.step(Observation(settings, joints, received))
+            for event in result.events:
+                if isinstance(event, ModelUpdate):
+                    update, loop = event, event.loop
+            break
+    return OfflineResult(None if update is None else update.model, loop, update, history, log,
+                         policy.generation, wall() - start, status[0])
+
+
+def heldout_prediction(model: RKGNNModel, segments: Sequence[Dataset],
+                       loop: Optional[ClosedLoop] = None
+                       ) -> Tuple[float, List[np.ndarray], str]:
+    """
+    Predict each held-out segment from its first state, as the node predicts.
+
+    Parameters
+    ----------
+    model : RKGNNModel
+        The published model.
+    segments : sequence of Dataset
+        Held-out data (with θd, θ̇d for a closed loop or cases 2 and 3; τ for case 1 open
+        loop).
+    loop : ClosedLoop, optional
+        Case 1 with a fitted law: the model closed with it (``loop.loop``, the law's
+        integral term as fitted held over the segment's start).
+
+    Returns
+    -------
+    nrmse : float
+        θ-NRMSE over every segment (NaN if none could be predicted).
+    predicted : list of ndarray, shape (N_i, n)
+        Predicted θ per segment.
+    how : str
+        What drove the prediction.
+
+    """
+    n = model.n_joints
+    predicted, measured = [], []
+    how = 'open loop, recorded torque' if model.case == 'torque' else 'recorded θd'
+    for seg in segments:
+        if loop is not None and seg.theta_d is not None:
+            how = 'closed loop with the fitted controller law, recorded θd'
+            states = loop.loop.simulate(seg.state[0], seg.t, seg.theta_d, seg.theta_d_dot)
+        else:
+            states = model.predict(seg)
+        predicted.append(np.asarray(states)[:, :n])
+        measured.append(seg.theta)
+    if not predicted:
+        return math.nan, [], how
+    return float(nrmse(np.vstack(predicted), np.vstack(measured))), predicted, how

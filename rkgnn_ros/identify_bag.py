@@ -1,0 +1,537 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``identify_bag``: identify an arm from a rosbag2 recording, as the identifier node would.
+
+Record once, identify offline and reproducibly::
+
+    ros2 bag record /joint_states /joint_commands        # or a controller's controller_state
+    ros2 run rkgnn_ros identify_bag my_bag --params-file config/identifier.yaml
+
+The recording (a folder, an ``.mcap`` or a ``.db3`` file; :mod:`rkgnn_ros.recording`) is
+read in order into the node's own ingestion (:class:`~rkgnn_ros.identification.ingest.
+Ingestion`: every drop rule of the live node, counted per reason), the last ``--heldout``
+seconds kept apart, and the node's online policy fits the rest
+(:func:`~rkgnn_ros.core.fitting.offline.identify_offline`) with the node's parameters from
+the same parameters file, within ``--budget`` seconds. Written to ``--out``:
+
+- ``model.yaml``: the model, loadable as the node's ``model_file``;
+- ``report.md`` and ``report.json``: the inputs, the data coverage, the drops, the
+  evolution history, the held-out θ-NRMSE of the model (and of the online identifier's
+  model recorded in the bag, when there is one);
+- ``heldout.png`` (measured vs predicted θ on the held-out part), ``evolution.png``,
+  ``coverage.png``.
+
+Progress goes to standard output. A recording it cannot use (missing, unknown format,
+corrupt, without the needed topics, other joint names, messages it cannot decode) ends it
+with a one-line error naming the file and exit code 1, never a traceback; a recording
+that breaks part way is used up to there and the report says so.
+"""
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+__all__ = ['main', 'IdentifyError', 'read_parameters']
+
+NODE_NAME = 'identifier'
+
+
+class IdentifyError(Exception):
+    """What stops identify_bag: printed as one line, exit code 1."""
+
+
+# -- the parameters file --------------------------------------------------------------------
+
+
+def _flatten(tree: dict, prefix: str = '') -> Dict[str, object]:
+    out = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f'{prefix}{key}.'))
+        else:
+            out[f'{prefix}{key}'] = value
+    return out
+
+
+def _matches(key: str, node_name: str) -> bool:
+    """Return whether a params-file key applies to the node ``node_name`` in any namespace."""
+    key = key.strip()
+    if key in ('/**', '**'):
+        return True
+    parts = [part for part in key.split('/') if part]
+    if not parts or parts[-1] not in (node_name, '*'):
+        return False
+    return key.startswith('/**/') or key.startswith('**/') or len(parts) == 1
+
+
+def read_parameters(path: str, node_name: str = NODE_NAME) -> Dict[str, object]:
+    """
+    Return the node's parameter values from a ROS 2 parameters file (by name).
+
+    The entries that apply to ``node_name`` in any namespace (``/**``, ``/**/identifier``,
+    ``identifier``) are merged in file order. Raises IdentifyError naming the file.
+    """
+    import yaml
+    try:
+        with open(os.path.expanduser(path), encoding='utf-8') as f:
+            tree = yaml.safe_load(f)
+    except OSError as error:
+        raise IdentifyError(f'{path}: cannot read the parameters file: {error.strerror}')
+    except yaml.YAMLError as error:
+        raise IdentifyError(f'{path}: not YAML: {" ".join(str(error).split())}')
+    if not isinstance(tree, dict):
+        raise IdentifyError(f'{path}: not a ROS 2 parameters file (no node entries)')
+    values = {}
+    found = False
+    for key, entry in tree.items():
+        if _matches(str(key), node_name):
+            params = entry.get('ros__parameters') if isinstance(entry, dict) else None
+            if not isinstance(params, dict):
+                raise IdentifyError(f'{path}: entry {key!r} has no ros__parameters')
+            values.update(_flatten(params))
+            found = True
+    if not found:
+        raise IdentifyError(f'{path}: no entry for the node {node_name!r} (keys '
+                            f'{sorted(map(str, tree))}; use /**/{node_name})')
+    return values
+
+
+def _config(values: Dict[str, object], window: float, path: str):
+    """Return the node's Config of ``values`` with the buffer window set to ``window``."""
+    from rkgnn_ros.identification.parameters import (ConfigurationError, make_config,
+                                                     OUTPUTS, PARAMETERS)
+    from rkgnn_ros.identification.ros2_control import controller_gains
+    known = {spec.name: spec for spec in PARAMETERS}
+    outputs = {spec.name for spec in OUTPUTS}
+    given = {}
+    gains = {name: value for name, value in values.items() if name.startswith('gains.')}
+    for name, value in values.items():
+        if name in outputs or name in gains or name in ('use_sim_time', 'model_file'):
+            continue
+        if name not in known:
+            raise IdentifyError(f'{path}: unknown parameter {name!r} of the identifier')
+        if isinstance(value, list) and not value:
+            value = ()
+        given[name] = value
+    given['window'] = min(600.0, max(float(window), float(given.get('window', 1.0))))
+    given['min_window'] = min(float(given.get('min_window', 5.0)), given['window'])
+    try:
+        given = controller_gains(given, gains, IdentifyError)
+        return make_config(**given)
+    except (ConfigurationError, TypeError, ValueError) as error:
+        raise IdentifyError(f'{path}: {error}')
+
+
+# -- reading ----------------------------------------------------------------------------------
+
+
+def _ingestion(config, log):
+    from rkgnn_ros.identification.ingest import Ingestion
+    return Ingestion(config, log)
+
+
+def _feed(ingestion, messages, topics, recording, until_ns=None, from_ns=None) -> Dict[str, int]:
+    """Feed the recorded messages into an ingestion; return how many were handed over."""
+    from rclpy.serialization import serialize_message
+    from rkgnn_ros.controller_state import controller_state_to_joint_state
+    from rkgnn_ros.conversions import Rejection
+    counts = {'states': 0, 'commands': 0, 'controller_states': 0, 'undecodable': 0}
+    for message in messages:
+        if until_ns is not None and message.log_ns >= until_ns:
+            break
+        if from_ns is not None and message.log_ns < from_ns:
+            continue
+        if message.topic == topics.states:
+            ingestion.handle_state(message.raw, message.log_ns)
+            counts['states'] += 1
+        elif message.topic == topics.commands:
+            ingestion.handle_command(message.raw, message.log_ns)
+            counts['commands'] += 1
+        elif message.topic == topics.controller_state:
+            try:
+                decoded = recording.decode(message)
+            except Exception:  # noqa: B902 - a message the definitions cannot decode
+                counts['undecodable'] += 1
+                ingestion.count('command', 'malformed')
+                continue
+            command = controller_state_to_joint_state(decoded)
+            if isinstance(command, Rejection):
+                ingestion.reject(topics.controller_state, 'command', command.reason,
+                                 command.message)
+            else:
+                ingestion.handle_command(serialize_message(command), message.log_ns)
+                counts['controller_states'] += 1
+    return counts
+
+
+def _online_model(messages, topic: str, before_ns: int, joints):
+    """Return the online identifier's last model recorded before ``before_ns`` (or None)."""
+    from rclpy.serialization import deserialize_message
+    from rkgnn_ros.core.fitting.identify import RKGNNModel
+    from std_msgs.msg import String
+    last = None
+    for message in messages:
+        if message.topic == topic and message.log_ns < before_ns:
+            last = message
+    if last is None:
+        return None
+    try:
+        text = deserialize_message(last.raw, String).data
+        return RKGNNModel.from_yaml(text, joints)
+    except Exception:  # noqa: B902 - an unusable recorded model is reported as absent
+        return None
+
+
+def _loop_of(model):
+    """
+    Return the ClosedLoop of a case-1 model that carries its controller law, else None.
+
+    The model's ``info.controller_law`` holds the law's gains and constants but not the
+    weights of a θ-basis: a law with θ-terms cannot be rebuilt and the model predicts open
+    loop on the recorded torque.
+    """
+    from rkgnn_ros.core.fitting.controller import closed_loop
+    from rkgnn_ros.core.fitting.controller_laws import ControllerLaw
+    from rkgnn_ros.core.fitting.online_records import ClosedLoop
+    law = model.info.get('controller_law') if model.case == 'torque' else None
+    if not law or int(law.get('theta_features', 0)):
+        return None
+    n = model.n_joints
+
+    def vector(name):
+        return np.asarray(law.get(name, np.zeros(n)), dtype=float).reshape(n)
+
+    try:
+        law = ControllerLaw(vector('kp'), vector('kd'), vector('ki'), vector('bias'),
+                            vector('integral_term'), vector('feedforward'), np.zeros((n, 0)),
+                            str(law.get('theta_input', 'measured')), None,
+                            vector('fit_ratio'), int(law.get('samples', 0)))
+        return ClosedLoop(model, closed_loop(model, law), math.nan)
+    except (TypeError, ValueError):  # a law that does not fold (Kp not > 0, wrong sizes)
+        return None
+
+
+def _coverage(segments) -> dict:
+    """Return per-joint ranges and spreads of θ, θ̇ (and τ) over the segments."""
+    theta = np.vstack([seg.theta for seg in segments])
+    theta_dot = np.vstack([seg.theta_dot for seg in segments])
+    out = {'seconds': float(sum(seg.duration for seg in segments)),
+           'segments': len(segments),
+           'theta_min': theta.min(axis=0).tolist(), 'theta_max': theta.max(axis=0).tolist(),
+           'theta_std': theta.std(axis=0).tolist(),
+           'theta_dot_std': theta_dot.std(axis=0).tolist()}
+    if all(seg.tau is not None for seg in segments):
+        out['tau_std'] = np.vstack([seg.tau for seg in segments]).std(axis=0).tolist()
+    return out
+
+
+# -- the report -------------------------------------------------------------------------------
+
+
+def _figures(out: str, joints, heldout, predicted, online_predicted, history, train,
+             validation) -> List[str]:
+    """Write the three figures; return their file names ([] without matplotlib)."""
+    try:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    n = len(joints)
+    written = []
+    if heldout and predicted:
+        fig, axes = plt.subplots(n, 1, figsize=(9, 1.8 * n + 0.6), sharex=True, squeeze=False)
+        for j, ax in enumerate(axes[:, 0]):
+            for k, seg in enumerate(heldout):
+                ax.plot(seg.t, seg.theta[:, j], 'k', lw=1.2, label='measured' if k == 0 else None)
+                ax.plot(seg.t, predicted[k][:, j], 'C0--', lw=1.0,
+                        label='identify_bag' if k == 0 else None)
+                if online_predicted:
+                    ax.plot(seg.t, online_predicted[k][:, j], 'C1:', lw=1.0,
+                            label='online identifier' if k == 0 else None)
+            ax.set_ylabel(f'{joints[j]}\n[rad]', fontsize=7)
+        axes[0, 0].legend(fontsize=7, loc='upper right')
+        axes[-1, 0].set_xlabel('t [s], held-out part')
+        fig.suptitle('held-out part: measured vs predicted θ from its first state')
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, 'heldout.png'), dpi=90)
+        plt.close(fig)
+        written.append('heldout.png')
+    if history:
+        rows = np.array([[h.generation, h.best_cost, h.validation_nrmse] for h in history])
+        fig, ax = plt.subplots(figsize=(7, 3.2))
+        ax.semilogy(rows[:, 0], rows[:, 1], label='best cost J')
+        finite = np.isfinite(rows[:, 2])
+        if finite.any():
+            ax.semilogy(rows[finite, 0], rows[finite, 2], label='validation θ-NRMSE')
+        ax.set_xlabel('generation')
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, 'evolution.png'), dpi=90)
+        plt.close(fig)
+        written.append('evolution.png')
+    if train:
+        fig, axes = plt.subplots(1, n, figsize=(2.2 * n + 1, 2.6), squeeze=False)
+        parts = (('training', train), ('held out', heldout or []))
+        for j, ax in enumerate(axes[0]):
+            for label, segs in parts:
+                if segs:
+                    values = np.concatenate([seg.theta[:, j] for seg in segs])
+                    ax.hist(values, bins=30, alpha=0.6, label=label)
+            ax.set_title(joints[j], fontsize=7)
+            ax.set_xlabel('θ [rad]', fontsize=7)
+        axes[0, 0].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, 'coverage.png'), dpi=90)
+        plt.close(fig)
+        written.append('coverage.png')
+    return written
+
+
+def _markdown(report: dict) -> str:
+    fit, data = report['fit'], report['data']
+    lines = [f'# identify_bag: {report["recording"]}', '',
+             f'- storage: {report["storage"]}; topics: {report["topics"]}',
+             f'- joints: {report["joints"]}; case: {report["case"]}',
+             f'- read: {data["messages"]}'
+             + (f'; **{data["truncated"]}**' if data['truncated'] else ''),
+             f'- drops (the node\'s rules): {data["drops"] or "none"}',
+             f'- training: {data["training"]["seconds"]:.1f} s in '
+             f'{data["training"]["segments"]} segment(s); held out: '
+             f'{data["heldout"]["seconds"]:.1f} s', '',
+             '## Fit', '',
+             f'- {fit["generations"]} generations in {fit["seconds"]:.1f} s '
+             f'(budget {fit["budget_s"]:g} s), final state {fit["state"]!r}',
+             f'- best cost J {fit["cost"]:.4g}, validation θ-NRMSE (newest '
+             f'{report["validation_fraction"]:.0%} of the training part) '
+             f'{fit["validation_nrmse"]:.4g}',
+             '', '## Held out', '',
+             f'- identify_bag\'s model: θ-NRMSE {report["heldout"]["nrmse"]:.4g} '
+             f'({report["heldout"]["how"]})']
+    online = report['heldout'].get('online_nrmse')
+    if online is not None:
+        lines.append(f"- the online identifier's model recorded in the bag (last before the "
+                     f'held-out part): θ-NRMSE {online:.4g}')
+    lines += ['', '## Coverage (training part)', '', '| joint | θ min | θ max | θ std | θ̇ std |',
+              '|---|---|---|---|---|']
+    cov = data['training']
+    for j, name in enumerate(report['joints']):
+        lines.append(f'| {name} | {cov["theta_min"][j]:.3f} | {cov["theta_max"][j]:.3f} | '
+                     f'{cov["theta_std"][j]:.3f} | {cov["theta_dot_std"][j]:.3f} |')
+    lines += ['', '## Log', ''] + [f'- {level}: {text}' for level, text in report['log']]
+    if report['figures']:
+        lines += ['', '## Figures', ''] + [f'![{name}]({name})' for name in report['figures']]
+    return '\n'.join(lines) + '\n'
+
+
+# -- the run ----------------------------------------------------------------------------------
+
+
+def _say(quiet: bool, text: str) -> None:
+    if not quiet:
+        print(text, flush=True)
+
+
+def identify(args) -> dict:
+    """Identify the recording ``args.bag``; return the report (raises IdentifyError)."""
+    from rkgnn_ros.core.fitting.offline import heldout_prediction, identify_offline
+    from rkgnn_ros.core.fitting.validation import MIN_SEGMENT_SAMPLES
+    from rkgnn_ros.recording import find_topics, open_recording, read_messages, RecordingError
+    started = time.monotonic()
+    values = read_parameters(args.params_file, args.node_name) if args.params_file else {}
+    try:
+        recording = open_recording(args.bag)
+    except RecordingError as error:
+        raise IdentifyError(str(error))
+    try:
+        topics = find_topics(recording, args.namespace, args.joint_states, args.joint_commands,
+                             args.controller_state, args.model_topic)
+        _say(args.quiet, f'reading {args.bag} ({recording.storage}): states {topics.states}, '
+                         f'commands {topics.commands or topics.controller_state or "none"}')
+        messages, truncated = read_messages(recording, topics)
+        truncated = '; '.join(filter(None, (recording.note, truncated)))
+        if truncated:
+            _say(args.quiet, f'  warning: {truncated}; using what was read')
+    except RecordingError as error:
+        raise IdentifyError(str(error))
+    state_times = [m.log_ns for m in messages if m.topic == topics.states]
+    if len(state_times) < 2:
+        recording.close()
+        raise IdentifyError(f'{args.bag}: {len(state_times)} message(s) on {topics.states}'
+                            + (f' ({truncated})' if truncated else ''))
+    span = (state_times[-1] - state_times[0]) * 1e-9
+    config = _config(values, span + 1.0, args.params_file or 'the defaults')
+    if config.case not in ('torque', 'auto') and not (topics.commands or
+                                                      topics.controller_state):
+        recording.close()
+        raise IdentifyError(f'{args.bag}: case {config.case!r} needs joint_commands or a '
+                            f'controller_state topic; the recording has '
+                            f'{sorted(recording.types)}')
+    heldout_s = max(0.0, float(args.heldout))
+    split_ns = state_times[-1] - int(heldout_s * 1e9) if heldout_s > 0 else None
+    log_lines: List[Tuple[str, str]] = []
+
+    def log(level, text):
+        log_lines.append((level, text))
+        if level != 'info':
+            _say(args.quiet, f'  {level}: {text}')
+
+    train_in = _ingestion(config, log)
+    counts = _feed(train_in, messages, topics, recording, until_ns=split_ns)
+    held_in = (_ingestion(config, lambda level, text: level != 'info' and log(level, text))
+               if split_ns is not None else None)
+    if held_in is not None:
+        _feed(held_in, messages, topics, recording, from_ns=split_ns)
+    recording.close()
+    drops = {k: v for k, v in train_in.drop_counts().items() if v}
+    joints = train_in.joints
+    config = train_in.view()[0]  # case 'auto': the case the recorded streams decided
+    capture = train_in.capture()
+    pair = config.case != 'torque' or bool(topics.commands or topics.controller_state)
+    train_segments = [] if capture is None else list(capture.segments(MIN_SEGMENT_SAMPLES,
+                                                                      pair))
+    if not train_segments:
+        raise IdentifyError(
+            f'{args.bag}: no usable data on {topics.states}'
+            + (f' for the joints {list(joints)}' if joints else '')
+            + (f'; dropped: {drops}' if drops else '')
+            + (f' ({truncated})' if truncated else ''))
+    _say(args.quiet, f'{counts["states"]} states, {counts["commands"]} commands, '
+                     f'{counts["controller_states"]} controller states; training part '
+                     f'{sum(s.duration for s in train_segments):.1f} s, joints {list(joints)}'
+                     + (f'; dropped {drops}' if drops else ''))
+    budget = max(1.0, float(args.budget) - (time.monotonic() - started))
+
+    def progress(status, elapsed):
+        _say(args.quiet, f'  {elapsed:5.1f} s  {status.state}: {status.detail}; best J '
+                         f'{status.best_cost:.4g}, validation θ-NRMSE '
+                         f'{status.validation_nrmse:.4g}')
+
+    _say(args.quiet, f'fitting (case {config.case}, budget {budget:.0f} s)')
+    result = identify_offline(config.settings, capture, joints, budget_s=budget,
+                              max_generations=args.max_generations, progress=progress)
+    log_lines += [(line.level, line.text) for line in result.log]
+    if result.model is None:
+        raise IdentifyError(f'{args.bag}: no finite model after {result.generations} '
+                            f'generations ({result.status.state}: {result.status.detail})')
+    heldout_segments = []
+    if held_in is not None and held_in.capture() is not None:
+        heldout_segments = list(held_in.capture().segments(MIN_SEGMENT_SAMPLES, pair))
+    nrmse, predicted, how = (heldout_prediction(result.model, heldout_segments, result.loop)
+                             if heldout_segments else (math.nan, [], 'no held-out part'))
+    online_model = (_online_model(messages, topics.model, split_ns or state_times[-1], joints)
+                    if topics.model else None)
+    online_nrmse, online_predicted = None, []
+    if online_model is not None and heldout_segments:
+        online_nrmse, online_predicted, _ = heldout_prediction(
+            online_model, heldout_segments, _loop_of(online_model))
+    os.makedirs(args.out, exist_ok=True)
+    result.model.save(os.path.join(args.out, 'model.yaml'))
+    figures = _figures(args.out, joints, heldout_segments, predicted, online_predicted,
+                       result.history, train_segments, None)
+    update = result.update
+    report = {
+        'recording': args.bag, 'storage': recording.storage, 'topics': topics._asdict(),
+        'params_file': args.params_file, 'joints': list(joints), 'case': config.case,
+        'validation_fraction': config['validation_fraction'],
+        'data': {'messages': counts, 'truncated': truncated, 'drops': drops,
+                 'training': _coverage(train_segments),
+                 'heldout': (_coverage(heldout_segments) if heldout_segments
+                             else {'seconds': 0.0, 'segments': 0})},
+        'fit': {'generations': result.generations, 'seconds': result.seconds,
+                'budget_s': budget, 'state': result.status.state,
+                'cost': update.cost, 'validation_nrmse': update.validation_nrmse,
+                'kp': list(update.kp), 'kd': list(update.kd)},
+        'heldout': {'seconds': heldout_s, 'nrmse': nrmse, 'how': how,
+                    'online_nrmse': online_nrmse},
+        'history': [list(map(float, h)) for h in result.history],
+        'history_fields': list(result.history[0]._fields) if result.history else [],
+        'log': log_lines, 'figures': figures,
+        'total_seconds': time.monotonic() - started,
+    }
+    with open(os.path.join(args.out, 'report.json'), 'w', encoding='utf-8') as f:
+        json.dump(report, f, indent=1, default=_json_default)
+    with open(os.path.join(args.out, 'report.md'), 'w', encoding='utf-8') as f:
+        f.write(_markdown(report))
+    _say(args.quiet, f'held-out {heldout_s:g} s θ-NRMSE {nrmse:.4g} ({how})'
+                     + (f'; the online model recorded in the bag: {online_nrmse:.4g}'
+                        if online_nrmse is not None else ''))
+    _say(args.quiet, f'wrote {args.out}/model.yaml, report.md, report.json'
+                     + (', ' + ', '.join(figures) if figures else '')
+                     + f' in {report["total_seconds"]:.1f} s')
+    return report
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def parser() -> argparse.ArgumentParser:
+    """Return the command line parser."""
+    p = argparse.ArgumentParser(
+        prog='identify_bag', description='Identify an arm from a rosbag2 recording (MCAP or '
+        "sqlite3) with the identifier node's pipeline and parameters.")
+    p.add_argument('bag', help='the recording: a rosbag2 folder, an .mcap or a .db3 file')
+    p.add_argument('--params-file', default='',
+                   help="the identifier's parameters file (default: its defaults)")
+    p.add_argument('--node-name', default=NODE_NAME,
+                   help='the node whose entry of the parameters file applies')
+    p.add_argument('--out', default='', help='output folder (default: <bag>_identified)')
+    p.add_argument('--heldout', type=float, default=10.0,
+                   help='seconds at the end kept out of the fit and predicted (0: none)')
+    p.add_argument('--budget', type=float, default=90.0,
+                   help='wall-time budget of the whole run (s)')
+    p.add_argument('--max-generations', type=int, default=0,
+                   help='stop after this many generations (0: the budget decides)')
+    p.add_argument('--namespace', default='', help='take the topics under this namespace')
+    p.add_argument('--joint-states', default='', help='joint states topic')
+    p.add_argument('--joint-commands', default='', help='joint commands topic')
+    p.add_argument('--controller-state', default='',
+                   help="a joint_trajectory_controller's controller_state topic")
+    p.add_argument('--model-topic', default='',
+                   help="the online identifier's ~/model topic (compared on the held-out part)")
+    p.add_argument('--quiet', action='store_true', help='no progress lines')
+    return p
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Run identify_bag; return the exit code (0 done, 1 an error it explains)."""
+    args = parser().parse_args(argv)
+    if not args.out:
+        args.out = os.path.abspath(args.bag.rstrip('/')) + '_identified'
+    try:
+        identify(args)
+    except IdentifyError as error:
+        print(f'identify_bag: error: {error}', file=sys.stderr, flush=True)
+        return 1
+    except KeyboardInterrupt:
+        print('identify_bag: interrupted', file=sys.stderr, flush=True)
+        return 130
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
