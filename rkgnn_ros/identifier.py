@@ -21,7 +21,7 @@ search's rules.
 
 Interface
 ---------
-Subscribed (best effort, depth 100: matches best-effort and reliable publishers alike)
+Subscribed (:mod:`~rkgnn_ros.identification.subscriptions`: QoS, who reads each)
     ``joint_states`` (sensor_msgs/JointState): θ, and θ̇ and τ (effort) where the driver has
     them (``case: auto`` takes case 1 with effort, θ̇ is estimated from θ without velocity).
     ``joint_commands`` (sensor_msgs/JointState, optional): θd (position), θ̇d (velocity).
@@ -88,28 +88,23 @@ import gc
 import sys
 
 import rclpy
-from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.core.fitting.identify import precompile
 from rkgnn_ros.core.fitting.online import model_update, OnlineIdentification
 from rkgnn_ros.identification.clock import NodeSeconds, watch_clock_jumps
 from rkgnn_ros.identification.feedforward import FeedforwardSender
-from rkgnn_ros.identification.ingest import Ingestion, PolledGroup
-from rkgnn_ros.identification.model_file import load_model_file, save_model_file
-from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierParameters,
-                                                 network_spec)
+from rkgnn_ros.identification.ingest import Ingestion
+from rkgnn_ros.identification.model_file import load_at_start, save_model_file
+from rkgnn_ros.identification.parameters import ConfigurationError, IdentifierParameters
 from rkgnn_ros.identification.prediction import Predictor
 from rkgnn_ros.identification.publishing import (create_publishers, EVOLUTION_LABELS, Outbox,
                                                  Publishing, SCORE_LABELS)
-from rkgnn_ros.identification.ros2_control import subscribe_controller_state
+from rkgnn_ros.identification.subscriptions import quiet_events, subscribe_streams
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change
-from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
-from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main']
 
@@ -143,15 +138,8 @@ class IdentifierNode(Node):
         self.add_post_set_parameters_callback(self._after_set_parameters)
         config = self._params.config
 
-        # No QoS-event handlers: rclpy adds each one to the wait set of every spin. Our
-        # subscriptions are best effort and our publishers volatile or transient-local reliable,
-        # so the incompatible-QoS events they would log cannot arise with usual peers.
-        pub_events = PublisherEventCallbacks(use_default_callbacks=False)
-        sub_events = SubscriptionEventCallbacks(use_default_callbacks=False)
-        stream_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                                reliability=ReliabilityPolicy.BEST_EFFORT,
-                                durability=DurabilityPolicy.VOLATILE)
-        publishers = create_publishers(self, pub_events, config['feedforward.forward_topic'])
+        publishers = create_publishers(self, quiet_events()[0],
+                                       config['feedforward.forward_topic'])
 
         self._outbox = Outbox()
         # every time rule on the node's clock (use_sim_time), never running backwards
@@ -160,7 +148,7 @@ class IdentifierNode(Node):
                                     on_state=lambda: self._predictor.request(), clock=clock)
         self._predictor = Predictor(self._ingestion, self._outbox.put,
                                     lambda: self._params.config)
-        model = self._load_model_file(config)
+        model = load_at_start(config, self._ingestion, self._outbox.log)
         self._worker = SearchWorker(self._ingestion, self._predictor, self._outbox,
                                     alive=self.context.ok, published=model,
                                     policy=partial(OnlineIdentification, clock=clock))
@@ -175,23 +163,9 @@ class IdentifierNode(Node):
         if model is not None:
             self._publishing.publish_model(model_update(model))
 
-        # the two 1 kHz-capable streams: raw CDR, taken by the ingest thread (PolledGroup)
-        polled = PolledGroup()
-        state_sub = self.create_subscription(
-            JointState, 'joint_states', lambda raw: None, stream_qos, callback_group=polled,
-            event_callbacks=sub_events, raw=True)
-        command_sub = self.create_subscription(
-            JointState, 'joint_commands', lambda raw: None, stream_qos,
-            callback_group=polled, event_callbacks=sub_events, raw=True)
-        # raw: a plan's size budget is checked on its bytes, before its points become
-        # objects; depth 1: only the newest plan is used, and the middleware keeps a buffer
-        # as large as the largest message per history slot
-        reference_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                                   reliability=ReliabilityPolicy.BEST_EFFORT,
-                                   durability=DurabilityPolicy.VOLATILE)
-        self.create_subscription(JointTrajectory, 'reference_trajectory', self._on_reference,
-                                 reference_qos, event_callbacks=sub_events, raw=True)
-        subscribe_controller_state(self, config['controller_state'], self._ingestion, stream_qos)
+        # the two 1 kHz-capable streams are taken by the ingest thread, the plan here
+        state_sub, command_sub = subscribe_streams(self, self._ingestion, self._on_reference,
+                                                   config['controller_state'])
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_model', self._on_save_model)
         self.create_service(SetBool, '~/pause', self._on_pause)
@@ -210,17 +184,6 @@ class IdentifierNode(Node):
         # the GIL for tens of milliseconds and stalled the 1 kHz streams
         gc.collect()
         gc.freeze()
-
-    def _load_model_file(self, config):
-        model, lines = load_model_file(config['model_file'], self._ingestion.joints,
-                                       config.case,
-                                       lambda n, case: network_spec(config.values, n, case),
-                                       config['model_step'])
-        for level, text in lines:
-            self._outbox.log(level, text)
-        if model is not None and self._ingestion.joints is None:
-            self._ingestion.set_joints(model.joint_names, 'the model file')
-        return model
 
     def _after_set_parameters(self, params) -> None:
         """Hand accepted parameters to the parts that depend on them."""

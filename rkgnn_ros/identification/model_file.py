@@ -57,12 +57,12 @@ from typing import Callable, List, Optional, Tuple
 from rkgnn_ros.conversions import MAX_NAME_BYTES
 from rkgnn_ros.core.model.files import remove_stale_temp_files, save_text_atomic
 from rkgnn_ros.core.model.model import RKGNNModel
-from rkgnn_ros.identification.parameters import MAX_GAIN, MAX_JOINTS, PARAMETERS
+from rkgnn_ros.identification.parameters import MAX_GAIN, MAX_JOINTS, network_spec, PARAMETERS
 import yaml
 
 __all__ = ['MAX_DEPTH', 'MAX_MODEL_BYTES', 'MAX_NODES', 'LoadWork', 'ModelFileError',
-           'check_model_dict', 'load_model_file', 'parse_plain_yaml', 'read_model',
-           'read_model_text', 'save_model_file', 'to_plain_yaml']
+           'check_model_dict', 'load_at_start', 'load_model_file', 'parse_plain_yaml',
+           'read_model', 'read_model_text', 'save_model_file', 'to_plain_yaml']
 
 #: Largest model file read (bytes): the largest model the parameters allow (64 joints, 32
 #: units per network: 85,376 genome elements) is about 2 MB of YAML.
@@ -396,6 +396,23 @@ class _PlainDumper(yaml.SafeDumper):
 
     def ignore_aliases(self, data) -> bool:
         return True
+
+
+def load_at_start(config, ingestion, log: Callable[[str, str], None]) -> Optional[RKGNNModel]:
+    """
+    Load the node's ``model_file`` at start (:func:`load_model_file`); return the model.
+
+    ``config`` is the node's parameter snapshot; what the loading says goes to ``log(level,
+    text)``; a usable model names the joints when ``ingestion`` does not know them yet.
+    """
+    model, lines = load_model_file(config['model_file'], ingestion.joints, config.case,
+                                   lambda n, case: network_spec(config.values, n, case),
+                                   config['model_step'])
+    for level, text in lines:
+        log(level, text)
+    if model is not None and ingestion.joints is None:
+        ingestion.set_joints(model.joint_names, 'the model file')
+    return model
 
 
 def to_plain_yaml(model: RKGNNModel) -> str:
