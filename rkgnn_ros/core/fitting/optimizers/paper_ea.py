@@ -17,8 +17,9 @@ The paper's evolutionary algorithm (sections 1 and 4): tournament, crossover, mu
 
 The paper gives its operators and budget but not how it initialises the population; the
 choice made here (the start genome in the first generation, the rest spread around it by
-the initial mutation spread) is documented on :class:`PaperEA` and was chosen by a study
-of the spread (``tools/paper.py --spread-study``, ``bench/results/paper_ea_spread.json``).
+the initial mutation spread) is documented on :class:`PaperEA`; the study of that spread
+(``tools/paper.py --spread-study``) is in ``bench/results/paper_ea_spread.json`` and the
+README's results.
 """
 
 import numpy as np
