@@ -58,7 +58,6 @@ like the rest of the node's outputs.
 from collections import deque
 import math
 import threading
-import time
 import traceback
 from typing import Callable, Optional
 
@@ -242,9 +241,9 @@ class FeedforwardSender:
 
     def _note_data(self, gate) -> None:
         """Tell the gate when joint data last arrived, on the node's clock."""
-        received = self._ingestion.view()[3].get('state')  # time.monotonic() of the arrival
+        received = self._ingestion.view()[3].get('state')  # the ingestion clock's time
         if gate is not None and received is not None:
-            gate.data_received(self._now() - (time.monotonic() - received))
+            gate.data_received(self._now() - (self._ingestion.seconds() - received))
 
     def _refit(self, cfg, gate) -> None:
         capture = self._ingestion.capture()

@@ -251,6 +251,10 @@ class Ingestion:
                 config = replace(config, settings=replace(config.settings, case=case))
             return config, self._joints, self._buffer, dict(self._received)
 
+    def seconds(self) -> float:
+        """Return the ingestion clock's time (s): what the times in ``view()[3]`` are on."""
+        return self._clock()
+
     @property
     def velocity_estimated(self) -> bool:
         """Return whether the search's data get θ̇ from θ (``Sources.buffered_estimated``)."""
