@@ -47,7 +47,7 @@ MODULES = (rbf, poly, trig)
 
 #: Every registered basis by name (``NetworkSpec.basis`` joins names with '+').
 BASES = {b.name: b for b in (rbf.GaussianRBF(), poly.Polynomial(), trig.Trigonometric(),
-                              trig.SpatialTrigonometric())}
+                             trig.SpatialTrigonometric())}
 
 if len({b.kind for b in BASES.values()}) != len(BASES):
     raise RuntimeError('two bases share a kind code')

@@ -41,8 +41,8 @@ import math
 from numba import njit
 import numpy as np
 
-from ..trig import TrigBasis
 from .base import Basis
+from ..trig import TrigBasis
 
 #: Code of the planar table in the compiled dispatch (:mod:`.registry`).
 KIND = 2
