@@ -146,7 +146,7 @@ def test_invalid_values_at_start_refuse_naming_the_parameter():
     with pytest.raises(ConfigurationError, match='kp and kd'):
         make_config(case='pd_gains')
     assert make_config(case='2', kp=[1.0], kd=[1.0]).case == 'pd_gains'
-    with pytest.raises(ConfigurationError, match="network.basis must be one of"):
+    with pytest.raises(ConfigurationError, match='network.basis must be one of'):
         make_config(**{'network.basis': 'fourier'})
 
 
