@@ -23,13 +23,15 @@ minutes of an identifier run: the online policy of :mod:`.core.fitting.online` o
 seconds of the simulated paper arm, in the three cases (the equation-error start, the
 rollouts, the refinement, the validation), with the default network and with the
 trigonometric basis, and the prediction of the published models; every kernel then sits in
-the cache. ``make build`` runs it (``python -m rkgnn_ros.precompile``); a second run finds
-everything cached and takes seconds.
+the cache, with those of :func:`.core.fitting.identify.precompile`, which the node runs
+before it spins. ``make build`` runs it (``python -m rkgnn_ros.precompile``); a second run
+finds everything cached and takes seconds.
 """
 
 import sys
 import time
 
+from rkgnn_ros.core.fitting.identify import precompile
 from rkgnn_ros.core.fitting.online import (ModelUpdate, Observation, OnlineIdentification,
                                            OnlineSettings)
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
@@ -97,6 +99,7 @@ def run_case(data, case: str, network: dict) -> int:
 def main(argv=None) -> int:
     """Compile every kernel of a first identifier run; print what ran and how long."""
     start = time.monotonic()
+    precompile()                                   # what the node compiles before spinning
     data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 4.0,
                     rate=100.0, joint_names=JOINTS)
     for network in NETWORKS:
