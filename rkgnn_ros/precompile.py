@@ -91,7 +91,7 @@ def run_case(data, case: str, network: dict) -> int:
             update = updates[-1]
             update.model.predict(data.slice(0, 100))
             if update.loop is not None:
-                update.loop.closed.predict(data.slice(0, 100))
+                update.loop.loop.model.predict(data.slice(0, 100))
             return generations
     raise RuntimeError(f'case {case}: no model published in {STEP_LIMIT} steps')
 
