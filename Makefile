@@ -1,5 +1,6 @@
 # rkgnn_ros: one command sets a fresh machine up, one runs the tests, one the main job.
 #   make test    set up (if needed), build with colcon, run the whole test suite
+#   (make build also compiles the numba kernels into their cache: seconds once cached)
 #   make demo    set up (if needed), run sim_arm + identifier, write a figure
 #   make paper   reproduce the paper's three cases (figures + table in bench/results)
 #   make bench   benchmarks (bench/results)
@@ -31,6 +32,8 @@ build: $(STAMP)
 	@$(VENV)/bin/colcon --log-base log build --symlink-install --base-paths . \
 		--event-handlers console_cohesion- status- summary+ 2>&1 | grep -v '^$$' || \
 		{ echo 'colcon build failed: see log/latest_build'; exit 1; }
+	@source install/setup.bash && $(VPY) -m rkgnn_ros.precompile | tail -n 1 || \
+		echo 'precompile failed: the first identifier run compiles the kernels itself'
 
 test: setup
 	@source install/setup.bash && $(VENV)/bin/colcon --log-base log test --base-paths . \

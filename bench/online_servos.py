@@ -202,7 +202,7 @@ def score(snapshot, commands, horizon, duration, sources=None):
     return cell
 
 
-def run_cell(servo, sensors, case, duration, horizon, domain, log_dir):
+def run_cell(servo, sensors, case, duration, horizon, domain, log_dir, extra=()):
     """
     Run sim_arm and the identifier for one cell; return its figures.
 
@@ -218,6 +218,8 @@ def run_cell(servo, sensors, case, duration, horizon, domain, log_dir):
         arm_args = SERVOS[servo] + SENSORS[sensors]
         id_args = identifier_arguments(case, horizon)
         prefix = f'online_servos_{servo}_{sensors}_case{case}_'
+    for item in extra:
+        id_args = id_args + ['-p', item]
     load = os.getloadavg()[0]
     nodes = NodeProcesses([('sim_arm', arm_args), ('identifier', id_args)], domain, log_dir,
                           prefix=prefix)
@@ -293,6 +295,9 @@ def main(argv=None):
                         help='defaults runs (comma-separated keys, empty: none)')
     parser.add_argument('--merge', action='store_true',
                         help='keep the cells of an existing --out file that are not run')
+    parser.add_argument('--identifier-param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='an identifier parameter for every cell (repeatable); recorded '
+                        'in meta.identifier_params')
     parser.add_argument('--duration', type=float, default=65.0)
     parser.add_argument('--horizon', type=float, default=2.0)
     parser.add_argument('--domain', type=int, default=None,
@@ -306,7 +311,8 @@ def main(argv=None):
                                   'ending at 60 s, divided by the θ range, mean over joints; '
                                   'baselines on the same targets',
                         'bar': 'prediction <= follow_reference / 3 and <= 3 %; '
-                               'self_check_ratio <= 1.1'}}
+                               'self_check_ratio <= 1.1',
+                        'identifier_params': list(args.identifier_param)}}
     if args.merge and os.path.exists(args.out):
         with open(args.out, encoding='utf-8') as f:
             old = json.load(f)
@@ -319,7 +325,8 @@ def main(argv=None):
                   else args.domain + i % 4)
         what = sensors if case is None else f'{servo} x {sensors} x case {case}'
         print(f'== {what}: {args.duration:.0f} s on ROS_DOMAIN_ID={domain}', flush=True)
-        cell = run_cell(servo, sensors, case, args.duration, args.horizon, domain, log_dir)
+        cell = run_cell(servo, sensors, case, args.duration, args.horizon, domain, log_dir,
+                        args.identifier_param)
         if case is None:
             results[sensors] = cell
         else:

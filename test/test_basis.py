@@ -32,18 +32,18 @@ import pytest
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
 from rkgnn_ros.core.model import kernels
-from rkgnn_ros.core.model.basis import base, poly, rbf, registry
+from rkgnn_ros.core.model.basis import base, poly, rbf, registry, trig
 from rkgnn_ros.core.model.network import BatchedNetwork, feature_gradients, features
 from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.trajectories import paper_reference
 
-BASES = ('rbf', 'poly', 'poly+rbf', 'rbf+poly')
+BASES = ('rbf', 'poly', 'poly+rbf', 'rbf+poly', 'trig', 'trig3d', 'trig+rbf')
 SCALES = unit_scales(3, theta_spread=[0.4, 0.5, 0.6], torque=[3.0, 2.0, 1.0],
                      acceleration=[5.0, 5.0, 5.0])
 
 
 def test_registry_names_and_sums():
-    assert set(registry.BASES) == {'rbf', 'poly'}
+    assert set(registry.BASES) == {'rbf', 'poly', 'trig', 'trig3d'}
     assert [b.name for b in registry.lookup('poly+rbf')] == ['poly', 'rbf']
     assert len({b.kind for b in registry.BASES.values()}) == len(registry.BASES)
     assert all(isinstance(b, base.Basis) for b in registry.BASES.values())
@@ -106,6 +106,35 @@ def test_the_polynomial_features_are_the_monomials_of_the_normalised_angles():
                                [z1, z2, z1 * z1, z1 * z2, z2 * z2], rtol=1e-15)
 
 
+@pytest.mark.parametrize('name, n, size', [('trig', 3, 12), ('trig', 6, 42), ('trig3d', 3, 42),
+                                           ('trig3d', 6, 858)])
+def test_the_trigonometric_features_are_the_arm_tables_without_the_constant(name, n, size):
+    spec = NetworkSpec(n, basis=name, bias=True)
+    table = registry.BASES[name].table(n)
+    assert spec.n_features == size == table.n_features - 1
+    params = spec.decode(spec.initial_genome(), unit_scales(n))
+    theta = np.random.default_rng(4).uniform(-np.pi, np.pi, (7, n))
+    np.testing.assert_allclose(features(spec, params, theta), table.values(theta)[:, 1:],
+                               rtol=0, atol=1e-14)
+
+
+def test_a_trig_network_holds_the_planar_arm_mass_matrix_everywhere():
+    """Least squares on 40 configurations in a small box gives M on the whole torus."""
+    from rkgnn_ros.core.sim.plant import PlanarArm
+    arm = PlanarArm.paper('rod')
+    spec = NetworkSpec(3, 'torque', inertia='penalty', bias=True, basis='trig')
+    params = spec.decode(spec.initial_genome(), unit_scales(3))
+    rng = np.random.default_rng(5)
+    near = rng.uniform(-0.3, 0.3, (40, 3))
+    far = rng.uniform(-np.pi, np.pi, (200, 3))
+    design = np.column_stack([features(spec, params, near), np.ones(len(near))])
+    truth = arm.mass_matrix(near)
+    coef = np.linalg.lstsq(design, truth.reshape(len(near), -1), rcond=None)[0]
+    far_design = np.column_stack([features(spec, params, far), np.ones(len(far))])
+    predicted = (far_design @ coef).reshape(-1, 3, 3)
+    np.testing.assert_allclose(predicted, arm.mass_matrix(far), rtol=0, atol=1e-9)
+
+
 @pytest.fixture(scope='module')
 def data():
     """Two segments of smooth motion with torque and a desired trajectory."""
@@ -140,7 +169,7 @@ def test_compiled_kernels_equal_the_numpy_reference_for_every_basis(data, basis,
                                    rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.parametrize('basis', ['poly', 'poly+rbf'])
+@pytest.mark.parametrize('basis', ['poly', 'poly+rbf', 'trig+rbf'])
 def test_the_model_of_another_basis_rolls_out_and_saves(basis, tmp_path):
     from rkgnn_ros.core.model.model import RKGNNModel
     spec = NetworkSpec(3, 'torque', inertia='cholesky', velocity='christoffel', bias=True,
@@ -187,7 +216,7 @@ def test_christoffel_velocity_conserves_kinetic_energy_with_a_penalty_inertia():
 
 def test_the_kernels_know_the_fingerprint_of_what_they_inline():
     crc = 0
-    for module in (base, rbf, poly, registry):
+    for module in (base, rbf, poly, trig, registry):
         with open(module.__file__, 'rb') as f:
             crc = zlib.crc32(f.read(), crc)
     assert registry.source_fingerprint() == crc

@@ -147,6 +147,15 @@ def test_invalid_values_at_start_refuse_naming_the_parameter():
     with pytest.raises(ConfigurationError, match='kp and kd'):
         make_config(case='pd_gains')
     assert make_config(case='2', kp=[1.0], kd=[1.0]).case == 'pd_gains'
+    with pytest.raises(ConfigurationError, match='network.basis must be one of'):
+        make_config(**{'network.basis': 'fourier'})
+
+
+def test_network_basis_selects_the_features_of_the_identified_network():
+    # case 'auto' resolves to a case from the streams; the spec is the resolved case's
+    assert make_config(case='torque').settings.spec(3).basis == 'rbf'
+    spec = make_config(case='torque', **{'network.basis': 'trig+rbf'}).settings.spec(3)
+    assert spec.basis == 'trig+rbf' and spec.n_features == 12 + spec.theta_units
 
 
 # ------------------------------------------------------------------ ingestion

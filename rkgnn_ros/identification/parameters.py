@@ -122,6 +122,12 @@ PARAMETERS = (
     ParameterSpec('network.torque_units', _REC.torque_units,
                   "RBF units of each P and D torque sub-network (case 'unknown'). " + _RESTARTS,
                   0, 32, change=_RESTART),
+    ParameterSpec('network.basis', _REC.basis,
+                  "Features of the theta-dependent outputs: 'rbf' (the paper's Gaussian units, "
+                  "local), 'trig' (the Fourier modes of an arm with parallel axes, global), "
+                  "'trig3d' (those of a spatial serial chain), 'poly', or a sum such as "
+                  "'trig+rbf' (rigid-body terms with local corrections). " + _RESTARTS,
+                  change=_RESTART),
     ParameterSpec('network.inertia', _REC.inertia,
                   "'cholesky' (M = L L^T + eps I, positive definite) or 'penalty' (the "
                   "paper's). " + _RESTARTS, choices=INERTIA_MODES, change=_RESTART),
@@ -250,8 +256,8 @@ _BY_NAME = {spec.name: spec for spec in PARAMETERS}
 _OUTPUT_NAMES = frozenset(spec.name for spec in OUTPUTS)
 _ES_NAMES = ('population_size', 'tournament_size', 'crossover_rate', 'mutation_rate',
              'sigma_min', 'sigma', 'n_elite')
-_NETWORK_NAMES = ('theta_units', 'torque_units', 'inertia', 'velocity', 'bias', 'friction',
-                  'torque_linear')
+_NETWORK_NAMES = ('theta_units', 'torque_units', 'basis', 'inertia', 'velocity', 'bias',
+                  'friction', 'torque_linear')
 
 
 def optimizer_settings(values: Mapping) -> Tuple[str, dict]:

@@ -47,6 +47,7 @@ import numpy as np
 from .controller import closed_loop, ClosedLoop, fit_controller, open_loop_model
 from .controller_laws import ControllerLaw, RBFFeatures, TrigFeatures
 from .online_records import ClosedLoop as PredictionLoop
+from .trig_loop import fit_trig_loop, TrigLoop
 from ..data import Dataset
 from ..model.model import RKGNNModel
 
@@ -67,6 +68,10 @@ MIN_LAW_SAMPLES = 50        # filtered rows before a law is fitted
 MAX_LAW_FIT_RATIO = 0.1     # a law explains the torque when its RMS residual is below this
 LAW_GAIN_RTOL = 0.02        # a refit moving the gains more than this moves the law
 LAW_THETA_SAMPLES = 2000    # θ samples kept to project a law's θ-terms on a model's units
+
+#: The trigonometric arm predicts while its held-out torque error (worst joint, RMSE / std)
+#: is at most this (a planar arm fits it to 0.5-2 %; an arm the basis does not hold, far worse).
+TRIG_MAX_TORQUE_ERROR = 0.1
 
 
 def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples: int = 50,
@@ -242,6 +247,32 @@ class LawKeeper:
         self.law: Optional[ControllerLaw] = None
         self.time = math.nan
         self.theta: Optional[np.ndarray] = None
+        self.trig: Optional[TrigLoop] = None    # the global arm closed with the law
+
+    def fit_trig(self, train: Sequence[Dataset],
+                 validation: Sequence[Dataset]) -> Optional[Tuple[str, str]]:
+        """
+        Fit the trigonometric arm on ``train`` and close it with the law in use.
+
+        It predicts (:meth:`close`) while its torque error on ``validation`` is at most
+        :data:`TRIG_MAX_TORQUE_ERROR`. Returns the (level, text) to log when that changes.
+        """
+        before = self.trig is not None
+        loop = fit_trig_loop(train, validation, self.law) if self.law is not None else None
+        if loop is not None and not loop.torque_error <= TRIG_MAX_TORQUE_ERROR:
+            why = f'held-out torque error {loop.torque_error:.1%}'
+            loop = None
+        else:
+            why = 'no law or too few samples'
+        self.trig = loop
+        if loop is not None and not before:
+            return ('info', 'predictions roll out the arm fitted on the trigonometric basis '
+                    f'(held-out torque error {loop.torque_error:.2%}) closed with the learned '
+                    "law; ~/model stays the search's model")
+        if loop is None and before:
+            return ('info', f"predictions go back to the search's model ({why} on the "
+                    'trigonometric basis)')
+        return None
 
     def refit(self, segments: Sequence[Dataset], origin: float,
               running: Optional[ControllerLaw]) -> Refit:
@@ -283,12 +314,15 @@ class LawKeeper:
         """
         Return the case-1 ``model`` closed with the law for prediction (None if it cannot be).
 
-        ``closed`` is the closed-loop search's own model (rolled out as it was searched);
-        else the law's θ-terms are projected on the model's units over :attr:`theta`.
+        The trigonometric arm (:meth:`fit_trig`) when it holds the arm; else ``closed``, the
+        closed-loop search's own model (rolled out as it was searched); else the law's
+        θ-terms are projected on the model's units over :attr:`theta`.
         """
         law = self.law
         if law is None or law.n_joints != model.n_joints or not np.all(law.kp > 0.0):
             return None
+        if self.trig is not None and self.trig.law is law:
+            return PredictionLoop(model, self.trig, self.time)
         if closed is not None:
             return PredictionLoop(model, prediction_loop(closed, law), self.time)
         return PredictionLoop(model, closed_loop(model, law, theta_samples=self.theta),

@@ -436,12 +436,15 @@ class ClosedLoop:
 
 def _fold_weights(model: RKGNNModel, law: ControllerLaw, theta_samples):
     """Return (W (n, K), constant (n,), relative error (n,)) of W φ_model + c ≈ law's θ-terms."""
-    units = RBFFeatures.from_model(model)
     n = model.n_joints
-    if isinstance(law.features, RBFFeatures) and law.features.same_as(units):
-        return law.theta_weights, np.zeros(n), np.zeros(n)
+    if model.spec.basis == 'rbf':
+        units = RBFFeatures.from_model(model)
+        if isinstance(law.features, RBFFeatures) and law.features.same_as(units):
+            return law.theta_weights, np.zeros(n), np.zeros(n)
+    else:       # any other basis (e.g. 'trig'): the features of the model's own network
+        units = model._net.features
     if theta_samples is None:
-        raise ValueError("the law's θ-basis is not this model's RBF units: give "
+        raise ValueError("the law's θ-basis is not this model's features: give "
                          'theta_samples to project it on them')
     theta = np.asarray(theta_samples, dtype=float).reshape(-1, n)
     target = law._theta_terms(theta, None)                             # (S, n)

@@ -385,6 +385,7 @@ def precompile(n_joints=3) -> float:
     seconds it took.
     """
     from .refine import refine_equation_error
+    from .trig_loop import precompile_trig_loop
     t0 = time.perf_counter()
     n = int(n_joints)
     t = np.arange(12) * 0.01
@@ -406,4 +407,5 @@ def precompile(n_joints=3) -> float:
             if spec.inertia == 'cholesky':
                 refine_equation_error(spec, [data], scales, genomes[0], gains, gains,
                                       max_nfev=1)
+    precompile_trig_loop(n)
     return time.perf_counter() - t0

@@ -307,6 +307,7 @@ class OnlineIdentification:
             law = self._update_law(paired, capture.time_origin) or self._laws.law
         if law is not None:  # the closed-loop search: θd shifted by the law's other terms
             segments = search_segments(paired, law)
+            self._refit_trig(settings, paired)
         else:
             segments = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, False),
                                       estimate_velocity)
@@ -333,6 +334,18 @@ class OnlineIdentification:
         self._validation = validation
         self._data_version += 1
         return True
+
+    def _refit_trig(self, settings: OnlineSettings, paired: List[Dataset]) -> None:
+        """Case 'torque': fit the trigonometric arm again; predict with it where it holds."""
+        train, validation, _ = split_validation(paired, settings.validation_fraction,
+                                                MIN_SEGMENT_SAMPLES)
+        line = self._laws.fit_trig(train, validation)
+        if line is not None:
+            self._log(*line)
+        model = self._model
+        if model is not None and model.case == 'torque':
+            self._loop = self._laws.close(model)
+            self._events.append(LoopUpdate(model, self._loop))
 
     def _update_law(self, segments: List[Dataset], origin: float) -> Optional[ControllerLaw]:
         """

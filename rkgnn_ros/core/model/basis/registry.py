@@ -39,14 +39,15 @@ import zlib
 from numba import njit
 import numpy as np
 
-from . import base, poly, rbf
+from . import base, poly, rbf, trig
 from .base import Basis
 
 #: The basis modules, each with KIND, prepare, value, gradient and one Basis subclass.
-MODULES = (rbf, poly)
+MODULES = (rbf, poly, trig)
 
 #: Every registered basis by name (``NetworkSpec.basis`` joins names with '+').
-BASES = {b.name: b for b in (rbf.GaussianRBF(), poly.Polynomial())}
+BASES = {b.name: b for b in (rbf.GaussianRBF(), poly.Polynomial(), trig.Trigonometric(),
+                             trig.SpatialTrigonometric())}
 
 if len({b.kind for b in BASES.values()}) != len(BASES):
     raise RuntimeError('two bases share a kind code')
@@ -149,6 +150,8 @@ def _prepare(kind, x, n, work):
         rbf.prepare(x, n, work)
     elif kind == poly.KIND:
         poly.prepare(x, n, work)
+    elif kind == trig.KIND or kind == trig.KIND_SPATIAL:
+        trig.prepare(x, n, work)
 
 
 @njit(cache=True, nogil=True)
@@ -157,6 +160,8 @@ def _value(kind, x, n, codes, data, f, work):
         return rbf.value(x, n, codes, data, f, work)
     if kind == poly.KIND:
         return poly.value(x, n, codes, data, f, work)
+    if kind == trig.KIND or kind == trig.KIND_SPATIAL:
+        return trig.value(x, n, codes, data, f, work)
     return math.nan
 
 
@@ -166,6 +171,8 @@ def _gradient(kind, x, n, codes, data, f, k, phi_f, work):
         return rbf.gradient(x, n, codes, data, f, k, phi_f, work)
     if kind == poly.KIND:
         return poly.gradient(x, n, codes, data, f, k, phi_f, work)
+    if kind == trig.KIND or kind == trig.KIND_SPATIAL:
+        return trig.gradient(x, n, codes, data, f, k, phi_f, work)
     return math.nan
 
 

@@ -1,0 +1,293 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Case 1's global predictor: the arm on the trigonometric basis, closed with the learned law.
+
+The RBF model the online search evolves holds near the path it was fitted on and needs
+many generations to get there; on a servo with noisy encoders it stayed worse than
+following the reference for a whole minute (``bench/online_servos.py``). With the torque
+measured, the arm's M, V, G, F on the tied trigonometric basis of a planar arm
+(:class:`~rkgnn_ros.core.fitting.linear.LinearDynamics`, what the feed-forward uses) are
+one least-squares fit of the buffered samples, a tenth of a second, and global.
+:func:`fit_trig_loop` fits it and closes it with the servo law learned from the same data;
+:class:`TrigLoop` rolls that loop out with the compiled Runge-Kutta-Gill stage update
+(:func:`~rkgnn_ros.core.integration.rkg.gill_stage`), so a 2 s prediction costs well
+under a millisecond instead of the ~80 ms of the numpy model.
+
+The law's command-only terms shift θd (:meth:`ControllerLaw.shift`); its integral term and
+its θ-terms on the measured θ (a gravity compensation) depend on the motion, and are found
+by Picard iteration: each pass rolls out with them evaluated along the previous pass
+(the first along the plan), as :class:`~rkgnn_ros.core.fitting.controller.ClosedLoop`
+does for the integral. It has the interface of that class (``law`` and ``simulate``), so
+the predictor rolls either out alike.
+"""
+
+import copy
+import math
+from typing import Optional, Sequence
+
+from numba import njit
+import numpy as np
+
+from .controller_laws import ControllerLaw
+from .linear import LinearDynamics
+from ..control.gate import paired_torques, torque_error
+from ..data import Dataset
+from ..integration.inputs import stage_inputs
+from ..integration.rkg import choose_substeps, gill_node, gill_stage
+from ..model.trig import TrigBasis
+
+__all__ = ['MAX_SUBSTEPS', 'PASSES', 'TrigLoop', 'fit_trig_loop', 'precompile_trig_loop']
+
+#: Rollouts of :meth:`TrigLoop.simulate` when the law has an integral or θ-terms on θ.
+PASSES = 3
+
+#: Most RKG steps per sampling interval (a stiffer loop is rolled out with this many).
+MAX_SUBSTEPS = 64
+
+#: A state component beyond this magnitude ends a rollout as diverged.
+DIVERGED = 1e6
+
+
+@njit(cache=True, nogil=True)
+def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, phi, grad,
+           m, dm, rate):
+    """Write ẋ of the closed loop into ``rate``; return False where M is not positive."""
+    nf = kinds.shape[0]
+    for f in range(nf):
+        angle = 0.0
+        for j in range(n):
+            angle += freq[f, j] * x[j]
+        if kinds[f] == 1:
+            value, slope = math.sin(angle), math.cos(angle)
+        else:
+            value, slope = math.cos(angle), -math.sin(angle)
+        phi[f] = value
+        for k in range(n):
+            grad[f, k] = slope * freq[f, k]
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for f in range(nf):
+                acc += phi[f] * w_mass[f, i, j]
+            m[i, j] = acc
+            for k in range(n):
+                acc = 0.0
+                for f in range(nf):
+                    acc += grad[f, k] * w_mass[f, i, j]
+                dm[k, i, j] = acc
+    for i in range(n):
+        qd = x[n + i]
+        v = 0.0
+        for j in range(n):
+            for k in range(n):
+                v += (dm[k, i, j] - 0.5 * dm[i, j, k]) * x[n + k] * x[n + j]
+        g = 0.0
+        for f in range(nf):
+            g += grad[f, i] * w_pot[f]
+        tau = kp[i] * (u[i] - x[i]) + kd[i] * (u[n + i] - qd)
+        rate[n + i] = tau - v - g - viscous[i] * qd - coulomb[i] * math.tanh(qd / vc)
+        rate[i] = qd
+    # solve M a = rhs in place by Cholesky (M symmetric positive definite, else stop)
+    for j in range(n):
+        s = m[j, j]
+        for k in range(j):
+            s -= m[j, k] * m[j, k]
+        if not s > 0.0:
+            return False
+        m[j, j] = math.sqrt(s)
+        for i in range(j + 1, n):
+            s = m[i, j]
+            for k in range(j):
+                s -= m[i, k] * m[j, k]
+            m[i, j] = s / m[j, j]
+    for i in range(n):
+        s = rate[n + i]
+        for k in range(i):
+            s -= m[i, k] * rate[n + k]
+        rate[n + i] = s / m[i, i]
+    for i in range(n - 1, -1, -1):
+        s = rate[n + i]
+        for k in range(i + 1, n):
+            s -= m[k, i] * rate[n + k]
+        rate[n + i] = s / m[i, i]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _rollout(x0, u, h, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, out):
+    """Roll out over ``u`` (K-1, substeps, 3, 2n) into ``out`` (K, 2n); NaN after divergence."""
+    nf = kinds.shape[0]
+    phi, grad = np.empty(nf), np.empty((nf, n))
+    m, dm = np.empty((n, n)), np.empty((n, n, n))
+    x, xs = x0.copy(), np.empty(2 * n)
+    rate, q = np.empty(2 * n), np.zeros(2 * n)
+    out[0] = x
+    for i in range(u.shape[0]):
+        for s in range(u.shape[1]):
+            xs[:] = x
+            for stage in range(4):
+                if not _rates(xs, u[i, s, gill_node(stage)], n, freq, kinds, w_mass, w_pot,
+                              viscous, coulomb, vc, kp, kd, phi, grad, m, dm, rate):
+                    return
+                gill_stage(stage, h, x, xs, rate, q)
+        for j in range(2 * n):
+            if not abs(x[j]) <= DIVERGED:
+                return
+        out[i + 1] = x
+
+
+class TrigLoop:
+    """
+    A fitted :class:`LinearDynamics` arm closed with a :class:`ControllerLaw`.
+
+    Attributes
+    ----------
+    arm : LinearDynamics
+        The arm (case 'torque': M, V, G, F in N m).
+    law : ControllerLaw
+        The servo's law (Kp > 0 on every joint).
+    substeps : int or None
+        RKG steps per sampling interval of a rollout; None (default): from the closed
+        loop's stiffness at each rollout's start (half the stability limit), at most
+        :data:`MAX_SUBSTEPS`.
+
+    """
+
+    def __init__(self, arm: LinearDynamics, law: ControllerLaw,
+                 substeps: Optional[int] = None):
+        if not np.all(law.kp > 0.0):
+            raise ValueError(f'the law needs Kp > 0 on every joint, got {law.kp.tolist()}')
+        if law.n_joints != arm.n_joints:
+            raise ValueError(f'the law is for {law.n_joints} joints, the arm has '
+                             f'{arm.n_joints}')
+        self.arm, self.law = arm, law
+        self.substeps = None if substeps is None else max(1, int(substeps))
+        #: held-out torque error of the arm (worst joint, RMSE / std; set by the fit)
+        self.torque_error = math.inf
+        self._stiff = copy.copy(arm)          # the arm with the law's gains: its stiffness
+        self._stiff.kp_, self._stiff.kd_ = np.asarray(law.kp), np.asarray(law.kd)
+        basis = arm.basis
+        self._freq = np.ascontiguousarray(basis.frequencies, dtype=float)
+        self._kinds = np.ascontiguousarray(basis.kinds, dtype=np.int64)
+        self._w_mass = np.ascontiguousarray(arm._w_mass, dtype=float)
+        self._w_pot = np.ascontiguousarray(arm._w_pot, dtype=float)
+        self._viscous = np.asarray(arm.viscous_, dtype=float)
+        self._coulomb = np.asarray(arm.coulomb_, dtype=float)
+        self._kp = np.asarray(law.kp, dtype=float)
+        self._kd = np.asarray(law.kd, dtype=float)
+
+    @property
+    def n_joints(self) -> int:
+        """Return the number of joints n."""
+        return self.arm.n_joints
+
+    def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
+        n = self.n_joints
+        dt = float(t[-1] - t[0]) / (t.size - 1)
+        substeps = self.substeps
+        if substeps is None:
+            try:
+                stiffness = self._stiff.stiffness(np.asarray(x0, dtype=float)[:n])
+            except np.linalg.LinAlgError:
+                stiffness = math.inf
+            substeps = (MAX_SUBSTEPS if not math.isfinite(stiffness)
+                        else min(MAX_SUBSTEPS, choose_substeps(dt, stiffness)))
+        u = stage_inputs('pd_gains', t, substeps, theta_d=theta_d, theta_d_dot=theta_d_dot)
+        out = np.full((t.size, 2 * n), np.nan)
+        h = dt / substeps
+        _rollout(np.asarray(x0, dtype=float), np.ascontiguousarray(u), h, n, self._freq,
+                 self._kinds, self._w_mass, self._w_pot, self._viscous, self._coulomb,
+                 float(self.arm.coulomb_velocity), self._kp, self._kd, out)
+        return out
+
+    def simulate(self, x0, t, theta_d, theta_d_dot, integral_term=None,
+                 passes: int = PASSES) -> np.ndarray:
+        """
+        Roll the closed loop out from ``x0`` (2n,) over the uniform times ``t`` (K,).
+
+        ``theta_d``, ``theta_d_dot`` (K, n) are the commands at ``t``; ``integral_term``
+        (n,) the law's integral term at the start (default the law's). Returns the states
+        (K, 2n), NaN from a divergence on.
+        """
+        law = self.law
+        t = np.asarray(t, dtype=float)
+        theta_d = np.asarray(theta_d, dtype=float)
+        theta_d_dot = np.asarray(theta_d_dot, dtype=float)
+        n = theta_d.shape[1]
+        start = law.integral_term if integral_term is None else np.asarray(integral_term)
+        integral = np.broadcast_to(start, theta_d.shape)
+        on_theta = law.theta_input == 'measured' and law.theta_weights.size > 0
+        integrating = bool(np.any(law.ki != 0.0))
+        passes = max(1, int(passes)) if (on_theta or integrating) else 1
+        along = theta_d
+        states = None
+        for _ in range(passes):
+            shifted = theta_d + law.shift(theta_d, theta_d_dot, integral)
+            if on_theta:
+                shifted = shifted + law._theta_terms(along, None) / law.kp
+            states = self._once(x0, t, shifted, theta_d_dot)
+            if not np.all(np.isfinite(states)):
+                break
+            along = states[:, :n]
+            if integrating:
+                e = theta_d - along
+                grown = np.zeros_like(e)
+                grown[1:] = np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(t)[:, None], axis=0)
+                integral = start + law.ki * grown
+        return states
+
+
+def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
+                  law: ControllerLaw, min_samples: int = 200) -> Optional[TrigLoop]:
+    """
+    Return the trigonometric arm fitted on ``train`` (case 1) closed with ``law``.
+
+    The arm's held-out torque error (:func:`~rkgnn_ros.core.control.gate.torque_error` of
+    its inverse dynamics on ``validation``, worst joint) is kept in
+    :attr:`TrigLoop.torque_error` (inf without validation samples): the caller decides
+    whether the basis holds this arm (it is a planar arm's). None when ``train`` holds
+    fewer than ``min_samples`` samples or the fit fails.
+    """
+    if law is None or not np.all(law.kp > 0.0):
+        return None
+    train = [seg for seg in train if seg.n_samples >= 5 and seg.tau is not None]
+    if sum(seg.n_samples for seg in train) < min_samples:
+        return None
+    basis = TrigBasis(train[0].n_joints, planar=True, tied=True)
+    try:
+        arm = LinearDynamics(basis, certify=False).fit(train, 'torque')
+        predicted, reference = paired_torques(arm, [seg for seg in validation
+                                                    if seg.tau is not None])
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    loop = TrigLoop(arm, law)
+    if predicted.shape[0]:
+        loop.torque_error = float(np.max(torque_error(predicted, reference)))
+    return loop
+
+
+def precompile_trig_loop(n_joints: int = 3) -> None:
+    """Compile (or load from numba's cache) the rollout kernel, on a zero arm."""
+    n = int(n_joints)
+    basis = TrigBasis(n, planar=True, tied=True)
+    nf = basis.n_features
+    w_mass = np.zeros((nf, n, n))
+    w_mass[basis.constant] = np.eye(n)
+    out = np.full((3, 2 * n), np.nan)
+    _rollout(np.zeros(2 * n), np.zeros((2, 1, 3, 2 * n)), 0.01, n,
+             np.ascontiguousarray(basis.frequencies, dtype=float),
+             np.ascontiguousarray(basis.kinds, dtype=np.int64), w_mass, np.zeros(nf),
+             np.zeros(n), np.zeros(n), 0.05, np.ones(n), np.ones(n), out)

@@ -1,0 +1,115 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Compile the identifier's numba kernels into their on-disk cache, at set-up time.
+
+numba compiles a kernel the first time it is called with new argument types and, with
+``cache=True``, keeps the machine code beside the source (``__pycache__``, where the
+symlinked install that ``ros2 run`` uses finds it too). The identifier's first search
+otherwise pays that compilation after the first joint_states. This runs what the first
+minutes of an identifier run: the online policy of :mod:`.core.fitting.online` on a few
+seconds of the simulated paper arm, in the three cases (the equation-error start, the
+rollouts, the refinement, the validation), with the default network and with the
+trigonometric basis, and the prediction of the published models; every kernel then sits in
+the cache, with those of :func:`.core.fitting.identify.precompile`, which the node runs
+before it spins. ``make build`` runs it (``python -m rkgnn_ros.precompile``); a second run
+finds everything cached and takes seconds.
+"""
+
+import sys
+import time
+
+from rkgnn_ros.core.fitting.identify import precompile
+from rkgnn_ros.core.fitting.online import (ModelUpdate, Observation, OnlineIdentification,
+                                           OnlineSettings)
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
+from rkgnn_ros.stream_buffer import StreamBuffer
+
+JOINTS = ('j1', 'j2', 'j3')
+
+#: The network settings compiled: the default and the trigonometric basis (its dispatch).
+NETWORKS = ({}, {'basis': 'trig+rbf'})
+
+#: Steps of the fake clock before giving up on a published model.
+STEP_LIMIT = 400
+
+
+def _buffer(data, case: str) -> StreamBuffer:
+    """Return a buffer holding every stream of ``data``."""
+    buffer = StreamBuffer(JOINTS, 0.01, 4.0, 0.1, need_tau=case == 'torque',
+                          need_desired=case != 'torque')
+    for k in range(data.t.size):
+        buffer.add_state(1000.0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+        buffer.add_command(1000.0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+    return buffer
+
+
+def run_case(data, case: str, network: dict) -> int:
+    """
+    Drive the online policy on ``data`` until it publishes, then predict with the model.
+
+    Returns
+    -------
+    int
+        Generations run (RuntimeError if no model was published).
+
+    """
+    now = [100.0]
+    pd = PDController.paper()
+    gains = case == 'pd_gains'
+    settings = OnlineSettings(case=case, min_window=2.0, validation_fraction=0.25,
+                              model_publish_period=0.0, network=network,
+                              kp=tuple(pd.kp.diagonal()) if gains else (),
+                              kd=tuple(pd.kd.diagonal()) if gains else (),
+                              optimizer_settings={'population_size': 6}, seed=0)
+    policy = OnlineIdentification(lambda: now[0], warm_start_seconds=2.0, warm_start_nfev=3)
+    buffer = _buffer(data, case)
+    generations = 0
+    for _ in range(STEP_LIMIT):
+        now[0] += 0.1
+        obs = Observation(settings, JOINTS, {'state': now[0], 'command': now[0]})
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        result = policy.step(obs)
+        generations += int(result.ran)
+        updates = [e for e in result.events if isinstance(e, ModelUpdate)]
+        if updates and generations >= 2:
+            update = updates[-1]
+            update.model.predict(data.slice(0, 100))
+            if update.loop is not None:
+                update.loop.loop.model.predict(data.slice(0, 100))
+            return generations
+    raise RuntimeError(f'case {case}: no model published in {STEP_LIMIT} steps')
+
+
+def main(argv=None) -> int:
+    """Compile every kernel of a first identifier run; print what ran and how long."""
+    start = time.monotonic()
+    precompile()                                   # what the node compiles before spinning
+    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 4.0,
+                    rate=100.0, joint_names=JOINTS)
+    for network in NETWORKS:
+        for case in ('torque', 'pd_gains', 'unknown'):
+            generations = run_case(data, case, network)
+            print(f'precompile: case {case}, network {network or "default"}: '
+                  f'{generations} generations', flush=True)
+    print(f'precompile: kernels cached in {time.monotonic() - start:.0f} s', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,119 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Case 1's trigonometric arm closed with the learned law: rollout, accuracy, when it holds."""
+
+import copy
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from rkgnn_ros.core.fitting.case_one import fit_law, LawKeeper, TRIG_MAX_TORQUE_ERROR
+from rkgnn_ros.core.fitting.trig_loop import fit_trig_loop
+from rkgnn_ros.core.fitting.validation import split_validation
+from rkgnn_ros.core.sim.plant import PlanarArm
+from rkgnn_ros.core.sim.sensors import SensorModel
+from rkgnn_ros.core.sim.servo import Servo
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
+
+KP = np.array([32.84, 42.05, 42.31])
+KD = np.array([42.44, 0.19, 4.86])
+ARM = PlanarArm.paper()
+
+
+def run(servo, seconds, noise=None):
+    return simulate(ARM, servo, paper_reference(3), seconds, rate=100.0,
+                    noise=noise or SensorModel.exact(), rng=3)
+
+
+def ahead_error(loop, data, starts, fitted_until=None, steps=200):
+    """
+    Mean over starts of the 2 s-ahead θ RMSE / range, mean over joints.
+
+    The law's integral term holds at sample ``fitted_until``; at a start it has grown by
+    Ki ∫ (θd − θ) since, as the node carries it on.
+    """
+    span = data.theta.max(axis=0) - data.theta.min(axis=0)
+    law, errors = loop.law, []
+    for k in starts:
+        integral = None
+        if fitted_until is not None:
+            e = data.theta_d[fitted_until:k + 1] - data.theta[fitted_until:k + 1]
+            integral = law.integral_term + law.ki * np.trapezoid(e, dx=data.dt, axis=0)
+        x0 = np.concatenate([data.theta[k], data.theta_dot[k]])
+        states = loop.simulate(x0, data.t[k:k + steps + 1] - data.t[k],
+                               data.theta_d[k:k + steps + 1], data.theta_d_dot[k:k + steps + 1],
+                               integral)
+        rmse = np.sqrt(np.mean((states[:, :3] - data.theta[k:k + steps + 1]) ** 2, axis=0))
+        errors.append(np.mean(rmse / span))
+    return float(np.mean(errors))
+
+
+@pytest.fixture(scope='module')
+def pd_data():
+    return run(Servo(KP, KD), 30.0)
+
+
+def test_the_compiled_rollout_is_the_numpy_models_closed_loop(pd_data):
+    train = pd_data.slice(0, 1500)
+    law = fit_law([train])
+    loop = fit_trig_loop([train], [pd_data.slice(1500, 1800)], law)
+    arm = copy.copy(loop.arm)                    # the numpy model with the law's gains
+    arm.kp_, arm.kd_ = law.kp, law.kd
+    k = 2000
+    x0 = np.concatenate([pd_data.theta[k], pd_data.theta_dot[k]])
+    t = pd_data.t[k:k + 101] - pd_data.t[k]
+    shifted = pd_data.theta_d[k:k + 101] + law.shift(pd_data.theta_d[k:k + 101],
+                                                     pd_data.theta_d_dot[k:k + 101])
+    loop.substeps = 4
+    mine = loop.simulate(x0, t, pd_data.theta_d[k:k + 101], pd_data.theta_d_dot[k:k + 101])
+    theirs = arm.simulate(x0, t, theta_d=shifted, theta_d_dot=pd_data.theta_d_dot[k:k + 101],
+                          substeps=4)
+    np.testing.assert_allclose(mine, theirs, rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize('servo,noise', [
+    ('pd', None), ('pid', None), ('gravity', SensorModel.differenced(1e-4))])
+def test_it_predicts_the_servo_far_better_than_following_the_reference(servo, noise):
+    servos = {'pd': Servo(KP, KD), 'pid': Servo(KP, KD, ki=[20.0, 20.0, 20.0]),
+              'gravity': Servo(KP, KD, gravity='measured', arm=ARM)}
+    data = run(servos[servo], 30.0, noise)
+    train, validation, _ = split_validation([data.slice(0, 2000)], 0.2)
+    law = fit_law(train)
+    loop = fit_trig_loop(train, validation, law)
+    assert loop.torque_error <= TRIG_MAX_TORQUE_ERROR
+    starts = range(2000, 2800, 50)
+    span = data.theta.max(axis=0) - data.theta.min(axis=0)
+    follow = np.mean([np.mean(np.sqrt(np.mean(
+        (data.theta_d[k:k + 201] - data.theta[k:k + 201]) ** 2, axis=0)) / span)
+        for k in starts])
+    until = train[-1].n_samples - 1
+    assert ahead_error(loop, data, starts, until) <= follow / 4
+
+
+def test_the_keeper_predicts_with_it_only_where_the_basis_holds_the_arm(pd_data):
+    keeper = LawKeeper()
+    train = [pd_data.slice(0, 1500)]
+    keeper.refit(train, 0.0, None)
+    assert keeper.law is not None
+    line = keeper.fit_trig(train, [pd_data.slice(1500, 1800)])
+    assert keeper.trig is not None and 'trigonometric' in line[1]
+    # a torque the arm's dynamics do not explain: a random torque added to the measured
+    rng = np.random.default_rng(0)
+    wrong = pd_data.slice(1500, 1800)
+    wrong = replace(wrong, tau=wrong.tau + rng.normal(0.0, 3.0 * wrong.tau.std(axis=0),
+                                                      wrong.tau.shape))
+    line = keeper.fit_trig(train, [wrong])
+    assert keeper.trig is None and 'back' in line[1]
