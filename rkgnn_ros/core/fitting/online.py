@@ -75,6 +75,7 @@ __all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCaptu
            'StepResult', 'model_update', 'split_validation']
 
 DATA_REFRESH_S = 1.0        # at most one set_data per second
+TRIG_RETRY_S = 10.0         # case 1: the trigonometric arm, when it did not hold, retried after
 WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
@@ -169,6 +170,7 @@ class OnlineIdentification:
         # closed with it
         self._laws = LawKeeper()
         self._loop: Optional[ClosedLoop] = None
+        self._trig_tried = -math.inf  # when the trigonometric arm was last fitted
         # the search
         self._evo: Optional[Evolution] = None
         self._evo_version = -1
@@ -336,7 +338,17 @@ class OnlineIdentification:
         return True
 
     def _refit_trig(self, settings: OnlineSettings, paired: List[Dataset]) -> None:
-        """Case 'torque': fit the trigonometric arm again; predict with it where it holds."""
+        """
+        Case 'torque': fit the trigonometric arm again; predict with it where it holds.
+
+        Where it did not hold, it is tried again only every :data:`TRIG_RETRY_S` (an arm
+        the planar basis does not hold, e.g. a spatial 6-joint one, would pay the fit at
+        every refresh for nothing).
+        """
+        now = self._clock()
+        if self._laws.trig is None and now - self._trig_tried < TRIG_RETRY_S:
+            return
+        self._trig_tried = now
         train, validation, _ = split_validation(paired, settings.validation_fraction,
                                                 MIN_SEGMENT_SAMPLES)
         line = self._laws.fit_trig(train, validation)
