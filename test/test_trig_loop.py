@@ -19,7 +19,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.fitting.case_one import fit_law, LawKeeper, TRIG_MAX_TORQUE_ERROR
+from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_MAX_TORQUE_ERROR,
+                                             TRIG_RETRY_S)
 from rkgnn_ros.core.fitting.trig_loop import fit_trig_loop
 from rkgnn_ros.core.fitting.validation import split_validation
 from rkgnn_ros.core.sim.plant import PlanarArm
@@ -108,12 +109,16 @@ def test_the_keeper_predicts_with_it_only_where_the_basis_holds_the_arm(pd_data)
     train = [pd_data.slice(0, 1500)]
     keeper.refit(train, 0.0, None)
     assert keeper.law is not None
-    line = keeper.fit_trig(train, [pd_data.slice(1500, 1800)])
-    assert keeper.trig is not None and 'trigonometric' in line[1]
+    fraction = 300 / 1800    # the newest 300 samples held out
+    ran, line = keeper.fit_trig([pd_data.slice(0, 1800)], fraction, 0.0)
+    assert ran and keeper.trig is not None and 'trigonometric' in line[1]
     # a torque the arm's dynamics do not explain: a random torque added to the measured
     rng = np.random.default_rng(0)
     wrong = pd_data.slice(1500, 1800)
     wrong = replace(wrong, tau=wrong.tau + rng.normal(0.0, 3.0 * wrong.tau.std(axis=0),
                                                       wrong.tau.shape))
-    line = keeper.fit_trig(train, [wrong])
-    assert keeper.trig is None and 'back' in line[1]
+    ran, line = keeper.fit_trig(train + [wrong], fraction, 1.0)
+    assert ran and keeper.trig is None and 'back' in line[1]
+    # an arm it did not hold is fitted again only TRIG_RETRY_S later
+    assert keeper.fit_trig(train + [wrong], fraction, 2.0) == (False, None)
+    assert keeper.fit_trig(train + [wrong], fraction, 1.0 + TRIG_RETRY_S)[0]

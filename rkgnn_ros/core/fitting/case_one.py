@@ -48,6 +48,7 @@ from .controller import closed_loop, ClosedLoop, fit_controller, open_loop_model
 from .controller_laws import ControllerLaw, RBFFeatures, TrigFeatures
 from .online_records import ClosedLoop as PredictionLoop
 from .trig_loop import fit_trig_loop, TrigLoop
+from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..data import Dataset
 from ..model.model import RKGNNModel
 
@@ -72,6 +73,9 @@ LAW_THETA_SAMPLES = 2000    # θ samples kept to project a law's θ-terms on a m
 #: The trigonometric arm predicts while its held-out torque error (worst joint, RMSE / std)
 #: is at most this (a planar arm fits it to 0.5-2 %; an arm the basis does not hold, far worse).
 TRIG_MAX_TORQUE_ERROR = 0.1
+
+#: Seconds after which a trigonometric arm that did not hold is fitted again.
+TRIG_RETRY_S = 10.0
 
 
 def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples: int = 50,
@@ -248,15 +252,25 @@ class LawKeeper:
         self.time = math.nan
         self.theta: Optional[np.ndarray] = None
         self.trig: Optional[TrigLoop] = None    # the global arm closed with the law
+        self._trig_tried = -math.inf             # when it was last fitted (clock s)
 
-    def fit_trig(self, train: Sequence[Dataset],
-                 validation: Sequence[Dataset]) -> Optional[Tuple[str, str]]:
+    def fit_trig(self, paired: Sequence[Dataset], validation_fraction: float,
+                 now: float) -> Tuple[bool, Optional[Tuple[str, str]]]:
         """
-        Fit the trigonometric arm on ``train`` and close it with the law in use.
+        Fit the trigonometric arm on ``paired`` and close it with the law in use.
 
-        It predicts (:meth:`close`) while its torque error on ``validation`` is at most
-        :data:`TRIG_MAX_TORQUE_ERROR`. Returns the (level, text) to log when that changes.
+        The newest ``validation_fraction`` is held out; the arm predicts (:meth:`close`)
+        while its torque error there is at most :data:`TRIG_MAX_TORQUE_ERROR`. Where it did
+        not hold, it is fitted again only :data:`TRIG_RETRY_S` after the last try (clock
+        ``now``, s): an arm the planar basis does not hold (a spatial one) would pay the fit
+        at every refresh for nothing. Returns whether it was fitted, and the (level, text)
+        to log when whether it predicts changed.
         """
+        if self.trig is None and now - self._trig_tried < TRIG_RETRY_S:
+            return False, None
+        self._trig_tried = now
+        train, validation, _ = split_validation(paired, validation_fraction,
+                                                MIN_SEGMENT_SAMPLES)
         before = self.trig is not None
         loop = fit_trig_loop(train, validation, self.law) if self.law is not None else None
         if loop is not None and not loop.torque_error <= TRIG_MAX_TORQUE_ERROR:
@@ -266,13 +280,13 @@ class LawKeeper:
             why = 'no law or too few samples'
         self.trig = loop
         if loop is not None and not before:
-            return ('info', 'predictions roll out the arm fitted on the trigonometric basis '
-                    f'(held-out torque error {loop.torque_error:.2%}) closed with the learned '
-                    "law; ~/model stays the search's model")
+            return True, ('info', 'predictions roll out the arm fitted on the trigonometric '
+                          f'basis (held-out torque error {loop.torque_error:.2%}) closed with '
+                          "the learned law; ~/model stays the search's model")
         if loop is None and before:
-            return ('info', f"predictions go back to the search's model ({why} on the "
-                    'trigonometric basis)')
-        return None
+            return True, ('info', f"predictions go back to the search's model ({why} on "
+                          'the trigonometric basis)')
+        return True, None
 
     def refit(self, segments: Sequence[Dataset], origin: float,
               running: Optional[ControllerLaw]) -> Refit:

@@ -75,7 +75,6 @@ __all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCaptu
            'StepResult', 'model_update', 'split_validation']
 
 DATA_REFRESH_S = 1.0        # at most one set_data per second
-TRIG_RETRY_S = 10.0         # case 1: the trigonometric arm, when it did not hold, retried after
 WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
@@ -170,7 +169,6 @@ class OnlineIdentification:
         # closed with it
         self._laws = LawKeeper()
         self._loop: Optional[ClosedLoop] = None
-        self._trig_tried = -math.inf  # when the trigonometric arm was last fitted
         # the search
         self._evo: Optional[Evolution] = None
         self._evo_version = -1
@@ -309,7 +307,9 @@ class OnlineIdentification:
             law = self._update_law(paired, capture.time_origin) or self._laws.law
         if law is not None:  # the closed-loop search: θd shifted by the law's other terms
             segments = search_segments(paired, law)
-            self._refit_trig(settings, paired)
+            ran, line = self._laws.fit_trig(paired, settings.validation_fraction, self._clock())
+            if ran:  # the trigonometric arm: it predicts where it holds the arm
+                self._reclose(line)
         else:
             segments = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, False),
                                       estimate_velocity)
@@ -337,27 +337,13 @@ class OnlineIdentification:
         self._data_version += 1
         return True
 
-    def _refit_trig(self, settings: OnlineSettings, paired: List[Dataset]) -> None:
-        """
-        Case 'torque': fit the trigonometric arm again; predict with it where it holds.
-
-        Where it did not hold, it is tried again only every :data:`TRIG_RETRY_S` (an arm
-        the planar basis does not hold, e.g. a spatial 6-joint one, would pay the fit at
-        every refresh for nothing).
-        """
-        now = self._clock()
-        if self._laws.trig is None and now - self._trig_tried < TRIG_RETRY_S:
-            return
-        self._trig_tried = now
-        train, validation, _ = split_validation(paired, settings.validation_fraction,
-                                                MIN_SEGMENT_SAMPLES)
-        line = self._laws.fit_trig(train, validation)
+    def _reclose(self, line: Optional[Tuple[str, str]]) -> None:
+        """Log ``line``; close the published case-1 model with the law again for prediction."""
         if line is not None:
             self._log(*line)
-        model = self._model
-        if model is not None and model.case == 'torque':
-            self._loop = self._laws.close(model)
-            self._events.append(LoopUpdate(model, self._loop))
+        if self._model is not None and self._model.case == 'torque':
+            self._loop = self._laws.close(self._model)
+            self._events.append(LoopUpdate(self._model, self._loop))
 
     def _update_law(self, segments: List[Dataset], origin: float) -> Optional[ControllerLaw]:
         """
@@ -383,12 +369,7 @@ class OnlineIdentification:
             self._resume = resume
         elif searching:
             self._drop_search('the controller law changed')
-        if refit.line is not None:
-            self._log(*refit.line)
-        model = self._model
-        if model is not None and model.case == 'torque':
-            self._loop = self._laws.close(model)
-            self._events.append(LoopUpdate(model, self._loop))
+        self._reclose(refit.line)
         return refit.law
 
     def _build_search(self, settings: OnlineSettings, train, joints, seconds: float) -> None:
