@@ -89,6 +89,25 @@ def wait_for(condition, timeout, what):
         time.sleep(0.01)
 
 
+def settled(probe, node, quiet=1.0, timeout=60.0):
+    """Return (states, commands) once both hold all the node's samples and stay unchanged."""
+    end = time.monotonic() + timeout
+    last, since = None, time.monotonic()
+    while True:
+        now = (len(probe.states), len(probe.commands), node.counters['samples'])
+        if now != last:
+            last, since = now, time.monotonic()
+        elif now[0] == now[1] == now[2] and time.monotonic() - since >= quiet:
+            states = [m for _, m in list(probe.states)]
+            commands = list(probe.commands)
+            if len(states) == len(commands) == now[0]:
+                return states, commands
+        if time.monotonic() > end:
+            raise AssertionError(f'timed out after {timeout} s waiting for the samples to '
+                                 f'settle (states, commands, published): {now}')
+        time.sleep(0.01)
+
+
 class Probe:
     """A node recording joint_states, joint_commands and reference_trajectory."""
 
@@ -277,10 +296,10 @@ def test_sim_time_waits_for_clock_skips_ahead_and_follows_a_jump_back(ros):
 
         assert node.counters['skips'] == 1
         assert node.counters['clock_jumps_back'] == 1
-        # a state and its command are separate messages: the clock has stopped, so wait
-        # until the probe holds the command of every state before comparing them
-        wait_for(lambda: len(probe.commands) == len(probe.states), 60.0, 'every command')
-        states = [m for _, m in list(probe.states)]
+        # a state and its command are separate messages, and under load the node may still
+        # be taking the last /clock messages: wait until the probe holds every sample the
+        # node published, state and command, and nothing more has come for 1 s
+        states, commands = settled(probe, node)
         stamps = np.array([stamp_ns(m) for m in states]) / 1e9
         in_part = [(stamps >= a - 1e-9) & (stamps <= b + 1e-9) for a, b in parts]
         assert np.all(np.any(in_part, axis=0)), f'stamps outside the clock: {stamps}'
@@ -291,8 +310,7 @@ def test_sim_time_waits_for_clock_skips_ahead_and_follows_a_jump_back(ros):
         assert 1000.0 <= stamps[0] < 1000.1        # starts at its first clock reading
 
         # the reference time runs on through the skip and the jump: sample k is at 0.01 k s
-        commands = list(probe.commands)
-        assert len(commands) == len(states)
+        assert len(commands) == len(states) == node.counters['samples']
         theta_d, theta_d_dot = paper_reference(3).evaluate(0.01 * np.arange(len(commands)))
         np.testing.assert_allclose([m.position for m in commands], theta_d, atol=1e-12)
         np.testing.assert_allclose([m.velocity for m in commands], theta_d_dot, atol=1e-12)
