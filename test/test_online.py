@@ -26,10 +26,12 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.differentiate import centred_derivative
 from rkgnn_ros.core.fitting import case_one
+from rkgnn_ros.core.fitting.case_three import REFIT_S
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Observation, OnlineIdentification, OnlineSettings,
                                            split_validation)
+from rkgnn_ros.core.fitting.trig_loop import TrigLoop
 from rkgnn_ros.core.fitting.validation import validation_nrmse
 from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
@@ -404,3 +406,34 @@ def test_a_law_learned_before_min_window_keeps_the_search_on_paired_data(data):
         assert not rig.step(dt=1.0)
     assert rig.status.state == 'waiting for data'
     assert rig.policy._evo is None
+
+
+def test_case_unknown_predicts_with_the_linear_closed_loop_where_it_holds():
+    # 16 s: the paper's reference moves every joint through enough of its range by then
+    # (3 s of it leave the closed loop undetermined, and the keeper says no)
+    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 16.0,
+                    rate=100.0, joint_names=JOINTS)
+
+    def buffer(commands):
+        out = StreamBuffer(JOINTS, 0.01, 16.0, 0.1, need_tau=False, need_desired=True)
+        for k in range(data.n_samples):
+            out.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+            out.add_command(T0 + data.t[k], *commands(k))
+        return out
+
+    rig = Rig(buffer(lambda k: (data.theta_d[k], data.theta_d_dot[k])),
+              settings(model_publish_period=0.2, optimizer_settings={'population_size': 4}))
+    rig.run(3)
+    assert rig.lines('predictions roll out the closed loop fitted linearly')
+    rig.run(3, dt=0.3)
+    update = rig.of(ModelUpdate)[-1]
+    assert update.model.case == 'unknown'          # ~/model stays the search's model
+    assert isinstance(update.loop.loop, TrigLoop) and update.loop.model is update.model
+    assert update.loop.integral_time == pytest.approx(T0 + 16.0)
+    # commands unrelated to the motion: at the next fit it goes back to the search's model
+    rng = np.random.default_rng(0)
+    noisy = buffer(lambda k: (data.theta_d[k] + rng.normal(0, 0.5, 3), data.theta_d_dot[k]))
+    rig.buffer = noisy
+    rig.step(dt=REFIT_S)
+    assert rig.lines("predictions go back to the search's model")
+    assert rig.of(LoopUpdate)[-1].loop is None

@@ -12,7 +12,12 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Case 1's trigonometric arm closed with the learned law: rollout, accuracy, when it holds."""
+"""
+The arm on the trigonometric basis closed with a servo law.
+
+Case 1 (the law learned from the torque) and case 3 (arm and servo fitted together):
+rollout, accuracy, when it holds.
+"""
 
 import copy
 from dataclasses import replace
@@ -21,7 +26,8 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_MAX_TORQUE_ERROR,
                                              TRIG_RETRY_S)
-from rkgnn_ros.core.fitting.trig_loop import fit_trig_loop
+from rkgnn_ros.core.fitting.case_three import ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S
+from rkgnn_ros.core.fitting.trig_loop import fit_closed_trig_loop, fit_trig_loop
 from rkgnn_ros.core.fitting.validation import split_validation
 from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.sensors import SensorModel
@@ -122,3 +128,47 @@ def test_the_keeper_predicts_with_it_only_where_the_basis_holds_the_arm(pd_data)
     # an arm it did not hold is fitted again only TRIG_RETRY_S later
     assert keeper.fit_trig(train + [wrong], fraction, 2.0) == (False, None)
     assert keeper.fit_trig(train + [wrong], fraction, 1.0 + TRIG_RETRY_S)[0]
+
+
+@pytest.mark.parametrize('servo,noise', [
+    ('pd', SensorModel.differenced(1e-4)), ('pid', None), ('pid', SensorModel.differenced(1e-4)),
+    ('gravity', SensorModel.differenced(1e-4))])
+def test_case_three_fits_the_arm_and_its_servo_together(servo, noise):
+    ki = 20.0
+    servos = {'pd': Servo(KP, KD), 'pid': Servo(KP, KD, ki=[ki, ki, ki]),
+              'gravity': Servo(KP, KD, gravity='measured', arm=ARM)}
+    data = run(servos[servo], 30.0, noise)
+    fitted = replace(data.slice(0, 2000), tau=None)     # case 3: no torque
+    loop = fit_closed_trig_loop([fitted], 0.2)
+    assert loop.torque_error <= MAX_LOOP_ERROR
+    law = loop.law
+    # the servo up to one factor: Kp's ratios, and Ki / Kp where there is an integral
+    np.testing.assert_allclose(law.kp / law.kp.mean(), KP / KP.mean(), rtol=0.03)
+    if servo == 'pid':
+        np.testing.assert_allclose(law.ki / law.kp, ki / KP, rtol=0.05)
+    else:
+        assert np.all(law.ki == 0.0)
+    starts = range(2000, 2800, 50)
+    span = data.theta.max(axis=0) - data.theta.min(axis=0)
+    follow = np.mean([np.mean(np.sqrt(np.mean(
+        (data.theta_d[k:k + 201] - data.theta[k:k + 201]) ** 2, axis=0)) / span)
+        for k in starts])
+    assert ahead_error(loop, data, starts, 1999) <= follow / 4
+
+
+def test_case_threes_keeper_predicts_only_while_the_loop_explains_held_out_data(pd_data):
+    keeper = ArmKeeper()
+    good = [replace(pd_data.slice(0, 1800), tau=None)]
+    ran, line = keeper.fit(good, 0.2, 50.0, 0.0)
+    assert ran and keeper.loop is not None and 'linear' in line[1]
+    assert keeper.time == pytest.approx(50.0 + good[-1].t[-1])
+    assert keeper.fit(good, 0.2, 50.0, REFIT_S - 0.1) == (False, None)   # not due yet
+    # commands unrelated to the motion: no servo law explains it
+    rng = np.random.default_rng(0)
+    wrong = [replace(seg, theta_d=seg.theta_d + rng.normal(0.0, 0.5, seg.theta_d.shape))
+             for seg in good]
+    ran, line = keeper.fit(wrong, 0.2, 50.0, REFIT_S)
+    assert ran and keeper.loop is None and 'back' in line[1]
+    assert keeper.close(object()) is None
+    assert keeper.fit(good, 0.2, 50.0, REFIT_S + RETRY_S - 0.1) == (False, None)
+    assert keeper.fit(good, 0.2, 50.0, REFIT_S + RETRY_S)[0] and keeper.loop is not None

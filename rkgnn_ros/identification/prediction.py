@@ -209,7 +209,8 @@ class Predictor:
         """
         Take a new model: in use at once if there is none, else a candidate for a trial.
 
-        ``loop``: a case-1 model closed with the learned law (case 1 predicts only so).
+        ``loop``: the model closed with a fitted servo law (case 1 predicts only so; case 3
+        with the linear closed loop where it holds).
         """
         slot = _Slot(model, loop)
         with self._slots_lock:
@@ -382,9 +383,7 @@ class Predictor:
             return None
         model, loop = slot
         n = len(joints)
-        if model.case == 'torque':
-            if loop is None or loop.model is not model:
-                return None  # case 1 predicts only in closed loop with the learned law
+        if loop is not None and loop.model is model:  # closed with a fitted servo law
             law = loop.loop.law
             integral = law.integral_term
             if np.any(law.ki != 0.0):
@@ -393,6 +392,8 @@ class Predictor:
                     integral = integral + law.ki * grown
             states = loop.loop.simulate(x0, horizon.t, horizon.theta_d, horizon.theta_d_dot,
                                         integral)
+        elif model.case == 'torque':
+            return None  # case 1 predicts only in closed loop with the learned law
         else:
             # at most MAX_SUBSTEPS RKG steps per model_step, whatever step the model was made
             # with (model_step may have grown since): the rollout's memory stays bounded

@@ -323,6 +323,21 @@ class LawKeeper:
         moved = running is not None and new is not None
         return Refit('moved' if moved else 'changed', new, line)
 
+    def published(self, model: RKGNNModel,
+                  case: str) -> Tuple[RKGNNModel, Optional[RKGNNModel]]:
+        """
+        Return the model to publish for a search's best ``model`` (settings' ``case``).
+
+        A closed-loop search's (case 'torque' with the law: a case-2 model) is the arm's
+        (:func:`arm_model`, the law in ``info``), returned with the searched model itself;
+        any other is returned as it is, with None.
+        """
+        law = self.law
+        if model.case == 'pd_gains' and case == 'torque' and law is not None:
+            return arm_model(model, law, self.theta,
+                             info=dict(model.info, controller_law=law.to_dict())), model
+        return model, None
+
     def close(self, model: RKGNNModel,
               closed: Optional[RKGNNModel] = None) -> Optional[PredictionLoop]:
         """

@@ -53,14 +53,13 @@ The fit (:class:`LinearDynamics`)
   A global diagonal shift by the certificate's deficit was tried and rejected: where the
   certificate fails its bound is far below the true minimum, and the shift ruins M.
 
-Case 3 (no torque, unknown PD controller): M, V, G, F and the gains scale together, so
-only the ratios are identifiable. The controller's diagonal gains join the unknowns,
-Y w = Kp (θd - θ) + Kd (θ̇d - θ̇), and the scale is fixed by one linear normalisation:
-the mean of Kp equals ``gain_normalisation`` (1 by default, so every term is in units of
-"N m per unit mean Kp"). The least squares with one linear equality stays closed form;
-what the model predicts (θ, θ̇ under its own controller) does not depend on the scale,
-and multiplying by a known mean gain (or any one known physical quantity) gives the
-physical model.
+Case 3 (no torque, unknown PD or, with ``integral``, PID controller with a constant c):
+M, V, G, F and the servo scale together, so only the ratios are identifiable. The gains
+join the unknowns, Y w = Kp e + Kd ė [+ Ki ∫e + c], and one linear normalisation fixes
+the scale: the mean of Kp is ``gain_normalisation`` (1 by default: every term is in "N m
+per unit mean Kp"). The least squares with one linear equality stays closed form; what
+the model predicts (θ, θ̇ under its own controller) does not depend on the scale, and a
+known mean gain (or any one known physical quantity) gives the physical model.
 """
 
 from typing import NamedTuple, Optional, Sequence
@@ -83,7 +82,8 @@ class Samples(NamedTuple):
     Joint samples an equation-error fit uses, in time order (arrays of shape (N, n)).
 
     ``tau`` is the torque to explain (measured in case 1, computed from the known gains in
-    case 2, None in case 3); ``error`` and ``error_rate`` are θd - θ and θ̇d - θ̇ (case 3).
+    case 2, None in case 3); ``error`` and ``error_rate`` are θd - θ and θ̇d - θ̇ (case 3),
+    ``error_integral`` ∫(θd - θ) dt from the first sample on (case 3 with an integral).
     """
 
     theta: np.ndarray
@@ -92,6 +92,7 @@ class Samples(NamedTuple):
     tau: Optional[np.ndarray] = None
     error: Optional[np.ndarray] = None
     error_rate: Optional[np.ndarray] = None
+    error_integral: Optional[np.ndarray] = None
 
     @property
     def n_samples(self) -> int:
@@ -118,7 +119,7 @@ def default_window(dt: float) -> int:
 
 
 def samples_from_datasets(datasets, case: str, kp=None, kd=None,
-                          window: Optional[int] = None) -> Samples:
+                          window: Optional[int] = None, integral: bool = False) -> Samples:
     """
     Return the :class:`Samples` of one or more datasets, θ̈ by Savitzky-Golay.
 
@@ -132,6 +133,9 @@ def samples_from_datasets(datasets, case: str, kp=None, kd=None,
         The known diagonal gains (case 'pd_gains').
     window : int, optional
         Savitzky-Golay window (samples); :func:`default_window` by default.
+    integral : bool
+        Case 'unknown': add ∫(θd - θ) dt (trapezoid), running on from one dataset to the
+        next (a gap adds nothing to it).
 
     """
     if case not in CASES:
@@ -139,6 +143,7 @@ def samples_from_datasets(datasets, case: str, kp=None, kd=None,
     if not isinstance(datasets, (list, tuple)):
         datasets = [datasets]
     parts = []
+    carried = 0.0
     for d in datasets:
         acc = estimate_acceleration(d.theta_dot, d.dt, window or default_window(d.dt), 3)
         tau = err = derr = None
@@ -155,7 +160,13 @@ def samples_from_datasets(datasets, case: str, kp=None, kd=None,
                     raise ValueError("case 'pd_gains' needs kp and kd")
                 tau = np.asarray(kp, dtype=float) * err + np.asarray(kd, dtype=float) * derr
                 err = derr = None
-        parts.append(Samples(d.theta, d.theta_dot, acc, tau, err, derr))
+        grown = None
+        if integral and case == 'unknown':
+            grown = np.zeros_like(err)
+            grown[1:] = np.cumsum(0.5 * (err[1:] + err[:-1]), axis=0) * d.dt
+            grown += carried
+            carried = grown[-1]
+        parts.append(Samples(d.theta, d.theta_dot, acc, tau, err, derr, grown))
     return Samples.concatenate(parts)
 
 
@@ -204,7 +215,7 @@ def _normal_equations(basis, samples: Samples, weights, coulomb_velocity, stride
     """Assemble the weighted normal equations of ``samples`` chunk by chunk."""
     n = basis.n_joints
     controller = samples.tau is None
-    p = Layout.of(basis, controller).size
+    p = Layout.of(basis, controller, samples.error_integral is not None).size
     gram = np.zeros((p, p))
     rhs = np.zeros(p)
     energy, rows = 0.0, 0
@@ -213,7 +224,7 @@ def _normal_equations(basis, samples: Samples, weights, coulomb_velocity, stride
     for s in range(0, index.size, step):
         part = samples.take(index[s:s + step])
         y = regressor(basis, part.theta, part.theta_dot, part.theta_ddot, coulomb_velocity,
-                      part.error, part.error_rate)
+                      part.error, part.error_rate, part.error_integral)
         y *= weights[None, :, None]
         a = y.reshape(-1, p)
         gram += a.T @ a
@@ -291,6 +302,8 @@ class LinearDynamics(TrigDynamics):
         it needs grow like (1/r)^d: about 10^4 for d = 3 and beyond any budget for d = 5).
     gain_normalisation : float
         Case 3: the mean of the identified Kp (fixes the unidentifiable scale).
+    integral : bool
+        Case 3: the controller is a PID, Kp e + Kd ė + Ki ∫e + c (``ki_``, ``bias_``).
 
     """
 
@@ -302,7 +315,7 @@ class LinearDynamics(TrigDynamics):
                  stride: int = 1, min_eigenvalue: Optional[float] = None, joint_lower=None,
                  joint_upper=None, certify: bool = True, check_points: int = 20_000,
                  max_cells: int = 50_000, max_certified_joints: int = 4,
-                 gain_normalisation: float = 1.0):
+                 gain_normalisation: float = 1.0, integral: bool = False):
         super().__init__(basis, coulomb_velocity)
         self.ridges = tuple(float(r) for r in ridges)
         if not self.ridges or min(self.ridges) < 0.0:
@@ -318,6 +331,7 @@ class LinearDynamics(TrigDynamics):
         self.joint_upper = joint_upper
         self.certify = bool(certify)
         self.gain_normalisation = float(gain_normalisation)
+        self.integral = bool(integral)
         self.check_points = int(check_points)
         self.max_cells = int(max_cells)
         self.max_certified_joints = int(max_certified_joints)
@@ -369,7 +383,8 @@ class LinearDynamics(TrigDynamics):
         else:
             dt = datasets[0].dt
             windows = sorted({max(5, 2 * int(round(0.5 * w / dt)) + 1) for w in self.windows})
-        candidates = [samples_from_datasets(datasets, case, kp, kd, w) for w in windows]
+        candidates = [samples_from_datasets(datasets, case, kp, kd, w, self.integral)
+                      for w in windows]
         self._fit(candidates, windows, case, kp, kd)
         return self
 
@@ -394,7 +409,7 @@ class LinearDynamics(TrigDynamics):
             raise ValueError(f'case {case!r} needs the torque to explain (Samples.tau)')
         if controller:
             candidates = [c._replace(tau=None) for c in candidates]
-        lay = Layout.of(self.basis, controller)
+        lay = Layout.of(self.basis, controller, first.error_integral is not None)
         n_val = int(round(self.validation_fraction * first.n_samples))
         if n_val < 1 or first.n_samples - n_val < 1:
             raise ValueError(f'too few samples ({first.n_samples}) to hold some out')
@@ -408,7 +423,7 @@ class LinearDynamics(TrigDynamics):
             # a first thinned fit with unit weights estimates it
             guess = self._solve_path(*split(candidates[len(candidates) // 2]), np.ones(n),
                                      lay, stride=4)
-            weights = 1.0 / self._controller_rms(first, guess[0])
+            weights = 1.0 / self._controller_rms(first, guess[0], lay)
         else:
             rms = np.sqrt(np.mean(np.square(first.tau), axis=0))
             weights = 1.0 / np.maximum(rms, 1e-6 * max(rms.max(), 1e-300))
@@ -433,9 +448,10 @@ class LinearDynamics(TrigDynamics):
         if self.certify:
             self._enforce_positive(samples, chol, normal, scale, lay, case, kp, kd)
 
-    def _controller_rms(self, samples, coef):
-        lay = Layout.of(self.basis, True)
+    def _controller_rms(self, samples, coef, lay):
         tau = coef[lay.kp] * samples.error + coef[lay.kd] * samples.error_rate
+        if lay.ki is not None:
+            tau = tau + coef[lay.ki] * samples.error_integral + coef[lay.bias]
         rms = np.sqrt(np.mean(np.square(tau), axis=0))
         return np.maximum(rms, 1e-6 * max(float(rms.max()), 1e-300))
 
@@ -492,7 +508,9 @@ class LinearDynamics(TrigDynamics):
             if lay.kp is not None:
                 # relative to the identified controller's torque on the held-out samples
                 ctrl = np.zeros_like(coef)
-                ctrl[lay.kp], ctrl[lay.kd] = coef[lay.kp], coef[lay.kd]
+                for part in (lay.kp, lay.kd, lay.ki, lay.bias):
+                    if part is not None:
+                        ctrl[part] = coef[part]
                 ref = float(ctrl @ nh.gram @ ctrl)
             else:
                 ref = nh.energy

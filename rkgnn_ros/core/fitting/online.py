@@ -42,6 +42,11 @@ The rules (the node's documentation states them for users):
   is the arm's (the law in ``info``), predictions roll the searched loop out; the search
   restarts when the law appears or goes, and goes on from its best genome when the gains
   move. Without a law it runs on the measured torque, and no model prediction is made.
+  Where the planar trigonometric basis holds the arm, predictions roll that global arm out
+  closed with the law instead (:meth:`.case_one.LawKeeper.fit_trig`).
+- Case 'unknown': the arm and its servo fitted together by linear least squares on the
+  trigonometric basis (:class:`.case_three.ArmKeeper`) predict while they explain held-out
+  data; the search's model is published and predicts otherwise.
 - θ̇ of the buffered data is the centred derivative of θ when the observation says so.
 - A stream silent for ``stale_timeout`` pauses the search (one warning); a reset, a change
   of the settings' ``version`` or of the case (``case: auto`` follows the streams) restarts
@@ -57,7 +62,8 @@ from typing import Callable, Dict, List, Optional, Tuple
 import numpy as np
 
 from . import case_three
-from .case_one import arm_model, LawKeeper, search_segments
+from .case_one import LawKeeper, search_segments
+from .case_three import ArmKeeper
 from .controller import ControllerLaw
 from .identify import Evolution
 from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
@@ -168,6 +174,7 @@ class OnlineIdentification:
         # case 'torque': the law learned from torque and commands, the published model
         # closed with it
         self._laws = LawKeeper()
+        self._arm3 = ArmKeeper()  # case 'unknown': the linear closed loop on the trig basis
         self._loop: Optional[ClosedLoop] = None
         # the search
         self._evo: Optional[Evolution] = None
@@ -305,14 +312,17 @@ class OnlineIdentification:
             paired = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, True),
                                     estimate_velocity)
             law = self._update_law(paired, capture.time_origin) or self._laws.law
+        fraction, fitted = settings.validation_fraction, (False, None)
         if law is not None:  # the closed-loop search: θd shifted by the law's other terms
             segments = search_segments(paired, law)
-            ran, line = self._laws.fit_trig(paired, settings.validation_fraction, self._clock())
-            if ran:  # the trigonometric arm: it predicts where it holds the arm
-                self._reclose(line)
+            fitted = self._laws.fit_trig(paired, fraction, self._clock())
         else:
             segments = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, False),
                                       estimate_velocity)
+            if settings.case == 'unknown':
+                fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock())
+        if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
+            self._reclose(fitted[1])
         train, validation, seconds = split_validation(
             segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)
         if seconds < settings.min_window or not train:
@@ -338,11 +348,12 @@ class OnlineIdentification:
         return True
 
     def _reclose(self, line: Optional[Tuple[str, str]]) -> None:
-        """Log ``line``; close the published case-1 model with the law again for prediction."""
+        """Log ``line``; close the published model (case 1 or 3) again for prediction."""
         if line is not None:
             self._log(*line)
-        if self._model is not None and self._model.case == 'torque':
-            self._loop = self._laws.close(self._model)
+        if self._model is not None and self._model.case in ('torque', 'unknown'):
+            self._loop = (self._laws if self._model.case == 'torque' else
+                          self._arm3).close(self._model)
             self._events.append(LoopUpdate(self._model, self._loop))
 
     def _update_law(self, segments: List[Dataset], origin: float) -> Optional[ControllerLaw]:
@@ -496,14 +507,9 @@ class OnlineIdentification:
 
     def _publish(self, model: RKGNNModel, settings: OnlineSettings) -> None:
         law = self._laws.law
-        closed = None
-        if model.case == 'pd_gains' and settings.case == 'torque' and law is not None:
-            # a closed-loop search (case 'torque' with the learned law): publish the arm
-            closed = model
-            model = arm_model(closed, law, self._laws.theta,
-                              info=dict(closed.info, controller_law=law.to_dict()))
+        model, closed = self._laws.published(model, settings.case)
         gains = model.implied_gains()
-        loop = None
+        loop = self._arm3.close(model) if model.case == 'unknown' else None
         if model.case == 'torque' and law is not None:
             gains = (law.kp, law.kd)
             loop = self._laws.close(model, closed)

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Case 1's global predictor: the arm on the trigonometric basis, closed with the learned law.
+The global predictor of cases 1 and 3: the arm on the trigonometric basis, closed loop.
 
 The RBF model the online search evolves holds near the path it was fitted on and needs
 many generations to get there; on a servo with noisy encoders it stayed worse than
@@ -26,6 +26,14 @@ one least-squares fit of the buffered samples, a tenth of a second, and global.
 (:func:`~rkgnn_ros.core.integration.rkg.gill_stage`), so a 2 s prediction costs well
 under a millisecond instead of the ~80 ms of the numpy model.
 
+Case 3 (no torque, :func:`fit_closed_trig_loop`) has no torque to fit the arm to, but
+the closed loop M θ̈ + V + G + F = Kp e + Kd ė + Ki ∫e + c is linear in the arm's
+coefficients and the servo's gains together, up to one common factor
+(:class:`LinearDynamics`, case 'unknown' with ``integral``): one least-squares fit gives
+the arm and its servo (a PID or, with Ki fitted to zero, a PD; a gravity compensation is
+absorbed by G), globally. θ̇ in that fit is the centred derivative of θ, so a differenced
+velocity's noise does not reach θ̈.
+
 The law's command-only terms shift θd (:meth:`ControllerLaw.shift`); its integral term and
 its θ-terms on the measured θ (a gravity compensation) depend on the motion, and are found
 by Picard iteration: each pass rolls out with them evaluated along the previous pass
@@ -35,6 +43,7 @@ the predictor rolls either out alike.
 """
 
 import copy
+import dataclasses
 import math
 from typing import Optional, Sequence
 
@@ -42,14 +51,18 @@ from numba import njit
 import numpy as np
 
 from .controller_laws import ControllerLaw
-from .linear import LinearDynamics
+from .linear import LinearDynamics, samples_from_datasets
+from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..control.gate import paired_torques, torque_error
 from ..data import Dataset
+from ..differentiate import centred_derivative
 from ..integration.inputs import stage_inputs
 from ..integration.rkg import choose_substeps, gill_node, gill_stage
 from ..model.trig import TrigBasis
+from ..model.trig_dynamics import regressor
 
-__all__ = ['MAX_SUBSTEPS', 'PASSES', 'TrigLoop', 'fit_trig_loop', 'precompile_trig_loop']
+__all__ = ['KI_ZERO', 'MAX_SUBSTEPS', 'PASSES', 'TrigLoop', 'fit_closed_trig_loop',
+           'fit_trig_loop', 'precompile_trig_loop']
 
 #: Rollouts of :meth:`TrigLoop.simulate` when the law has an integral or θ-terms on θ.
 PASSES = 3
@@ -59,6 +72,11 @@ MAX_SUBSTEPS = 64
 
 #: A state component beyond this magnitude ends a rollout as diverged.
 DIVERGED = 1e6
+
+#: Case 3: an integral gain below this share of Kp (1/s), or negative, is a fitted zero
+#: (on a PD servo's data the fit gives |Ki| / Kp of 1e-3 to 3e-3 1/s; the PID servos of
+#: ``bench/online_servos.py`` have 0.5 1/s).
+KI_ZERO = 0.01
 
 
 @njit(cache=True, nogil=True)
@@ -277,6 +295,61 @@ def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
     if predicted.shape[0]:
         loop.torque_error = float(np.max(torque_error(predicted, reference)))
     return loop
+
+
+def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float,
+                         min_samples: int = 200) -> Optional[TrigLoop]:
+    """
+    Return case 3's arm and servo fitted together on ``segments`` (module docstring).
+
+    ``segments`` (oldest first, with ``theta_d``, ``theta_d_dot``) are split as the search's
+    data (:func:`~rkgnn_ros.core.fitting.validation.split_validation`); the fit uses the
+    older part and :attr:`TrigLoop.torque_error` is the newer part's closed-loop equation
+    error: RMS of M θ̈ + V + G + F minus the servo's torque over the servo torque's standard
+    deviation, worst joint. The law's integral term holds at the end of ``segments``; ∫e
+    runs on from one segment to the next (a gap adds nothing to it). None with fewer than
+    ``min_samples`` training samples or when the fit fails or gives a Kp <= 0.
+    """
+    segments = [_centred_velocity(seg) for seg in segments
+                if seg.theta_d is not None and seg.theta_d_dot is not None and seg.n_samples >= 5]
+    train, validation, _ = split_validation(segments, validation_fraction, MIN_SEGMENT_SAMPLES)
+    n_train = sum(seg.n_samples for seg in train)
+    if n_train < min_samples:
+        return None
+    n = train[0].n_joints
+    basis = TrigBasis(n, planar=True, tied=True)
+    try:
+        arm = LinearDynamics(basis, certify=False, integral=True).fit(train, 'unknown')
+        every = samples_from_datasets(train + validation, 'unknown', window=arm.window_,
+                                      integral=True)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    kp, kd, ki, bias = arm.kp_, arm.kd_, arm.ki_, arm.bias_
+    if not (np.all(np.isfinite(arm._full_coef)) and np.all(kp > 0.0)):
+        return None
+    grown = every.error_integral[-1]
+    zero = ki < KI_ZERO * kp
+    law_ki = np.where(zero, 0.0, ki)
+    law = ControllerLaw(
+        kp=kp, kd=kd, ki=law_ki, bias=bias + np.where(zero, ki * grown, 0.0),
+        integral_term=law_ki * grown, feedforward=np.zeros(n),
+        theta_weights=np.zeros((n, 0)), theta_input='desired', features=None,
+        fit_ratio=np.zeros(n), samples=n_train)
+    loop = TrigLoop(arm, law)
+    held = every.take(slice(n_train, None))
+    if held.n_samples:
+        residual = regressor(basis, held.theta, held.theta_dot, held.theta_ddot,
+                             arm.coulomb_velocity, held.error, held.error_rate,
+                             held.error_integral) @ arm._full_coef
+        servo = kp * held.error + kd * held.error_rate + ki * held.error_integral + bias
+        spread = np.maximum(servo.std(axis=0), 1e-12)
+        loop.torque_error = float(np.max(np.sqrt(np.mean(residual ** 2, axis=0)) / spread))
+    return loop
+
+
+def _centred_velocity(seg: Dataset) -> Dataset:
+    """Return ``seg`` with θ̇ the centred derivative of θ (lag-free; see the module)."""
+    return dataclasses.replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt))
 
 
 def precompile_trig_loop(n_joints: int = 3) -> None:

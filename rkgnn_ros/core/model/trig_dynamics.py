@@ -61,17 +61,23 @@ class Layout(NamedTuple):
     kp: Optional[slice]
     kd: Optional[slice]
     size: int
+    ki: Optional[slice] = None
+    bias: Optional[slice] = None
 
     @classmethod
-    def of(cls, basis: TrigBasis, controller: bool = False) -> 'Layout':
-        """Return the layout [M entries | U | f_v | f_c (| Kp | Kd)] for a basis."""
+    def of(cls, basis: TrigBasis, controller: bool = False,
+           integral: bool = False) -> 'Layout':
+        """Return the layout [M entries | U | f_v | f_c (| Kp | Kd (| Ki | c))] for a basis."""
         n = basis.n_joints
         a = basis.n_mass_coefficients
         b = a + basis.n_potential_coefficients
         kp = slice(b + 2 * n, b + 3 * n) if controller else None
         kd = slice(b + 3 * n, b + 4 * n) if controller else None
+        integral = controller and integral
+        ki = slice(b + 4 * n, b + 5 * n) if integral else None
+        bias = slice(b + 5 * n, b + 6 * n) if integral else None
         return cls(slice(0, a), slice(a, b), slice(b, b + n), slice(b + n, b + 2 * n), kp, kd,
-                   b + (4 if controller else 2) * n)
+                   b + (6 if integral else 4 if controller else 2) * n, ki, bias)
 
     def groups(self, basis: TrigBasis) -> List[slice]:
         """Return the coefficient groups the ridge weight is scaled per."""
@@ -83,12 +89,12 @@ class Layout(NamedTuple):
                 out.append(slice(start, start + ix.size))
                 start += ix.size
         out += [self.potential, self.viscous, self.coulomb]
-        out += [s for s in (self.kp, self.kd) if s is not None]
+        out += [s for s in (self.kp, self.kd, self.ki, self.bias) if s is not None]
         return out
 
 
 def regressor(basis: TrigBasis, theta, theta_dot, theta_ddot, coulomb_velocity: float,
-              error=None, error_rate=None) -> np.ndarray:
+              error=None, error_rate=None, error_integral=None) -> np.ndarray:
     """
     Return Y with ``Y @ w`` the inverse dynamics M θ̈ + V + G + F of coefficients w.
 
@@ -103,6 +109,9 @@ def regressor(basis: TrigBasis, theta, theta_dot, theta_ddot, coulomb_velocity: 
     error, error_rate : array_like, shape (N, n), optional
         θd - θ and θ̇d - θ̇: appends the controller's columns -diag(e), -diag(ė), so that
         ``Y @ [w, kp, kd]`` is the dynamics minus the PD torque (case 3).
+    error_integral : array_like, shape (N, n), optional
+        ∫(θd - θ) dt (with ``error``): appends -diag(∫e) and -I, so that
+        ``Y @ [w, kp, kd, ki, c]`` is the dynamics minus the PID torque with its constant.
 
     Returns
     -------
@@ -117,7 +126,7 @@ def regressor(basis: TrigBasis, theta, theta_dot, theta_ddot, coulomb_velocity: 
     if n != basis.n_joints:
         raise ValueError(f'theta has {n} joints, the basis {basis.n_joints}')
     controller = error is not None
-    lay = Layout.of(basis, controller)
+    lay = Layout.of(basis, controller, error_integral is not None)
     out = np.zeros((n_samples, n, lay.size))
     phi, grad = basis.values(theta, gradient=True)              # (N, F), (N, F, n)
     phi_dot = np.einsum('tfk,tk->tf', grad, qd)
@@ -144,6 +153,9 @@ def regressor(basis: TrigBasis, theta, theta_dot, theta_ddot, coulomb_velocity: 
     if controller:
         out[:, joints, lay.kp.start + joints] = -np.asarray(error, dtype=float)
         out[:, joints, lay.kd.start + joints] = -np.asarray(error_rate, dtype=float)
+    if lay.ki is not None:
+        out[:, joints, lay.ki.start + joints] = -np.asarray(error_integral, dtype=float)
+        out[:, joints, lay.bias.start + joints] = -1.0
     return out
 
 
@@ -183,6 +195,9 @@ class TrigDynamics:
         Friction coefficients.
     kp_, kd_ : ndarray, shape (n,) or None
         The known or identified PD gains of the arm's controller (None in case 'torque').
+    ki_, bias_ : ndarray, shape (n,) or None
+        Case 3 with an integral: the identified Ki and the constant c of the controller
+        torque Kp e + Kd ė + Ki ∫e + c, ∫e from the start of the fitted data (else None).
     inertia_scale_, min_eigenvalue_ : ndarray, shape (n,) or None; float
         S = diag(inertia_scale_) and ε of the floor λ_min(S M S) >= ε that
         :meth:`mass_matrix` guards (None: no floor).
@@ -211,6 +226,9 @@ class TrigDynamics:
         self._w_pot[self.basis.potential_index] = coef[lay.potential]
         self.viscous_ = coef[lay.viscous].copy()
         self.coulomb_ = coef[lay.coulomb].copy()
+        self.ki_ = self.bias_ = None
+        if lay.ki is not None:
+            self.ki_, self.bias_ = coef[lay.ki].copy(), coef[lay.bias].copy()
         if lay.kp is not None:
             self.kp_, self.kd_ = coef[lay.kp].copy(), coef[lay.kd].copy()
         elif case == 'pd_gains':
