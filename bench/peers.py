@@ -29,7 +29,11 @@ Metrics: ``heldout_nrmse_10s``, the θ-NRMSE (RMSE / std of the measured θ, mea
 joints) of a 10 s open-loop rollout from each held-out run's first measured state, averaged
 over the held-out runs; ``ahead_nrmse_2s``, the same for the 2 s-ahead prediction from
 start points every second. Inputs over a rollout: case 1 the measured torque (linear
-between samples); cases 2-3 the reference.
+between samples); cases 2-3 the reference. ``torque_nrmse`` (methods with an inverse
+dynamics): RMSE / std of the applied torque of M θ̈ + V + G + F on the held-out runs'
+measured states, θ̈ by the Savitzky-Golay derivative of θ̇ (:func:`theta_ddot`), mean over
+joints and runs; in case 3 after the scale is fixed by the true mean Kp (only the ratios
+are identifiable without torque).
 
 Methods (``null`` where a method cannot do a case):
 - ``true_model``: the simulator itself (the floor);
@@ -38,6 +42,12 @@ Methods (``null`` where a method cannot do a case):
 - ``rkgnn_best``: our structure, equation-error start and CMA-ES, within the same 20 000
   evaluations (an equation-error residual evaluation counted as one);
 - ``rkgnn_best_2min``: ``identify.fit_best`` with 120 s of wall time (noiseless only);
+- ``rkgnn_trig``: the global model the identifier predicts with in cases 1 and 3: the arm
+  on the planar trigonometric basis fitted by linear least squares
+  (:class:`~rkgnn_ros.core.fitting.linear.LinearDynamics`; case 1 on the torque, case 2 on
+  the known gains' torque, case 3 arm and servo together with Ki and c,
+  :func:`~rkgnn_ros.core.fitting.trig_loop.fit_closed_trig_loop`), closed with the servo
+  (cases 2-3: the compiled RKG loop; a held-out run starts with its integral at zero);
 - ``pysindy``: SINDy with control (u = τ in case 1, u = [θd, θ̇d] in cases 2-3) on x = [θ, θ̇],
   polynomial (degree 2) + Fourier library, STLSQ threshold chosen on the newest 20 % of
   the fitting run, rollout with its ``simulate``;
@@ -52,6 +62,7 @@ A rollout that diverges scores ``null`` with ``"diverged"`` listed. Writes
 """
 
 import argparse
+from dataclasses import replace
 import datetime
 import json
 import math
@@ -65,9 +76,13 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
+from rkgnn_ros.core.fitting.controller_laws import ControllerLaw  # noqa: E402
 from rkgnn_ros.core.fitting.identify import Evolution, fit_best, nrmse  # noqa: E402
+from rkgnn_ros.core.fitting.linear import LinearDynamics  # noqa: E402
 from rkgnn_ros.core.fitting.refine import refine_equation_error  # noqa: E402
+from rkgnn_ros.core.fitting.trig_loop import fit_closed_trig_loop, TrigLoop  # noqa: E402
 from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.model.trig import TrigBasis  # noqa: E402
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.simulate import NoiseModel, simulate, simulate_open_loop  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import (Chirp, hanging_pose, heldout_reference,  # noqa: E402
@@ -75,8 +90,8 @@ from rkgnn_ros.core.sim.trajectories import (Chirp, hanging_pose, heldout_refere
 from scipy.signal import savgol_filter  # noqa: E402
 
 CASES = {'1': 'torque', '2': 'pd_gains', '3': 'unknown'}
-METHODS = ('true_model', 'rkgnn_paper_ea', 'rkgnn_best', 'rkgnn_best_2min', 'pysindy',
-           'least_squares', 'unstructured_rbf', 'hold_last', 'follow_reference')
+METHODS = ('true_model', 'rkgnn_paper_ea', 'rkgnn_best', 'rkgnn_best_2min', 'rkgnn_trig',
+           'pysindy', 'least_squares', 'unstructured_rbf', 'hold_last', 'follow_reference')
 N = 3
 RATE = 100.0
 EVAL_BUDGET = 20_000
@@ -211,7 +226,6 @@ def rkgnn_best(case, fit, kp, kd, budget, seed):
     """Equation-error start + CMA-ES around it, within ``budget`` evaluations."""
     units = {'1': 5, '2': 5, '3': 8}[case]
     spec = NetworkSpec.recommended(N, CASES[case])
-    from dataclasses import replace
     spec = replace(spec, theta_units=units)
     evo = Evolution(spec, fit, 'cmaes', {'sigma': 0.05}, seed, kp, kd)
     nfev = min(500, budget // 4)
@@ -225,6 +239,55 @@ def rkgnn_best(case, fit, kp, kd, budget, seed):
         stats = evo.step()
         used += int(stats['population'])
     return evo.best_model(fit.joint_names), used
+
+
+def pd_law(kp, kd, bias=None):
+    """Return a PD :class:`ControllerLaw` (no integral, no θ-terms)."""
+    zero = np.zeros(len(kp))
+    return ControllerLaw(kp=np.asarray(kp, float), kd=np.asarray(kd, float), ki=zero,
+                         bias=zero if bias is None else np.asarray(bias, float),
+                         integral_term=zero, feedforward=zero, theta_weights=np.zeros((N, 0)),
+                         theta_input='desired', features=None, fit_ratio=zero, samples=0)
+
+
+def rkgnn_trig(case, fit, kp, kd):
+    """
+    Return (predict, inverse dynamics) of the linear fit on the trigonometric basis.
+
+    The inverse dynamics is in N m (case 3: scaled by the true mean Kp over the fitted one).
+    """
+    basis = TrigBasis(N, planar=True, tied=True)
+    if case == '3':
+        loop = fit_closed_trig_loop([fit], 0.2)
+        law = replace(loop.law, integral_term=np.zeros(N))  # a new run: no integral yet
+        loop = TrigLoop(loop.arm, law)
+        true_kp = np.diag(PDController.paper().kp)
+        arm = loop.arm.scaled(float(np.mean(true_kp) / np.mean(law.kp)))
+    else:
+        arm = LinearDynamics(basis, certify=False).fit(
+            [fit], CASES[case], *((kp, kd) if case == '2' else ()))
+        loop = TrigLoop(arm, pd_law(kp, kd)) if case == '2' else None
+
+    def predict(name, data, k0, steps):
+        rows = slice(k0, k0 + steps + 1)
+        t = data.t[rows] - data.t[k0]
+        if loop is None:
+            return arm.simulate(data.state[k0], t, tau=data.tau[rows])[:, :N]
+        theta_d, theta_d_dot = refs_of[name].evaluate(data.t[rows])
+        return loop.simulate(data.state[k0], t, theta_d, theta_d_dot)[:, :N]
+    refs_of = {}
+    predict.refs = refs_of
+    return predict, arm.inverse_dynamics
+
+
+def torque_nrmse(inverse, held, noisy):
+    """Return RMSE / std of the applied torque of ``inverse`` on ``held`` (mean)."""
+    out = []
+    for data in held.values():
+        tau = inverse(data.theta, data.theta_dot, theta_ddot(data, noisy))
+        rmse = np.sqrt(np.mean((tau - data.tau) ** 2, axis=0))
+        out.append(float(np.mean(rmse / np.std(data.tau, axis=0))))
+    return float(np.mean(out))
 
 
 def pysindy_predictor(case, fit, noisy, log):
@@ -329,6 +392,8 @@ def least_squares_predictor(fit, noisy):
         # the arm alone (no PD stiffness) is not stiff: one RK4 step per sample
         return rk4(forward, data.state[k0], t, linear_inputs(t, data.tau[rows]),
                    substeps=1)[:, :N]
+    predict.inverse = lambda theta, theta_dot, acc: arm.base_regressor(
+        theta, theta_dot, acc) @ p
     return predict
 
 
@@ -381,9 +446,11 @@ def run(noisy, args, log, table, on_case=None):
         row = {}
         gains = (kp, kd) if case == '2' else (None, None)
 
-        def record(method, predictor, fitted_s=0.0, **extra):
+        def record(method, predictor, fitted_s=0.0, inverse=None, **extra):
             t0 = time.perf_counter()
             ten, ahead = score(predictor, held) if predictor is not None else (None, None)
+            if inverse is not None:
+                extra['torque_nrmse'] = torque_nrmse(inverse, held, noisy)
             row[method] = {'heldout_nrmse_10s': ten, 'ahead_nrmse_2s': ahead,
                            'fit_s': round(fitted_s, 1),
                            'eval_s': round(time.perf_counter() - t0, 1),
@@ -392,7 +459,8 @@ def run(noisy, args, log, table, on_case=None):
                 'diverged' if ten is None else f'{ten:.2%} (2 s ahead {ahead:.2%})')
             log(f"  case {case} {'noisy' if noisy else 'clean'} {method:18s} {shown}")
 
-        record('true_model', true_model(case, fit, refs))
+        record('true_model', true_model(case, fit, refs),
+               inverse=PlanarArm.paper().inverse_dynamics)
         if 'rkgnn_paper_ea' not in args.methods:
             pass
         elif noisy:
@@ -418,6 +486,12 @@ def run(noisy, args, log, table, on_case=None):
                            seed=args.seed)
             record('rkgnn_best_2min', rkgnn_predictor(res.model, case, refs),
                    time.perf_counter() - t0)
+        if 'rkgnn_trig' in args.methods:
+            t0 = time.perf_counter()
+            predictor, inverse = rkgnn_trig(case, fit, kp, kd)
+            fitted = time.perf_counter() - t0
+            predictor.refs.update(refs)
+            record('rkgnn_trig', predictor, fitted, inverse=inverse)
         if 'pysindy' in args.methods:
             t0 = time.perf_counter()
             record('pysindy', pysindy_predictor(case, fit, noisy, log),
@@ -426,8 +500,9 @@ def run(noisy, args, log, table, on_case=None):
             pass
         elif case == '1':
             t0 = time.perf_counter()
-            record('least_squares', least_squares_predictor(fit, noisy),
-                   time.perf_counter() - t0)
+            predictor = least_squares_predictor(fit, noisy)
+            record('least_squares', predictor, time.perf_counter() - t0,
+                   inverse=predictor.inverse)
         else:
             record('least_squares', None, cannot='needs the measured torque (case 1)')
         if 'unstructured_rbf' in args.methods:

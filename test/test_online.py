@@ -425,6 +425,9 @@ def test_case_unknown_predicts_with_the_linear_closed_loop_where_it_holds():
               settings(model_publish_period=0.2, optimizer_settings={'population_size': 4}))
     rig.run(3)
     assert rig.lines('predictions roll out the closed loop fitted linearly')
+    # the loop predicts at once, before the search has published a model
+    first = rig.of(LoopUpdate)[0]
+    assert first.model is None and isinstance(first.loop.loop, TrigLoop)
     rig.run(3, dt=0.3)
     update = rig.of(ModelUpdate)[-1]
     assert update.model.case == 'unknown'          # ~/model stays the search's model

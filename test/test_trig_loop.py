@@ -172,3 +172,19 @@ def test_case_threes_keeper_predicts_only_while_the_loop_explains_held_out_data(
     assert keeper.close(object()) is None
     assert keeper.fit(good, 0.2, 50.0, REFIT_S + RETRY_S - 0.1) == (False, None)
     assert keeper.fit(good, 0.2, 50.0, REFIT_S + RETRY_S)[0] and keeper.loop is not None
+
+
+def test_case_threes_keeper_moves_the_integral_on_between_fits():
+    data = run(Servo(KP, KD, ki=[20.0, 20.0, 20.0]), 24.0)
+    data = replace(data, tau=None)
+    keeper = ArmKeeper()
+    assert keeper.fit([data.slice(0, 2000)], 0.2, 0.0, 0.0)[0]
+    law = keeper.loop.law
+    assert np.all(law.ki > 0.0) and keeper.time == pytest.approx(data.t[1999])
+    # 2 s later (not due for a refit): the integral term grows by Ki ∫e over the new samples
+    ran, line = keeper.fit([data.slice(0, 2200)], 0.2, 0.0, 1.0)
+    assert ran and line is None and keeper.time == pytest.approx(data.t[2199])
+    e = data.theta_d[2000:2200] - data.theta[2000:2200]
+    np.testing.assert_allclose(keeper.loop.law.integral_term,
+                               law.integral_term + law.ki * e.sum(axis=0) * data.dt)
+    assert keeper.loop.arm is not None and keeper.loop.law.kp is law.kp

@@ -144,7 +144,7 @@ class ScoreReport(NamedTuple):
 
 
 class _Slot(NamedTuple):
-    model: RKGNNModel
+    model: Optional[RKGNNModel]    # None: a closed loop predicts before any model (case 3)
     loop: Optional[ClosedLoop]
 
 
@@ -214,14 +214,23 @@ class Predictor:
         """
         slot = _Slot(model, loop)
         with self._slots_lock:
-            if self._model is None:
+            if self._model is None or self._model.model is None:
                 self._model = slot
             else:
                 self._pending = slot
 
     def update_loop(self, model: RKGNNModel, loop: Optional[ClosedLoop]) -> None:
-        """Predict ``model`` with ``loop`` (a new learned law) wherever it is held."""
+        """
+        Predict ``model`` with ``loop`` (a new learned law) wherever it is held.
+
+        ``model`` None: ``loop`` predicts until the first model arrives (case 3's linear
+        closed loop needs no searched model); ``loop`` None then withdraws it.
+        """
         with self._slots_lock:
+            if model is None:
+                if self._model is None or self._model.model is None:
+                    self._model = None if loop is None else _Slot(None, loop)
+                return
             for name in ('_model', '_candidate', '_pending'):
                 slot = getattr(self, name)
                 if slot is not None and slot.model is model:
@@ -378,10 +387,14 @@ class Predictor:
     def _rollout(self, slot: Optional[_Slot], joints, x0, horizon: _Horizon, t0: float,
                  check: SelfCheck) -> Optional[Tuple[np.ndarray, np.ndarray]]:
         """Return ``(θ, θ̇)`` (K, n) of a model's prediction, None if it has none."""
-        if (slot is None or horizon.theta_d is None or slot.model.joint_names != joints
-                or not self._ready.is_set()):
+        if slot is None or horizon.theta_d is None:
             return None
         model, loop = slot
+        if model is None:  # a closed loop alone (its kernel is compiled at start-up)
+            if loop is None or loop.loop.n_joints != len(joints):
+                return None
+        elif model.joint_names != joints or not self._ready.is_set():
+            return None
         n = len(joints)
         if loop is not None and loop.model is model:  # closed with a fitted servo law
             law = loop.loop.law

@@ -59,8 +59,8 @@ from .trig_loop import fit_closed_trig_loop, TrigLoop
 from ..data import Dataset
 from ..differentiate import centred_derivative
 
-__all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'REFIT_S', 'RETRY_S', 'Start',
-           'fit_gains', 'start_genome']
+__all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_LOOP_SAMPLES', 'REFIT_S',
+           'RETRY_S', 'Start', 'fit_gains', 'start_genome']
 
 #: The gains fitted on the whole data and on its newest half must agree this well.
 AGREEMENT_RTOL = 0.15
@@ -74,7 +74,10 @@ MAX_LOOP_ERROR = 0.1
 REFIT_S = 5.0
 
 #: Seconds after which a linear closed loop that did not hold is fitted again.
-RETRY_S = 10.0
+RETRY_S = 5.0
+
+#: Training samples before the linear closed loop is tried.
+MIN_LOOP_SAMPLES = 200
 
 
 def _linear_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.ndarray]]:
@@ -189,7 +192,9 @@ class ArmKeeper:
     Case 3's linear closed loop over the refreshes of the data (module docstring).
 
     ``loop`` is the :class:`~rkgnn_ros.core.fitting.trig_loop.TrigLoop` that predicts (None:
-    the search's model predicts) and ``time`` the stamp (s) its integral term refers to.
+    the search's model predicts) and ``time`` the stamp (s) its law's integral term refers
+    to: moved on to the newest data at every call, so a prediction only adds the error
+    integral of the last moments (the self-check's record reaches back only so far).
     """
 
     def __init__(self):
@@ -202,16 +207,24 @@ class ArmKeeper:
         """
         Fit on ``segments`` (``origin``: the stamp of their t = 0) if due at clock ``now``.
 
-        Due :data:`REFIT_S` after the last fit while the loop holds, :data:`RETRY_S` while it
-        does not. Returns whether it was fitted, and the (level, text) to log when whether
-        it predicts changed.
+        Due :data:`REFIT_S` after the last fit while the loop holds, :data:`RETRY_S` after a
+        fit that did not hold, and at every call while the data are too few to try. Between
+        fits the law's integral term is moved on to the data's end. Returns whether the loop
+        changed (fitted or moved on), and the (level, text) to log when whether it predicts
+        changed.
         """
+        segments = [seg for seg in segments if seg.theta_d is not None]
+        if not segments:
+            return False, None
         wait = REFIT_S if self.loop is not None else RETRY_S
-        if now - self._tried < wait or not segments:
+        if now - self._tried < wait:
+            return self._advance(segments, origin), None
+        samples = sum(seg.n_samples for seg in segments) * (1.0 - validation_fraction)
+        if self.loop is None and samples < MIN_LOOP_SAMPLES:
             return False, None
         self._tried = now
         before = self.loop is not None
-        loop = fit_closed_trig_loop(segments, validation_fraction)
+        loop = fit_closed_trig_loop(segments, validation_fraction, MIN_LOOP_SAMPLES)
         why = 'too few samples or a failed fit'
         if loop is not None and not loop.torque_error <= MAX_LOOP_ERROR:
             why = f'held-out equation error {loop.torque_error:.1%}'
@@ -232,8 +245,28 @@ class ArmKeeper:
                           'linear closed loop)')
         return True, None
 
+    def _advance(self, segments: Sequence[Dataset], origin: float) -> bool:
+        """Move the law's integral term on to the end of ``segments``; return whether it did."""
+        end = origin + float(segments[-1].t[-1])
+        if self.loop is None or not end > self.time:
+            return False
+        law = self.loop.law
+        if np.any(law.ki != 0.0):
+            for seg in segments:
+                t = origin + seg.t
+                keep = (t > self.time) & (t <= end)
+                if np.any(keep):
+                    law = law.advance_integral(seg.theta[keep], seg.theta_d[keep], seg.dt)
+            self.loop = self.loop.with_law(law)
+        self.time = end
+        return True
+
     def close(self, model) -> Optional[PredictionLoop]:
-        """Return ``model`` with the linear closed loop for prediction (None: there is none)."""
-        if self.loop is None or model is None or model.n_joints != self.loop.n_joints:
+        """
+        Return ``model`` with the linear closed loop for prediction (None: there is none).
+
+        ``model`` may be None: the loop predicts before the search has published a model.
+        """
+        if self.loop is None or (model is not None and model.n_joints != self.loop.n_joints):
             return None
         return PredictionLoop(model, self.loop, self.time)

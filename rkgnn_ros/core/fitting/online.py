@@ -171,11 +171,9 @@ class OnlineIdentification:
         self._last_model_pub = -math.inf if published is None else clock()
         self._start_model = published
         self._resume = None  # (genome, scales) a rebuilt search goes on from
-        # case 'torque': the law learned from torque and commands, the published model
-        # closed with it
-        self._laws = LawKeeper()
+        self._laws = LawKeeper()  # case 'torque': the law learned from torque and commands
         self._arm3 = ArmKeeper()  # case 'unknown': the linear closed loop on the trig basis
-        self._loop: Optional[ClosedLoop] = None
+        self._loop: Optional[ClosedLoop] = None  # what the published model predicts with
         # the search
         self._evo: Optional[Evolution] = None
         self._evo_version = -1
@@ -351,10 +349,11 @@ class OnlineIdentification:
         """Log ``line``; close the published model (case 1 or 3) again for prediction."""
         if line is not None:
             self._log(*line)
-        if self._model is not None and self._model.case in ('torque', 'unknown'):
-            self._loop = (self._laws if self._model.case == 'torque' else
-                          self._arm3).close(self._model)
-            self._events.append(LoopUpdate(self._model, self._loop))
+        model = self._model  # None: case 3's loop may predict before any model
+        if model is None or model.case in ('torque', 'unknown'):
+            self._loop = (self._laws if model is not None and model.case == 'torque' else
+                          self._arm3).close(model)
+            self._events.append(LoopUpdate(model, self._loop))
 
     def _update_law(self, segments: List[Dataset], origin: float) -> Optional[ControllerLaw]:
         """

@@ -136,9 +136,9 @@ class Status(NamedTuple):
 
 
 class ClosedLoop(NamedTuple):
-    """A published case-1 ``model`` and, for prediction, the closed loop with the learned law."""
+    """A published ``model`` and, for prediction, the closed loop with a fitted servo law."""
 
-    model: RKGNNModel
+    model: Optional[RKGNNModel]  # None: case 3's linear loop, before any model is published
     loop: ControllerLoop      # rolls the closed loop out (``ControllerLoop.simulate``)
     integral_time: float      # stamp time (s) at which ``loop.law.integral_term`` holds
 
@@ -158,7 +158,7 @@ class ModelUpdate(NamedTuple):
 class LoopUpdate(NamedTuple):
     """The fitted law changed: predict ``model`` with ``loop`` (None: open loop)."""
 
-    model: RKGNNModel
+    model: Optional[RKGNNModel]  # None: ``loop`` predicts until a model is published
     loop: Optional[ClosedLoop]
 
 

@@ -212,6 +212,14 @@ class TrigLoop:
         """Return the number of joints n."""
         return self.arm.n_joints
 
+    def with_law(self, law: ControllerLaw) -> 'TrigLoop':
+        """Return this loop with ``law`` (the same gains; e.g. its integral term moved on)."""
+        if not (np.array_equal(law.kp, self.law.kp) and np.array_equal(law.kd, self.law.kd)):
+            raise ValueError('with_law keeps the gains: fit a new loop for other gains')
+        out = copy.copy(self)
+        out.law = law
+        return out
+
     def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
         n = self.n_joints
         dt = float(t[-1] - t[0]) / (t.size - 1)
