@@ -61,8 +61,8 @@ from ..integration.rkg import choose_substeps, gill_node, gill_stage
 from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
 
-__all__ = ['KI_ZERO', 'MAX_SUBSTEPS', 'PASSES', 'TrigLoop', 'fit_closed_trig_loop',
-           'fit_trig_loop', 'precompile_trig_loop']
+__all__ = ['INTEGRAL_GAIN', 'INTEGRAL_MIN_ERROR', 'KI_ZERO', 'MAX_SUBSTEPS', 'PASSES',
+           'TrigLoop', 'fit_closed_trig_loop', 'fit_trig_loop', 'precompile_trig_loop']
 
 #: Rollouts of :meth:`TrigLoop.simulate` when the law has an integral or θ-terms on θ.
 PASSES = 3
@@ -77,6 +77,13 @@ DIVERGED = 1e6
 #: (on a PD servo's data the fit gives |Ki| / Kp of 1e-3 to 3e-3 1/s; the PID servos of
 #: ``bench/online_servos.py`` have 0.5 1/s).
 KI_ZERO = 0.01
+
+#: Case 3: the PID form is kept when its held-out error is this many times smaller than the
+#: PD form's ...
+INTEGRAL_GAIN = 2.0
+
+#: ... and the PD form's is above this (a PD servo's data: 0.8-4.4 % on the paper's arm).
+INTEGRAL_MIN_ERROR = 0.01
 
 
 @njit(cache=True, nogil=True)
@@ -314,28 +321,45 @@ def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float
     data (:func:`~rkgnn_ros.core.fitting.validation.split_validation`); the fit uses the
     older part and :attr:`TrigLoop.torque_error` is the newer part's closed-loop equation
     error: RMS of M θ̈ + V + G + F minus the servo's torque over the servo torque's standard
-    deviation, worst joint. The law's integral term holds at the end of ``segments``; ∫e
-    runs on from one segment to the next (a gap adds nothing to it). None with fewer than
-    ``min_samples`` training samples or when the fit fails or gives a Kp <= 0.
+    deviation, worst joint. Two forms are fitted, a PD servo and a PID with a constant
+    (Ki ∫e + c); the PID is kept only where it explains the held-out data clearly better
+    (:data:`INTEGRAL_GAIN` times smaller error, from a PD error above
+    :data:`INTEGRAL_MIN_ERROR`): over a limited range of motion c trades with the slow
+    gravity terms, which would leave the closed loop right and the arm's torque wrong. The
+    law's integral term holds at the end of ``segments``; ∫e runs on from one segment to the
+    next (a gap adds nothing to it). None with fewer than ``min_samples`` training samples
+    or when both fits fail or give a Kp <= 0.
     """
     segments = [_centred_velocity(seg) for seg in segments
                 if seg.theta_d is not None and seg.theta_d_dot is not None and seg.n_samples >= 5]
     train, validation, _ = split_validation(segments, validation_fraction, MIN_SEGMENT_SAMPLES)
-    n_train = sum(seg.n_samples for seg in train)
-    if n_train < min_samples:
+    if sum(seg.n_samples for seg in train) < min_samples:
         return None
-    n = train[0].n_joints
+    pd = _closed_form(train, validation, integral=False)
+    if pd is not None and not pd.torque_error > INTEGRAL_MIN_ERROR:
+        return pd
+    pid = _closed_form(train, validation, integral=True)
+    if pd is None or (pid is not None and pid.torque_error < pd.torque_error / INTEGRAL_GAIN):
+        return pid
+    return pd
+
+
+def _closed_form(train, validation, integral: bool) -> Optional[TrigLoop]:
+    """Return the PD (or PID: ``integral``) closed loop fitted on ``train``, scored after."""
+    n, n_train = train[0].n_joints, sum(seg.n_samples for seg in train)
     basis = TrigBasis(n, planar=True, tied=True)
     try:
-        arm = LinearDynamics(basis, certify=False, integral=True).fit(train, 'unknown')
+        arm = LinearDynamics(basis, certify=False, integral=integral).fit(train, 'unknown')
         every = samples_from_datasets(train + validation, 'unknown', window=arm.window_,
-                                      integral=True)
+                                      integral=integral)
     except (ValueError, np.linalg.LinAlgError):
         return None
-    kp, kd, ki, bias = arm.kp_, arm.kd_, arm.ki_, arm.bias_
+    kp, kd = arm.kp_, arm.kd_
     if not (np.all(np.isfinite(arm._full_coef)) and np.all(kp > 0.0)):
         return None
-    grown = every.error_integral[-1]
+    ki = bias = grown = np.zeros(n)
+    if integral:
+        ki, bias, grown = arm.ki_, arm.bias_, every.error_integral[-1]
     zero = ki < KI_ZERO * kp
     law_ki = np.where(zero, 0.0, ki)
     law = ControllerLaw(
@@ -349,7 +373,9 @@ def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float
         residual = regressor(basis, held.theta, held.theta_dot, held.theta_ddot,
                              arm.coulomb_velocity, held.error, held.error_rate,
                              held.error_integral) @ arm._full_coef
-        servo = kp * held.error + kd * held.error_rate + ki * held.error_integral + bias
+        servo = kp * held.error + kd * held.error_rate
+        if integral:
+            servo = servo + ki * held.error_integral + bias
         spread = np.maximum(servo.std(axis=0), 1e-12)
         loop.torque_error = float(np.max(np.sqrt(np.mean(residual ** 2, axis=0)) / spread))
     return loop
