@@ -20,6 +20,9 @@ paper's arm at 100 Hz) on a private ROS domain for ``--duration`` seconds, recor
 ``joint_states`` and ``identifier/prediction`` and scores every prediction's θ 2 s ahead
 against the motion that followed. The curve is that RMSE over 5 s bins of prediction start
 time, divided by the θ range; ``prediction_nrmse_60s`` is the bin ending at 60 s.
+``first_prediction_s`` and ``first_model_prediction_s``: seconds from the first
+``joint_states`` to the first prediction (a baseline while the model is not yet scored)
+and to the first one the model made (``header.frame_id`` 'model').
 Writes ``bench/results/online.json``.
 """
 
@@ -56,6 +59,7 @@ def run_case(case, duration, horizon, domain, log_dir):
             executor.spin_once(timeout_sec=0.1)
             nodes.check()
         snap = monitor.snapshot()
+        first_model = monitor.first_model
         executor.shutdown()
         monitor.node.destroy_node()
         rclpy.try_shutdown(context=ctx)
@@ -76,7 +80,12 @@ def run_case(case, duration, horizon, domain, log_dir):
     at60 = next((v for t, v in curve if abs(t - 60.0) < 1e-9), None)
     details = {'states': int(meas_t.size), 'predictions': len(t0s), 'scored': int(pt0.size),
                'generations': int(evolution[-1][0]) if len(evolution) else 0,
-               'exit_codes': codes}
+               'exit_codes': codes,
+               # from the first joint_states: to the first prediction (a baseline until the
+               # self-check has scored the model) and to the first the model made
+               'first_prediction_s': float(min(t0s) - start) if t0s else None,
+               'first_model_prediction_s': (None if first_model is None
+                                            else float(first_model - start))}
     return curve, at60, details
 
 

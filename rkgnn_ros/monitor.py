@@ -65,6 +65,7 @@ class Monitor:
         self.pred_t0, self.pred_off, self.pred_theta = [], [], []
         self.evolution = []
         self.labels = None
+        self.first_model = None  # stamp of the first prediction the model made (not a baseline)
         self.node.create_subscription(JointState, 'joint_states', self._on_state,
                                       qos_profile_sensor_data)
         self.node.create_subscription(JointTrajectory, 'identifier/prediction',
@@ -90,6 +91,8 @@ class Monitor:
                         for p in msg.points])
         theta = np.array([p.positions for p in msg.points], dtype=float)
         with self.lock:
+            if self.first_model is None and msg.header.frame_id.split(';')[0] == 'model':
+                self.first_model = self._stamp(msg.header)
             self.pred_t0.append(self._stamp(msg.header))
             self.pred_off.append(off)
             self.pred_theta.append(theta)

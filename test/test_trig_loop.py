@@ -170,8 +170,12 @@ def test_case_threes_keeper_predicts_only_while_the_loop_explains_held_out_data(
     ran, line = keeper.fit(wrong, 0.2, 50.0, REFIT_S)
     assert ran and keeper.loop is None and 'back' in line[1]
     assert keeper.close(object()) is None
-    assert keeper.fit(good, 0.2, 50.0, REFIT_S + RETRY_S - 0.1) == (False, None)
-    assert keeper.fit(good, 0.2, 50.0, REFIT_S + RETRY_S)[0] and keeper.loop is not None
+    # tried again RETRY_S later, then after twice as long
+    assert keeper.fit(wrong, 0.2, 50.0, REFIT_S + RETRY_S - 0.1) == (False, None)
+    assert keeper.fit(wrong, 0.2, 50.0, REFIT_S + RETRY_S) == (True, None)
+    later = REFIT_S + RETRY_S + 2.0 * RETRY_S
+    assert keeper.fit(good, 0.2, 50.0, later - 0.1) == (False, None)
+    assert keeper.fit(good, 0.2, 50.0, later)[0] and keeper.loop is not None
 
 
 def test_case_threes_keeper_moves_the_integral_on_between_fits():

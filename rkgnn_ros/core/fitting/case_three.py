@@ -60,7 +60,7 @@ from ..data import Dataset
 from ..differentiate import centred_derivative
 
 __all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_LOOP_SAMPLES', 'REFIT_S',
-           'RETRY_S', 'Start', 'fit_gains', 'start_genome']
+           'RETRY_MAX_S', 'RETRY_S', 'Start', 'fit_gains', 'start_genome']
 
 #: The gains fitted on the whole data and on its newest half must agree this well.
 AGREEMENT_RTOL = 0.15
@@ -73,8 +73,14 @@ MAX_LOOP_ERROR = 0.1
 #: change it little, and a fit costs the search 0.2-1 s).
 REFIT_S = 5.0
 
-#: Seconds after which a linear closed loop that did not hold is fitted again.
-RETRY_S = 5.0
+#: Seconds after which a linear closed loop that did not hold is fitted again; the wait
+#: doubles with every further fit that does not hold, up to :data:`RETRY_MAX_S` (early on
+#: a few more seconds of motion usually make it hold; an arm the planar basis cannot hold
+#: then costs the search one fit every half minute).
+RETRY_S = 1.0
+
+#: The longest wait between fits that do not hold (s).
+RETRY_MAX_S = 30.0
 
 #: Training samples before the linear closed loop is tried.
 MIN_LOOP_SAMPLES = 200
@@ -201,6 +207,7 @@ class ArmKeeper:
         self.loop: Optional[TrigLoop] = None
         self.time = math.nan
         self._tried = -math.inf
+        self._failures = 0  # fits in a row that did not hold
 
     def fit(self, segments: Sequence[Dataset], validation_fraction: float, origin: float,
             now: float) -> Tuple[bool, Optional[Tuple[str, str]]]:
@@ -208,7 +215,8 @@ class ArmKeeper:
         Fit on ``segments`` (``origin``: the stamp of their t = 0) if due at clock ``now``.
 
         Due :data:`REFIT_S` after the last fit while the loop holds, :data:`RETRY_S` after a
-        fit that did not hold, and at every call while the data are too few to try. Between
+        fit that did not hold (doubling with each further one, at most :data:`RETRY_MAX_S`),
+        and at every call while the data are too few to try. Between
         fits the law's integral term is moved on to the data's end. Returns whether the loop
         changed (fitted or moved on), and the (level, text) to log when whether it predicts
         changed.
@@ -216,7 +224,8 @@ class ArmKeeper:
         segments = [seg for seg in segments if seg.theta_d is not None]
         if not segments:
             return False, None
-        wait = REFIT_S if self.loop is not None else RETRY_S
+        wait = REFIT_S if self.loop is not None else min(
+            RETRY_MAX_S, RETRY_S * 2.0 ** max(0, self._failures - 1))
         if now - self._tried < wait:
             return self._advance(segments, origin), None
         samples = sum(seg.n_samples for seg in segments) * (1.0 - validation_fraction)
@@ -230,6 +239,7 @@ class ArmKeeper:
             why = f'held-out equation error {loop.torque_error:.1%}'
             loop = None
         self.loop = loop
+        self._failures = 0 if loop is not None else self._failures + 1
         if loop is not None:
             self.time = origin + float(segments[-1].t[-1])
             if not before:
