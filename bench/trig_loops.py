@@ -159,7 +159,7 @@ def main(argv=None):
                 shown = ('-' if c['prediction_2s'] is None else
                          f"{c['prediction_2s']:.3%} (ratio {c['ratio_to_follow_reference']:.4f},"
                          f' fit {c["fit_s"]} s)')
-                print(f"{servo:10s} {sensors:6s} case {case}: {shown}; follow reference "
+                print(f'{servo:10s} {sensors:6s} case {case}: {shown}; follow reference '
                       f"{cell['follow_reference']:.2%}", flush=True)
     results['worst_ratio_to_follow_reference'] = worst
     results['meta']['load_end'] = os.getloadavg()
