@@ -104,6 +104,7 @@ from rkgnn_ros.identification.publishing import (create_publishers, EVOLUTION_LA
 from rkgnn_ros.identification.subscriptions import quiet_events, subscribe_streams
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change
+from rkgnn_ros.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 from std_srvs.srv import SetBool, Trigger
 
 __all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main']
@@ -264,6 +265,7 @@ class IdentifierNode(Node):
 
 def main(args=None):
     """Run the identifier node until SIGINT or shutdown; return the exit code."""
+    dump_stacks_on_sigusr1()
     rclpy.init(args=args)
     node = None
     code = 0
@@ -282,10 +284,14 @@ def main(args=None):
         rclpy.logging.get_logger('identifier').fatal(f'refusing to start: {exc}')
         code = 1
     finally:
+        watchdog = TeardownWatchdog()
         if node is not None:
-            node.stop()
+            node.stop()                     # the worker joined, the model file written
+        watchdog.arm(code)
+        if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        watchdog.disarm()
     return code
 
 

@@ -116,6 +116,7 @@ from .core.sim.arm_simulator import ArmSimulator, SimulationDiverged
 from .core.sim.plant import PlanarArm
 from .parameters import Change
 from .sim_arm_parameters import build_config, BY_NAME, ConfigurationError, PARAMETERS
+from .stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 
 NODE_NAME = 'sim_arm'
 
@@ -451,6 +452,7 @@ class SimArm(Node):
 
 def main(args=None) -> int:
     """Run the node until SIGINT, shutdown or ``duration``; return the exit code."""
+    dump_stacks_on_sigusr1()
     rclpy.init(args=args)
     node = None
     exit_code = 0
@@ -469,9 +471,12 @@ def main(args=None) -> int:
         if rclpy.ok():
             raise
     finally:
+        watchdog = TeardownWatchdog()
+        watchdog.arm(exit_code)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        watchdog.disarm()
     return exit_code
 
 

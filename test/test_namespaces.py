@@ -56,6 +56,24 @@ def _config(name):
     return os.path.join(get_package_share_directory('rkgnn_ros'), 'config', name)
 
 
+def _exit_code(process, log, timeout=60.0):
+    """Return the exit code; a node still running after ``timeout`` dumps its stacks."""
+    try:
+        return process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.send_signal(signal.SIGUSR1)   # rkgnn_ros.stacks: every thread's stack
+        try:
+            process.wait(timeout=3.0)
+        except subprocess.TimeoutExpired:
+            pass
+        return f'still running {timeout:.0f} s after SIGINT ({log})'
+
+
+def _tail(path, lines=60):
+    with open(path, errors='replace') as f:
+        return ''.join(f.readlines()[-lines:])
+
+
 @pytest.fixture
 def three_arms(tmp_path):
     domain = random.randint(100, 230)
@@ -75,7 +93,7 @@ def three_arms(tmp_path):
                     [_installed(name), '--ros-args', '-r', f'__ns:=/{arm}',
                      '--params-file', _config(f'{name}.yaml')] + extra,
                     env=env, stdout=log, stderr=subprocess.STDOUT))
-        yield domain, procs, tmp_path
+        yield domain, procs, tmp_path, [log.name for log in logs]
     finally:
         for p in procs:
             if p.poll() is None:
@@ -91,7 +109,7 @@ def three_arms(tmp_path):
 
 
 def test_three_namespaced_arms_give_three_models_none_fed_by_another_arm(three_arms):
-    domain, procs, folder = three_arms
+    domain, procs, folder, logs = three_arms
     models, drops = {}, {}
     lock = threading.Lock()
 
@@ -128,8 +146,8 @@ def test_three_namespaced_arms_give_three_models_none_fed_by_another_arm(three_a
         assert counted[f'/{arm}/identifier'] == 0, (arm, counted)
     for p in procs:
         p.send_signal(signal.SIGINT)
-    for p in procs:
-        assert p.wait(timeout=60) == 0
+    for p, log in zip(procs, logs):
+        assert _exit_code(p, log) == 0, _tail(log)
     for arm in ARMS:   # each model file written by its own identifier only
         saved = yaml.safe_load((folder / f'{arm}.yaml').read_text())
         assert saved['joint_names'] == joints(arm)
