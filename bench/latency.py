@@ -24,6 +24,10 @@ the paper's arm, and measures, while the search evolves in the node's worker thr
 - the latency from publishing a state to receiving the prediction that starts from it
   (includes both DDS hops on loopback, so it bounds the node's own reaction time).
 
+The stream has no plan on ``reference_trajectory``: the identifier runs with
+``prediction.beyond_plan`` 'hold' (the horizon past the last command holds it, marked);
+with the default 'stop' it would publish no prediction at all.
+
 The measurement is repeated ``--runs`` times (default 3), each with a fresh identifier:
 the p99 of one 40 s run moves by several milliseconds from run to run on a 2-core machine.
 ``latency_p99_ms`` is the worst run's p99, ``drops_1khz`` the drops of all runs together;
@@ -120,7 +124,10 @@ def _measure(args) -> dict:
     log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
     nodes = NodeProcesses([('identifier', ['-p', 'case:=torque', '-p', 'min_window:=3.0',
                                            '-p', 'prediction.on_state:=true',
-                                           '-p', 'prediction.rate:=0.0']
+                                           '-p', 'prediction.rate:=0.0',
+                                           # the stream sends no plan: predict the horizon
+                                           # holding the last command (marked)
+                                           '-p', 'prediction.beyond_plan:=hold']
                             + [arg for p in args.param for arg in ('-p', p)])],
                           domain, log_dir, prefix='latency_')
     stream_end = np.inf
