@@ -29,6 +29,7 @@ from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_MAX_TORQUE
 from rkgnn_ros.core.fitting.case_three import ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S
 from rkgnn_ros.core.fitting.trig_loop import fit_closed_trig_loop, fit_trig_loop
 from rkgnn_ros.core.fitting.validation import split_validation
+from rkgnn_ros.core.integration.inputs import stage_inputs
 from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.sensors import SensorModel
 from rkgnn_ros.core.sim.servo import Servo
@@ -89,6 +90,45 @@ def test_the_compiled_rollout_is_the_numpy_models_closed_loop(pd_data):
     theirs = arm.simulate(x0, t, theta_d=shifted, theta_d_dot=pd_data.theta_d_dot[k:k + 101],
                           substeps=4)
     np.testing.assert_allclose(mine, theirs, rtol=1e-7, atol=1e-9)
+
+
+def test_theta_terms_on_the_measured_theta_are_evaluated_in_the_kernel():
+    # a gravity compensation on the measured θ: the compiled rollout evaluates the law's
+    # θ-terms at every stage; against RK4 in numpy on θ̈ = M⁻¹(law torque - V - G - F)
+    data = run(Servo(KP, KD, gravity='measured', arm=ARM), 20.0)
+    train = data.slice(0, 1500)
+    law = fit_law([train], theta_input='measured')
+    assert law.theta_input == 'measured' and law.theta_weights.size
+    assert np.all(np.isinf(law.tau_limit))
+    loop = fit_trig_loop([train], [data.slice(1500, 1800)], law)
+    arm, reference = loop.arm, paper_reference(3)
+    k, steps, substeps = 1600, 50, 20
+    x0 = np.concatenate([data.theta[k], data.theta_dot[k]])
+    t = data.t[k:k + steps + 1]
+    theta_d, theta_d_dot = reference.evaluate(t)
+    loop.substeps = substeps
+    compiled = loop.simulate(x0, t - t[0], theta_d, theta_d_dot)
+
+    # the commands at the stages as the kernel sees them (θd shifted by the law's constant)
+    shifted = theta_d + law.shift(theta_d, theta_d_dot)
+    u = stage_inputs('pd_gains', t, substeps, theta_d=shifted, theta_d_dot=theta_d_dot)
+
+    def rate(command, x):
+        tau = law.torque(x[:3], x[3:], command[:3], command[3:]) - law.kp * law.shift(
+            theta_d_dot=command[3:])           # the constant is in the shifted θd already
+        return np.concatenate([x[3:], arm.forward_dynamics(x[:3], x[3:], tau)])
+
+    x, h, theirs = x0.copy(), (t[1] - t[0]) / substeps, [x0]
+    for i in range(steps):
+        for s in range(substeps):
+            start, middle, end = u[i, s]
+            k1 = rate(start, x)
+            k2 = rate(middle, x + h / 2 * k1)
+            k3 = rate(middle, x + h / 2 * k2)
+            k4 = rate(end, x + h * k3)
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        theirs.append(x)
+    np.testing.assert_allclose(compiled, np.array(theirs), rtol=0, atol=1e-8)
 
 
 @pytest.mark.parametrize('servo,noise', [

@@ -136,39 +136,68 @@ def rollout_spread(rollouts) -> np.ndarray:
 
 
 class _Series:
-    """A bounded, time-ordered series of (t, row) samples."""
+    """
+    A bounded, time-ordered series of (t, row) samples in contiguous arrays.
+
+    :attr:`t` and :attr:`rows` are views of the live samples; appending is amortised O(1)
+    and pruning moves a start index, so scoring reads the series as arrays without copying
+    it (at 1 kHz the window holds over 10,000 states: rebuilding arrays from Python objects
+    on every prediction cost tens of milliseconds).
+    """
 
     def __init__(self):
-        self.t: deque = deque()
-        self.rows: deque = deque()
+        self._t = np.empty(0)
+        self._rows = None
+        self._start = self._end = 0
 
     def __len__(self):
-        return len(self.t)
+        return self._end - self._start
+
+    @property
+    def t(self) -> np.ndarray:
+        """Return the sample times (N,), a view."""
+        return self._t[self._start:self._end]
+
+    @property
+    def rows(self) -> np.ndarray:
+        """Return the samples (N, n), a view."""
+        return self._rows[self._start:self._end]
+
+    def _reserve(self, extra: int, width: int) -> None:
+        size = len(self)
+        if self._rows is None:
+            self._rows = np.empty((0, width))
+        if self._end + extra <= self._t.size:
+            return
+        capacity = max(64, 2 * (size + extra))
+        t, rows = np.empty(capacity), np.empty((capacity, self._rows.shape[1]))
+        t[:size], rows[:size] = self.t, self.rows
+        self._t, self._rows, self._start, self._end = t, rows, 0, size
 
     def append(self, t, row) -> bool:
-        if self.t and t <= self.t[-1]:
+        if len(self) and t <= self._t[self._end - 1]:
             return False
-        self.t.append(t)
-        self.rows.append(row)
+        row = np.asarray(row, dtype=float)
+        self._reserve(1, row.size)
+        self._t[self._end] = t
+        self._rows[self._end] = row
+        self._end += 1
         return True
 
     def replace_from(self, times, rows):
         """Drop samples at or after ``times[0]``, then append (a newer plan overrides)."""
-        while self.t and self.t[-1] >= times[0]:
-            self.t.pop()
-            self.rows.pop()
+        self._end = self._start + int(np.searchsorted(self.t, times[0], side='left'))
         for t, row in zip(times, rows):
             self.append(t, row)
 
     def prune(self, before):
-        while len(self.t) > 2 and self.t[1] < before:
-            self.t.popleft()
-            self.rows.popleft()
+        """Drop the samples before ``before``, keeping the last one before it and two."""
+        drop = int(np.searchsorted(self.t, before, side='left')) - 1
+        self._start += max(0, min(drop, len(self) - 2))
 
     def interp(self, when: np.ndarray) -> np.ndarray:
         """Return rows at ``when`` (M,), shape (M, n); NaN outside the series."""
-        t = np.fromiter(self.t, float, len(self.t))
-        rows = np.array(self.rows)
+        t, rows = self.t, self.rows
         out = np.full((when.size, rows.shape[1]), np.nan)
         inside = (when >= t[0] - 1e-9) & (when <= t[-1] + 1e-9)
         for j in range(rows.shape[1]):
@@ -389,7 +418,7 @@ class PredictionRecord:
         published = np.array(self._published)
         start = self._states.interp(t0)                                  # (M, n)
         have_reference = len(self._reference) >= 2
-        stamps = np.fromiter(self._states.t, float, len(self._states))
+        stamps = self._states.t
         gaps = np.flatnonzero(np.diff(stamps) > self.max_gap)
         for i, h in enumerate(self.horizons):
             target = t0 + h
@@ -485,7 +514,7 @@ class PredictionRecord:
         """
         if len(self._states) < 2 or len(self._reference) < 2 or not t_to >= t_from:
             return None
-        t = np.fromiter(self._states.t, float, len(self._states))
+        t = self._states.t
         if t_from < t[0] - 1e-9:
             return None
         inner = t[(t > t_from) & (t < t_to)]

@@ -34,11 +34,12 @@ the arm and its servo (a PID or, with Ki fitted to zero, a PD; a gravity compens
 absorbed by G), globally. θ̇ in that fit is the centred derivative of θ, so a differenced
 velocity's noise does not reach θ̈.
 
-The law's command-only terms shift θd (:meth:`ControllerLaw.shift`); its integral term and
-its θ-terms on the measured θ (a gravity compensation) depend on the motion, and are found
-by Picard iteration: each pass rolls out with them evaluated along the previous pass
-(the first along the plan), as :class:`~rkgnn_ros.core.fitting.controller.ClosedLoop`
-does for the integral. It has the interface of that class (``law`` and ``simulate``), so
+The law's command-only terms shift θd (:meth:`ControllerLaw.shift`). Its θ-terms on the
+measured θ (a gravity compensation, on :class:`TrigFeatures`) are evaluated in the compiled
+rollout at every stage. Its integral term depends on the motion and is found by Picard
+iteration: each pass rolls out with it grown along the previous pass (the first along the
+plan), as :class:`~rkgnn_ros.core.fitting.controller.ClosedLoop` does; so are θ-terms on
+another basis. It has the interface of that class (``law`` and ``simulate``), so
 the predictor rolls either out alike.
 """
 
@@ -50,7 +51,7 @@ from typing import Optional, Sequence
 from numba import njit
 import numpy as np
 
-from .controller_laws import ControllerLaw
+from .controller_laws import ControllerLaw, TrigFeatures
 from .linear import LinearDynamics, samples_from_datasets
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..control.gate import paired_torques, torque_error
@@ -87,32 +88,45 @@ INTEGRAL_MIN_ERROR = 0.01
 
 
 @njit(cache=True, nogil=True)
-def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, phi, grad,
-           m, dm, rate):
+def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, law_codes,
+           law_w, phi, grad, m, dm, trig, rate):
     """Write ẋ of the closed loop into ``rate``; return False where M is not positive."""
     nf = kinds.shape[0]
+    for j in range(n):
+        trig[0, j] = math.cos(x[j])
+        trig[1, j] = math.sin(x[j])
     for f in range(nf):
-        angle = 0.0
+        # cos and sin of Σ_j k_j θ_j from those of θ_j (the basis' k_j are integers): a
+        # product of unit complex numbers, no further cos or sin
+        re, im = 1.0, 0.0
         for j in range(n):
-            angle += freq[f, j] * x[j]
+            k = freq[f, j]
+            c, s = trig[0, j], (trig[1, j] if k > 0.0 else -trig[1, j])
+            for _ in range(int(abs(k))):
+                re, im = re * c - im * s, re * s + im * c
         if kinds[f] == 1:
-            value, slope = math.sin(angle), math.cos(angle)
+            value, slope = im, re
         else:
-            value, slope = math.cos(angle), -math.sin(angle)
+            value, slope = re, -im
         phi[f] = value
         for k in range(n):
             grad[f, k] = slope * freq[f, k]
+    # M and ∂M/∂θ_k are symmetric (so are the weights): the upper triangle, mirrored
     for i in range(n):
-        for j in range(n):
+        for j in range(i, n):
             acc = 0.0
             for f in range(nf):
                 acc += phi[f] * w_mass[f, i, j]
             m[i, j] = acc
+            m[j, i] = acc
             for k in range(n):
                 acc = 0.0
                 for f in range(nf):
                     acc += grad[f, k] * w_mass[f, i, j]
                 dm[k, i, j] = acc
+                dm[k, j, i] = acc
+    # the law's θ-terms on the measured θ: W φ(θ), φ products of (1, cos θ_j, sin θ_j)
+    nl = law_codes.shape[0]
     for i in range(n):
         qd = x[n + i]
         v = 0.0
@@ -123,6 +137,13 @@ def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, ph
         for f in range(nf):
             g += grad[f, i] * w_pot[f]
         tau = kp[i] * (u[i] - x[i]) + kd[i] * (u[n + i] - qd)
+        for f in range(nl):
+            product = law_w[i, f]
+            for j in range(n):
+                code = law_codes[f, j]
+                if code:
+                    product *= trig[code - 1, j]
+            tau += product
         rate[n + i] = tau - v - g - viscous[i] * qd - coulomb[i] * math.tanh(qd / vc)
         rate[i] = qd
     # solve M a = rhs in place by Cholesky (M symmetric positive definite, else stop)
@@ -152,11 +173,12 @@ def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, ph
 
 
 @njit(cache=True, nogil=True)
-def _rollout(x0, u, h, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, out):
+def _rollout(x0, u, h, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd,
+             law_codes, law_w, out):
     """Roll out over ``u`` (K-1, substeps, 3, 2n) into ``out`` (K, 2n); NaN after divergence."""
     nf = kinds.shape[0]
     phi, grad = np.empty(nf), np.empty((nf, n))
-    m, dm = np.empty((n, n)), np.empty((n, n, n))
+    m, dm, trig = np.empty((n, n)), np.empty((n, n, n)), np.empty((2, n))
     x, xs = x0.copy(), np.empty(2 * n)
     rate, q = np.empty(2 * n), np.zeros(2 * n)
     out[0] = x
@@ -165,13 +187,33 @@ def _rollout(x0, u, h, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, 
             xs[:] = x
             for stage in range(4):
                 if not _rates(xs, u[i, s, gill_node(stage)], n, freq, kinds, w_mass, w_pot,
-                              viscous, coulomb, vc, kp, kd, phi, grad, m, dm, rate):
+                              viscous, coulomb, vc, kp, kd, law_codes, law_w, phi, grad, m,
+                              dm, trig, rate):
                     return
                 gill_stage(stage, h, x, xs, rate, q)
         for j in range(2 * n):
             if not abs(x[j]) <= DIVERGED:
                 return
         out[i + 1] = x
+
+
+def _law_terms(law: ControllerLaw, n: int):
+    """
+    Return the law's θ-terms on the measured θ as the kernel takes them, or None.
+
+    ``codes`` (F, n): per feature and joint 0 (no factor), 1 (cos θ_j) or 2 (sin θ_j);
+    ``weights`` (n, F): W. None when the law has such terms on another basis (rolled out by
+    passes along the previous pass instead); empty arrays when it has none.
+    """
+    if law.theta_input != 'measured' or not law.theta_weights.size:
+        return np.zeros((0, n), dtype=np.int64), np.zeros((n, 0))
+    if not isinstance(law.features, TrigFeatures):
+        return None
+    codes = np.zeros((len(law.features.terms), n), dtype=np.int64)
+    for f, term in enumerate(law.features.terms):
+        for joint, kind in term:
+            codes[f, joint] = 1 + kind
+    return codes, np.ascontiguousarray(law.theta_weights, dtype=float)
 
 
 class TrigLoop:
@@ -213,6 +255,15 @@ class TrigLoop:
         self._coulomb = np.asarray(arm.coulomb_, dtype=float)
         self._kp = np.asarray(law.kp, dtype=float)
         self._kd = np.asarray(law.kd, dtype=float)
+        self._set_law_terms()
+
+    def _set_law_terms(self) -> None:
+        terms = _law_terms(self.law, self.arm.n_joints)
+        #: whether the law's θ-terms on θ are in the compiled rollout (else by passes)
+        self._terms_compiled = terms is not None
+        n = self.arm.n_joints
+        self._law_codes, self._law_w = terms if terms is not None else (
+            np.zeros((0, n), dtype=np.int64), np.zeros((n, 0)))
 
     @property
     def n_joints(self) -> int:
@@ -225,6 +276,7 @@ class TrigLoop:
             raise ValueError('with_law keeps the gains: fit a new loop for other gains')
         out = copy.copy(self)
         out.law = law
+        out._set_law_terms()
         return out
 
     def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
@@ -243,7 +295,8 @@ class TrigLoop:
         h = dt / substeps
         _rollout(np.asarray(x0, dtype=float), np.ascontiguousarray(u), h, n, self._freq,
                  self._kinds, self._w_mass, self._w_pot, self._viscous, self._coulomb,
-                 float(self.arm.coulomb_velocity), self._kp, self._kd, out)
+                 float(self.arm.coulomb_velocity), self._kp, self._kd, self._law_codes,
+                 self._law_w, out)
         return out
 
     def simulate(self, x0, t, theta_d, theta_d_dot, integral_term=None,
@@ -262,7 +315,9 @@ class TrigLoop:
         n = theta_d.shape[1]
         start = law.integral_term if integral_term is None else np.asarray(integral_term)
         integral = np.broadcast_to(start, theta_d.shape)
-        on_theta = law.theta_input == 'measured' and law.theta_weights.size > 0
+        # θ-terms on the measured θ: in the kernel; on another basis, along the last pass
+        on_theta = (law.theta_input == 'measured' and law.theta_weights.size > 0
+                    and not self._terms_compiled)
         integrating = bool(np.any(law.ki != 0.0))
         passes = max(1, int(passes)) if (on_theta or integrating) else 1
         along = theta_d
@@ -397,4 +452,5 @@ def precompile_trig_loop(n_joints: int = 3) -> None:
     _rollout(np.zeros(2 * n), np.zeros((2, 1, 3, 2 * n)), 0.01, n,
              np.ascontiguousarray(basis.frequencies, dtype=float),
              np.ascontiguousarray(basis.kinds, dtype=np.int64), w_mass, np.zeros(nf),
-             np.zeros(n), np.zeros(n), 0.05, np.ones(n), np.ones(n), out)
+             np.zeros(n), np.zeros(n), 0.05, np.ones(n), np.ones(n),
+             np.ones((1, n), dtype=np.int64), np.zeros((n, 1)), out)
