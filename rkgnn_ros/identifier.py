@@ -287,7 +287,7 @@ def main(args=None):
         watchdog = TeardownWatchdog()
         if node is not None:
             node.stop()                     # the worker joined, the model file written
-        watchdog.arm(code)
+        watchdog.arm()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

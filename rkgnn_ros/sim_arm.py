@@ -472,7 +472,7 @@ def main(args=None) -> int:
             raise
     finally:
         watchdog = TeardownWatchdog()
-        watchdog.arm(exit_code)
+        watchdog.arm()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -13,25 +13,52 @@
 # limitations under the License.
 
 """
-Where a node waits when it does not answer, and an end to a teardown that hangs.
+Where a node's threads wait, and an end to a teardown that hangs.
 
-``kill -USR1 <pid>`` prints every thread's Python stack of a running node to stderr (a
-callback that never returns, a hang at shutdown), without stopping the node.
+``kill -USR1 <pid>`` prints every thread's Python stack to stderr and the node goes on (a
+callback that never returns, a thread that stalls). It is printed by a Python signal
+handler, between two bytecodes of the main thread: safe while other threads run
+(``faulthandler`` reading other threads' frames from the signal itself crashed a busy
+identifier within three signals). A process stuck in C code does not run it: ``kill
+-ABRT <pid>`` then prints the stacks through ``faulthandler`` and ends the process.
 """
 
 import faulthandler
-import os
 import signal
 import sys
 import threading
+import traceback
+
+
+def format_stacks() -> str:
+    """Return every thread's Python stack, newest call last, as text."""
+    threads = {thread.ident: thread for thread in threading.enumerate()}
+    parts = []
+    for ident, frame in sys._current_frames().items():
+        thread = threads.get(ident)
+        name = '?' if thread is None else thread.name
+        native = '?' if thread is None else thread.native_id    # the TID in /proc, top -H
+        parts.append(f'Thread {name} ({ident:#x}, TID {native}):\n')
+        parts.extend(traceback.format_stack(frame))
+    return ''.join(parts)
+
+
+def _print_stacks(signum, frame) -> None:
+    sys.stderr.write(format_stacks())
+    sys.stderr.flush()
 
 
 def dump_stacks_on_sigusr1() -> bool:
-    """Register the dump; return False where the platform has no SIGUSR1."""
+    """
+    Print the stacks on SIGUSR1 and on a fatal signal; return False without SIGUSR1.
+
+    Call it from the main thread (Python installs signal handlers there only).
+    """
+    faulthandler.enable()        # SIGSEGV, SIGABRT, ...: the stacks, then the process ends
     usr1 = getattr(signal, 'SIGUSR1', None)
     if usr1 is None:
         return False
-    faulthandler.register(usr1, all_threads=True)
+    signal.signal(usr1, _print_stacks)
     return True
 
 
@@ -39,32 +66,18 @@ class TeardownWatchdog:
     """
     Ends the process if the middleware's teardown hangs.
 
-    ``destroy_node`` and ``rclpy.try_shutdown`` wait inside the DDS library; under load a
-    peer shutting down at the same moment has been seen to keep one of them waiting for
-    over a minute. A node asked to stop must stop: after ``grace`` seconds the watchdog
-    prints every thread's stack to stderr (where it hung) and exits with ``code``. The
-    node's own work (the model file, the last messages) is done before it is armed.
+    ``destroy_node`` and ``rclpy.try_shutdown`` wait inside the DDS library, holding the
+    GIL: no Python thread could end the process then. ``faulthandler``'s watchdog is a C
+    thread: after ``grace`` seconds it prints every thread's stack to stderr (headed
+    ``Timeout``) and exits with code 1. The node's own work (the model file, the last
+    messages) is done before it is armed.
     """
 
     def __init__(self, grace: float = 15.0):
         self.grace = float(grace)
-        self._timer = None
 
-    def arm(self, code: int) -> None:
-        self._timer = threading.Timer(self.grace, self._expire, args=(int(code),))
-        self._timer.daemon = True
-        self._timer.start()
+    def arm(self) -> None:
+        faulthandler.dump_traceback_later(self.grace, exit=True)
 
     def disarm(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-
-    def _expire(self, code: int) -> None:
-        try:
-            sys.stderr.write(f'teardown still running after {self.grace:.0f} s: exiting with '
-                             f'code {code}; the threads were at:\n')
-            faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
-            sys.stderr.flush()
-            sys.stdout.flush()
-        finally:
-            os._exit(code)
+        faulthandler.cancel_dump_traceback_later()

@@ -61,9 +61,9 @@ def _exit_code(process, log, timeout=60.0):
     try:
         return process.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
-        process.send_signal(signal.SIGUSR1)   # rkgnn_ros.stacks: every thread's stack
+        process.send_signal(signal.SIGABRT)   # faulthandler: every thread's stack, then ends
         try:
-            process.wait(timeout=3.0)
+            process.wait(timeout=5.0)
         except subprocess.TimeoutExpired:
             pass
         return f'still running {timeout:.0f} s after SIGINT ({log})'

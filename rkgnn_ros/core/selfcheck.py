@@ -111,7 +111,7 @@ class SelfCheck(PredictionRecord):
 
     Parameters
     ----------
-    n_joints, horizons, window, max_gap
+    n_joints, horizons, window, max_gap, rescore_every
         As :class:`~rkgnn_ros.core.scoring.PredictionRecord`.
     margin : float
         How much better than each baseline (a share of its error) the model must be to be
@@ -126,8 +126,8 @@ class SelfCheck(PredictionRecord):
 
     def __init__(self, n_joints: int, horizons: Sequence[float] = HORIZONS,
                  window: float = 10.0, margin: float = 0.2, min_scored: int = 10,
-                 recent: float = 2.0, max_gap: float = 0.25):
-        super().__init__(n_joints, horizons, window, max_gap)
+                 recent: float = 2.0, max_gap: float = 0.25, rescore_every: float = 0.0):
+        super().__init__(n_joints, horizons, window, max_gap, rescore_every)
         if not (math.isfinite(margin) and 0.0 <= margin < 1.0):
             raise ValueError(f'margin must be in [0, 1), got {margin}')
         if not (math.isfinite(recent) and 0.0 < recent <= window):
