@@ -23,6 +23,10 @@ time, divided by the θ range; ``prediction_nrmse_60s`` is the bin ending at 60 
 ``first_prediction_s`` and ``first_model_prediction_s``: seconds from the first
 ``joint_states`` to the first prediction (a baseline while the model is not yet scored)
 and to the first one the model made (``header.frame_id`` 'model').
+With ``--switch-at`` (default 60 s) sim_arm's reference turns into another task there
+(``reference.switch_at``: sines about a pose moved by 0.4 rad, other frequencies, joined
+over 2 s); ``switch_ratio`` is the 2 s-ahead error of the predictions whose target lies in
+the 10 s after the switch over that in the 10 s before (ending 1 s early: see the code).
 Writes ``bench/results/online.json``.
 """
 
@@ -42,11 +46,12 @@ from rkgnn_ros.evaluation import ahead_errors  # noqa: E402
 from rkgnn_ros.monitor import identifier_arguments, Monitor, NodeProcesses  # noqa: E402
 
 
-def run_case(case, duration, horizon, domain, log_dir):
+def run_case(case, duration, horizon, domain, log_dir, switch_at=0.0):
     """Run the pair for one case; return (curve [(t_end, nrmse)], nrmse_60s, details)."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    nodes = NodeProcesses([('sim_arm', []), ('identifier', identifier_arguments(case, horizon))],
+    arm = ['-p', f'reference.switch_at:={float(switch_at)}'] if switch_at else []
+    nodes = NodeProcesses([('sim_arm', arm), ('identifier', identifier_arguments(case, horizon))],
                           domain, log_dir, prefix=f'online_case{case}_')
     try:
         ctx = rclpy.Context()
@@ -78,6 +83,21 @@ def run_case(case, duration, horizon, domain, log_dir):
             rmse = np.sqrt(np.mean(np.square(err[sel]), axis=0))
             curve.append([float(end), float(np.mean(rmse / theta_range))])
     at60 = next((v for t, v in curve if abs(t - 60.0) < 1e-9), None)
+    switch = {}
+    if switch_at:
+        # predictions whose target lies in the 10 s before / after the switch. Time here
+        # starts at the first joint_states received, up to ~1 s after sim_arm's time 0:
+        # 'before' ends 1 s early, so it holds no motion after the switch
+        target = pt0 + horizon - start
+        rmse = {}
+        for name, sel in (('before', (target > switch_at - 11.0) & (target <= switch_at - 1.0)),
+                          ('after', (target > switch_at) & (target <= switch_at + 10.0))):
+            rmse[name] = (float(np.mean(np.sqrt(np.mean(np.square(err[sel]), axis=0))
+                                        / theta_range)) if np.any(sel) else None)
+        switch = {'switch_at_s': float(switch_at), 'switch_nrmse_before': rmse['before'],
+                  'switch_nrmse_after': rmse['after'],
+                  'switch_ratio': (rmse['after'] / rmse['before']
+                                   if rmse['before'] and rmse['after'] is not None else None)}
     details = {'states': int(meas_t.size), 'predictions': len(t0s), 'scored': int(pt0.size),
                'generations': int(evolution[-1][0]) if len(evolution) else 0,
                'exit_codes': codes,
@@ -85,7 +105,7 @@ def run_case(case, duration, horizon, domain, log_dir):
                # self-check has scored the model) and to the first the model made
                'first_prediction_s': float(min(t0s) - start) if t0s else None,
                'first_model_prediction_s': (None if first_model is None
-                                            else float(first_model - start))}
+                                            else float(first_model - start)), **switch}
     return curve, at60, details
 
 
@@ -93,22 +113,30 @@ def main(argv=None):
     """Run the cases; return the exit code."""
     parser = argparse.ArgumentParser(description='online 2 s-ahead accuracy per case')
     parser.add_argument('--cases', default='1,2,3')
-    parser.add_argument('--duration', type=float, default=65.0)
+    parser.add_argument('--duration', type=float, default=None,
+                        help='seconds per case (default 65, or 15 past --switch-at)')
+    parser.add_argument('--switch-at', type=float, default=60.0,
+                        help="sim_arm's reference switches to another pose and frequencies "
+                             'at this time (s; 0: never)')
     parser.add_argument('--horizon', type=float, default=2.0)
     parser.add_argument('--domain', type=int, default=None,
                         help='ROS_DOMAIN_ID of the first case (next cases: +1, ...)')
     parser.add_argument('--out', default=os.path.join(HERE, 'results', 'online.json'))
     args = parser.parse_args(argv)
+    if args.duration is None:
+        args.duration = max(65.0, args.switch_at + 15.0) if args.switch_at else 65.0
     log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
     results = {'meta': {'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
                         'duration_s': args.duration, 'horizon_s': args.horizon,
+                        'switch_at_s': args.switch_at,
                         'metric': '2 s-ahead θ RMSE over predictions started in the 5 s '
                                   'bin ending at t, divided by the θ range, mean over joints'}}
     for i, case in enumerate(c.strip() for c in args.cases.split(',')):
         domain = (20 + (os.getpid() + 37 * i) % 200 if args.domain is None
                   else args.domain + i)
         print(f'== case {case}: {args.duration:.0f} s on ROS_DOMAIN_ID={domain}', flush=True)
-        curve, at60, details = run_case(case, args.duration, args.horizon, domain, log_dir)
+        curve, at60, details = run_case(case, args.duration, args.horizon, domain, log_dir,
+                                        args.switch_at)
         for t, v in curve:
             print(f'  t = {t:4.0f} s  2 s-ahead θ RMSE {v:8.2%} of range', flush=True)
         results[case] = {'prediction_nrmse_60s': at60, 'curve': curve, **details}

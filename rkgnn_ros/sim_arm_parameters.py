@@ -38,7 +38,8 @@ from .core.sim.plant import PlanarArm
 from .core.sim.sensors import SensorModel, VELOCITY_SOURCES
 from .core.sim.servo import DEFAULT_WINDUP_TIME, GRAVITY_MODES
 from .core.sim.stability import max_stable_rkg_step
-from .core.sim.trajectories import Chirp, hanging_pose, paper_reference, Reference, SumOfSines
+from .core.sim.trajectories import (Chirp, hanging_pose, paper_reference, Reference, SumOfSines,
+                                    Switched)
 from .parameters import Change, ParameterSpec
 
 __all__ = ['BY_NAME', 'build_config', 'ConfigurationError', 'MAX_REFERENCE_POINTS',
@@ -115,6 +116,16 @@ PARAMETERS = (
     _Spec('reference.chirp_end_frequency', 1.0,
           "Frequency of 'chirp' at the end of its sweep, held afterwards (Hz).", 0.0, 50.0),
     _Spec('reference.chirp_duration', 60.0, "Sweep time of 'chirp' (s).", 0.01, 1e9),
+    _Spec('reference.switch_at', 0.0,
+          'Simulation time (s) at which the arm switches to another task: random sines '
+          '(reference.switch_seed, the amplitude and frequency band of reference.*) about '
+          'the pose moved by reference.switch_shift, joined over reference.switch_blend; '
+          '0 = never.', 0.0, 1e9),
+    _Spec('reference.switch_seed', 2, 'Seed of the sines after the switch.', 0, _MAX_INT),
+    _Spec('reference.switch_shift', 0.4,
+          "Added to every joint's centre pose after the switch (rad).", -math.pi, math.pi),
+    _Spec('reference.switch_blend', 2.0,
+          'Time over which the old reference turns into the new one (s).', 0.01, 60.0),
     _Spec('noise.theta_std', 0.0,
           'Standard deviation of the white noise on the published positions (rad); '
           'may be changed at run time.', 0.0, 1.0, change=Change.LIVE),
@@ -235,6 +246,25 @@ def _build_reference(values: dict, n: int, offsets=None) -> Reference:
                  values['reference.chirp_end_frequency'], values['reference.chirp_duration'])
 
 
+def _switched_reference(values: dict, first: Reference, n: int, offsets=None) -> Reference:
+    """Return ``first``, or it switching to another task at ``reference.switch_at``."""
+    at = values['reference.switch_at']
+    if not at:
+        return first
+    low, high = values['reference.min_frequency'], values['reference.max_frequency']
+    if low > high:
+        raise ConfigurationError(
+            f'reference.min_frequency ({low} Hz) must not exceed reference.max_frequency '
+            f'({high} Hz)')
+    offsets = hanging_pose(n) if offsets is None else np.asarray(offsets, dtype=float)
+    rng = np.random.default_rng(values['reference.switch_seed'])
+    second = SumOfSines.random(n, rng, n_terms=values['reference.n_terms'],
+                               amplitude=values['reference.amplitude'], max_frequency_hz=high,
+                               min_frequency_hz=low,
+                               offsets=offsets + values['reference.switch_shift'])
+    return Switched(first, second, at, values['reference.switch_blend'])
+
+
 def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
     """
     Validate parameter values (name -> value) and build the simulated system.
@@ -288,7 +318,8 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
             raise
         raise ConfigurationError(str(error)) from None
     try:
-        reference = _build_reference(values, n, None if urdf is None else urdf.home)
+        home = None if urdf is None else urdf.home
+        reference = _switched_reference(values, _build_reference(values, n, home), n, home)
     except ValueError as error:
         if isinstance(error, ConfigurationError):
             raise

@@ -19,7 +19,8 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 from rkgnn_ros.core.sim.trajectories import (
-    Chirp, hanging_pose, heldout_reference, paper_reference, SampledReference, SumOfSines)
+    Chirp, hanging_pose, heldout_reference, paper_reference, SampledReference, SumOfSines,
+    Switched)
 
 
 def central_difference(reference, t, eps=1e-6):
@@ -177,3 +178,38 @@ def test_random_sum_of_sines_uses_the_given_rng():
     np.testing.assert_array_equal(a.phases, b.phases)
     np.testing.assert_allclose(a.amplitudes.sum(axis=1), 0.4)
     assert np.all(a.frequencies_hz <= 0.5) and np.all(a.frequencies_hz >= 0.1)
+
+
+def _task_change(at=5.0, blend=2.0):
+    second = SumOfSines.random(3, np.random.default_rng(2), offsets=hanging_pose(3) + 0.4)
+    return paper_reference(3), second, Switched(paper_reference(3), second, at, blend)
+
+
+def test_switched_is_the_first_before_and_the_second_after_the_join():
+    first, second, switched = _task_change()
+    for t, source in ((np.linspace(0.0, 5.0, 51), first),
+                      (np.linspace(7.0, 20.0, 131), second)):
+        theta, theta_dot = switched.evaluate(t)
+        want, want_dot = source.evaluate(t)
+        np.testing.assert_allclose(theta, want, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(theta_dot, want_dot, rtol=0, atol=1e-12)
+
+
+def test_switched_velocity_is_the_derivative_and_nothing_jumps():
+    _, _, switched = _task_change()
+    t = np.linspace(4.0, 8.0, 401)                 # across both ends of the join
+    _, theta_dot = switched.evaluate(t)
+    np.testing.assert_allclose(theta_dot, central_difference(switched, t), rtol=0, atol=1e-6)
+    for edge in (5.0, 7.0):
+        before, before_dot = switched.evaluate(edge - 1e-9)
+        after, after_dot = switched.evaluate(edge + 1e-9)
+        np.testing.assert_allclose(after, before, atol=1e-7)
+        np.testing.assert_allclose(after_dot, before_dot, atol=1e-6)
+
+
+def test_switched_refuses_a_joint_mismatch_and_a_blend_that_is_not_positive():
+    with pytest.raises(ValueError, match='joints'):
+        Switched(paper_reference(3), paper_reference(2), 1.0)
+    for blend in (0.0, -1.0, float('nan')):
+        with pytest.raises(ValueError):
+            Switched(paper_reference(3), paper_reference(3), 1.0, blend)

@@ -313,6 +313,51 @@ class SampledReference(Reference):
         return theta_d, theta_d_dot
 
 
+class Switched(Reference):
+    """
+    One reference until ``at``, another from ``at + blend``, joined smoothly.
+
+    Between the two, θd = (1 - w) θd₁ + w θd₂ with w = 3u² - 2u³, u = (t - at) / blend, and
+    θ̇d its exact derivative (w' (θd₂ - θd₁) included), so θd and θ̇d are continuous: the
+    servo sees no step. A task change of a real arm (a new pose, other frequencies).
+
+    Parameters
+    ----------
+    first, second : Reference
+        Before and after the switch; the same count of joints.
+    at : float
+        Start of the switch (s).
+    blend : float
+        Length of the join (s), > 0.
+
+    """
+
+    def __init__(self, first: Reference, second: Reference, at: float, blend: float = 2.0):
+        if first.n_joints != second.n_joints:
+            raise ValueError(f'the references have {first.n_joints} and {second.n_joints} '
+                             'joints')
+        self.first, self.second = first, second
+        self.at = float(_finite('at', at))
+        self.blend = float(_finite('blend', blend))
+        if not self.blend > 0.0:
+            raise ValueError(f'blend must be > 0, got {blend}')
+
+    @property
+    def n_joints(self) -> int:
+        """Count of joints, n."""
+        return self.first.n_joints
+
+    def _evaluate(self, t):
+        u = np.clip((t - self.at) / self.blend, 0.0, 1.0)[:, None]       # (T, 1)
+        w = u * u * (3.0 - 2.0 * u)
+        w_dot = 6.0 * u * (1.0 - u) / self.blend
+        theta_1, theta_dot_1 = self.first._evaluate(t)
+        theta_2, theta_dot_2 = self.second._evaluate(t)
+        theta_d = (1.0 - w) * theta_1 + w * theta_2
+        theta_d_dot = (1.0 - w) * theta_dot_1 + w * theta_dot_2 + w_dot * (theta_2 - theta_1)
+        return theta_d, theta_d_dot
+
+
 #: Sum-of-sines table of :func:`paper_reference` for up to three joints: per joint the
 #: amplitudes (rad), frequencies (Hz) and phases (rad) of three sines.
 _PAPER_AMPLITUDES = np.array([[0.30, 0.15, 0.08],
