@@ -317,14 +317,7 @@ class PredictionRecord:
         Samples with a non-finite value are counted as ``non_finite``, samples not later
         than the newest before them as ``out_of_order``.
         """
-        times = np.asarray(t, dtype=float).reshape(-1)
-        rows = np.asarray(theta, dtype=float).reshape(times.size, -1)
-        if rows.shape[1] != self.n:
-            self.rejected['wrong_shape'] += times.size
-            return
-        good = np.isfinite(times) & np.all(np.isfinite(rows), axis=1)
-        self.rejected['non_finite'] += int((~good).sum())
-        times, rows = times[good], rows[good]
+        times, rows = self._bulk(t, theta)
         if not times.size:
             return
         taken = self._states.extend(times, rows)
@@ -338,17 +331,21 @@ class PredictionRecord:
 
     def add_references(self, t, theta_d) -> None:
         """Record commanded θd samples in bulk, times (K,), (K, n): each as one sample."""
+        times, rows = self._bulk(t, theta_d)
+        if times.size:
+            self._stale = True
+            self.rejected['out_of_order'] += int((~self._reference.extend(times, rows)).sum())
+
+    def _bulk(self, t, values):
+        """Return the finite samples of a bulk input (counting the others), or none."""
         times = np.asarray(t, dtype=float).reshape(-1)
-        rows = np.asarray(theta_d, dtype=float).reshape(times.size, -1)
+        rows = np.asarray(values, dtype=float).reshape(times.size, -1)
         if rows.shape[1] != self.n:
             self.rejected['wrong_shape'] += times.size
-            return
+            return times[:0], rows[:0]
         good = np.isfinite(times) & np.all(np.isfinite(rows), axis=1)
         self.rejected['non_finite'] += int((~good).sum())
-        if np.any(good):
-            self._stale = True
-            taken = self._reference.extend(times[good], rows[good])
-            self.rejected['out_of_order'] += int((~taken).sum())
+        return times[good], rows[good]
 
     def add_reference(self, t, theta_d) -> None:
         """
