@@ -89,8 +89,13 @@ INTEGRAL_MIN_ERROR = 0.01
 
 @njit(cache=True, nogil=True)
 def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, law_codes,
-           law_w, phi, grad, m, dm, trig, rate):
-    """Write ẋ of the closed loop into ``rate``; return False where M is not positive."""
+           law_w, phi, grad, law_phi, m, dm, trig, rate):
+    """
+    Write ẋ of the closed loop into ``rate``; return False where M is not positive.
+
+    ``w_mass`` (n, n, F) and ``grad`` (n, F) have the features last, so the sums over them
+    run along contiguous memory.
+    """
     nf = kinds.shape[0]
     for j in range(n):
         trig[0, j] = math.cos(x[j])
@@ -110,23 +115,30 @@ def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, la
             value, slope = re, -im
         phi[f] = value
         for k in range(n):
-            grad[f, k] = slope * freq[f, k]
+            grad[k, f] = slope * freq[f, k]
     # M and ∂M/∂θ_k are symmetric (so are the weights): the upper triangle, mirrored
     for i in range(n):
         for j in range(i, n):
             acc = 0.0
             for f in range(nf):
-                acc += phi[f] * w_mass[f, i, j]
+                acc += phi[f] * w_mass[i, j, f]
             m[i, j] = acc
             m[j, i] = acc
             for k in range(n):
                 acc = 0.0
                 for f in range(nf):
-                    acc += grad[f, k] * w_mass[f, i, j]
+                    acc += grad[k, f] * w_mass[i, j, f]
                 dm[k, i, j] = acc
                 dm[k, j, i] = acc
     # the law's θ-terms on the measured θ: W φ(θ), φ products of (1, cos θ_j, sin θ_j)
     nl = law_codes.shape[0]
+    for f in range(nl):
+        product = 1.0
+        for j in range(n):
+            code = law_codes[f, j]
+            if code:
+                product *= trig[code - 1, j]
+        law_phi[f] = product
     for i in range(n):
         qd = x[n + i]
         v = 0.0
@@ -135,15 +147,10 @@ def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, la
                 v += (dm[k, i, j] - 0.5 * dm[i, j, k]) * x[n + k] * x[n + j]
         g = 0.0
         for f in range(nf):
-            g += grad[f, i] * w_pot[f]
+            g += grad[i, f] * w_pot[f]
         tau = kp[i] * (u[i] - x[i]) + kd[i] * (u[n + i] - qd)
         for f in range(nl):
-            product = law_w[i, f]
-            for j in range(n):
-                code = law_codes[f, j]
-                if code:
-                    product *= trig[code - 1, j]
-            tau += product
+            tau += law_w[i, f] * law_phi[f]
         rate[n + i] = tau - v - g - viscous[i] * qd - coulomb[i] * math.tanh(qd / vc)
         rate[i] = qd
     # solve M a = rhs in place by Cholesky (M symmetric positive definite, else stop)
@@ -177,7 +184,8 @@ def _rollout(x0, u, h, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, 
              law_codes, law_w, out):
     """Roll out over ``u`` (K-1, substeps, 3, 2n) into ``out`` (K, 2n); NaN after divergence."""
     nf = kinds.shape[0]
-    phi, grad = np.empty(nf), np.empty((nf, n))
+    phi, grad = np.empty(nf), np.empty((n, nf))
+    law_phi = np.empty(law_codes.shape[0])
     m, dm, trig = np.empty((n, n)), np.empty((n, n, n)), np.empty((2, n))
     x, xs = x0.copy(), np.empty(2 * n)
     rate, q = np.empty(2 * n), np.zeros(2 * n)
@@ -187,8 +195,8 @@ def _rollout(x0, u, h, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, 
             xs[:] = x
             for stage in range(4):
                 if not _rates(xs, u[i, s, gill_node(stage)], n, freq, kinds, w_mass, w_pot,
-                              viscous, coulomb, vc, kp, kd, law_codes, law_w, phi, grad, m,
-                              dm, trig, rate):
+                              viscous, coulomb, vc, kp, kd, law_codes, law_w, phi, grad,
+                              law_phi, m, dm, trig, rate):
                     return
                 gill_stage(stage, h, x, xs, rate, q)
         for j in range(2 * n):
@@ -249,7 +257,8 @@ class TrigLoop:
         basis = arm.basis
         self._freq = np.ascontiguousarray(basis.frequencies, dtype=float)
         self._kinds = np.ascontiguousarray(basis.kinds, dtype=np.int64)
-        self._w_mass = np.ascontiguousarray(arm._w_mass, dtype=float)
+        # (n, n, F): the features last, as the kernel sums over them
+        self._w_mass = np.ascontiguousarray(np.transpose(arm._w_mass, (1, 2, 0)), dtype=float)
         self._w_pot = np.ascontiguousarray(arm._w_pot, dtype=float)
         self._viscous = np.asarray(arm.viscous_, dtype=float)
         self._coulomb = np.asarray(arm.coulomb_, dtype=float)
@@ -446,8 +455,8 @@ def precompile_trig_loop(n_joints: int = 3) -> None:
     n = int(n_joints)
     basis = TrigBasis(n, planar=True, tied=True)
     nf = basis.n_features
-    w_mass = np.zeros((nf, n, n))
-    w_mass[basis.constant] = np.eye(n)
+    w_mass = np.zeros((n, n, nf))
+    w_mass[:, :, basis.constant] = np.eye(n)
     out = np.full((3, 2 * n), np.nan)
     _rollout(np.zeros(2 * n), np.zeros((2, 1, 3, 2 * n)), 0.01, n,
              np.ascontiguousarray(basis.frequencies, dtype=float),
