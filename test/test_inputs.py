@@ -15,6 +15,7 @@
 """The inputs at the RKG stage times: held and interpolated torque, Hermite reference."""
 
 import numpy as np
+import pytest
 from rkgnn_ros.core.integration.inputs import hermite, stage_inputs, stage_times
 
 
@@ -46,3 +47,17 @@ def test_hermite_is_exact_for_cubics():
     out = hermite(t, cubic(t), slope(t), s)
     np.testing.assert_allclose(out[inside], cubic(s[inside]), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(out[~inside], cubic(t[:1]).repeat((~inside).sum(), axis=0))
+
+
+@pytest.mark.parametrize('substeps', [1, 3, 8])
+def test_stage_inputs_of_samples_are_hermite_at_the_stage_times(substeps):
+    rng = np.random.default_rng(substeps)
+    t = 0.37 + 0.01 * np.arange(41)
+    theta_d, theta_d_dot = rng.standard_normal((41, 3)), rng.standard_normal((41, 3))
+    u = stage_inputs('pd_gains', t, substeps, theta_d=theta_d, theta_d_dot=theta_d_dot)
+    times = stage_times(t[0], 0.01, 40, substeps).reshape(-1)
+    acc = np.gradient(theta_d_dot, 0.01, axis=0)
+    want = np.concatenate([hermite(t, theta_d, theta_d_dot, times),
+                           hermite(t, theta_d_dot, acc, times)], axis=-1)
+    np.testing.assert_allclose(u.reshape(-1, 6), want, rtol=0, atol=1e-12)
+    assert u.shape == (40, substeps, 3, 6) and u.flags['C_CONTIGUOUS']
