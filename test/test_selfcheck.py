@@ -147,7 +147,7 @@ def test_bad_input_is_counted_and_memory_stays_bounded():
         check.add_prediction(1.0, OFFSETS, np.zeros((OFFSETS.size, N)), 'guess')
     run(check, 30.0, perfect, start=2.0)
     assert len(check._states) <= (2.0 + 2.0 + 1.0) * RATE + 2
-    assert len(check._t0) <= (2.0 + 2.0 + 1.0) * 10 + 2
+    assert len(check._predictions) <= (2.0 + 2.0 + 1.0) * 10 + 2
 
 
 def test_a_new_plan_replaces_the_tail_of_the_old_one():
@@ -261,7 +261,7 @@ def test_following_is_scored_as_the_plan_said_and_gaps_are_not_scored():
     run(check, 6.0, perfect)
     run(check, 6.0, perfect, start=7.0)
     before = check.scores()[2.0]['count']
-    t0 = np.array(check._t0)
+    t0 = np.array(check._predictions.t)
     spanning = np.sum((t0 < 7.0) & (t0 + 2.0 > 6.0 - 0.01) & (t0 + 2.0 >= 13.0 - 10.0))
     assert spanning > 0
     assert before == np.sum((t0 + 2.0 <= 12.99) & (t0 + 2.0 >= 2.99)) - spanning

@@ -35,7 +35,6 @@ Predictions over a gap in the measured states are not scored.
 What to publish from those scores is :mod:`rkgnn_ros.core.selfcheck`'s.
 """
 
-from collections import deque
 import math
 from typing import Dict, Optional, Sequence, Tuple
 
@@ -174,8 +173,9 @@ class _Series:
         t[:size], rows[:size] = self.t, self.rows
         self._t, self._rows, self._start, self._end = t, rows, 0, size
 
-    def append(self, t, row) -> bool:
-        if len(self) and t <= self._t[self._end - 1]:
+    def append(self, t, row, strict: bool = True) -> bool:
+        """Append a sample later than the newest (or as late, ``strict`` False)."""
+        if len(self) and (t < self._t[self._end - 1] or strict and t == self._t[self._end - 1]):
             return False
         row = np.asarray(row, dtype=float)
         self._reserve(1, row.size)
@@ -207,10 +207,15 @@ class _Series:
         self._end = self._start + int(np.searchsorted(self.t, times[0], side='left'))
         self.extend(np.asarray(times, dtype=float), np.asarray(rows, dtype=float))
 
-    def prune(self, before):
-        """Drop the samples before ``before``, keeping the last one before it and two."""
-        drop = int(np.searchsorted(self.t, before, side='left')) - 1
-        self._start += max(0, min(drop, len(self) - 2))
+    def prune(self, before, keep: int = 2):
+        """
+        Drop the samples before ``before``.
+
+        ``keep`` > 0 keeps the last sample before it (for interpolation) and at least
+        ``keep`` samples; 0 drops every one.
+        """
+        drop = int(np.searchsorted(self.t, before, side='left')) - (1 if keep else 0)
+        self._start += max(0, min(drop, len(self) - keep))
 
     def interp(self, when: np.ndarray) -> np.ndarray:
         """Return rows at ``when`` (M,), shape (M, n); NaN outside the series."""
@@ -268,17 +273,14 @@ class PredictionRecord:
         self.rescore_every = float(rescore_every)
         self._states = _Series()
         self._reference = _Series()
-        # per prediction: start, θ at each horizon (H, n) of the model, of the candidate, of
-        # the plan and of what was published (NaN: none), and the published source
-        self._t0: deque = deque()
-        self._model: deque = deque()
-        self._candidate: deque = deque()
-        self._follow: deque = deque()
-        self._published_at: deque = deque()
-        self._published: deque = deque()
+        # per prediction (t: its start), one row: θ at each horizon (H, n) of the model, of
+        # the candidate, of the plan and of what was published (NaN: none), and the index
+        # in SOURCES of what was published; see _blocks
+        self._predictions = _Series()
         self._low = np.full(self.n, np.inf)
         self._high = np.full(self.n, -np.inf)
         self._cache = None         # the table of the recorded data (None: compute it)
+        self._memos = {}           # what was derived from that table (scores, rmse, ...)
         self._cache_at = -math.inf  # the newest state's time when it was computed
         self._stale = False        # data came since
         self._range_at = np.full(self.n, np.nan)
@@ -387,9 +389,13 @@ class PredictionRecord:
             self.rejected['non_finite'] += 1
             return None
         at = np.full((len(self.horizons), self.n), np.nan)
-        for i, h in enumerate(self.horizons):
-            if offsets[0] - 1e-9 <= h <= offsets[-1] + 1e-9:
-                at[i] = [np.interp(h, offsets, theta[:, j]) for j in range(self.n)]
+        h = np.asarray(self.horizons)
+        inside = (h >= offsets[0] - 1e-9) & (h <= offsets[-1] + 1e-9)
+        if np.any(inside):   # linear between the offsets around each horizon (np.interp's)
+            h = np.clip(h[inside], offsets[0], offsets[-1])
+            right = np.clip(np.searchsorted(offsets, h, side='right'), 1, offsets.size - 1)
+            w = ((h - offsets[right - 1]) / (offsets[right] - offsets[right - 1]))[:, None]
+            at[inside] = (1.0 - w) * theta[right - 1] + w * theta[right]
         return at
 
     def add_prediction(self, t0: float, offsets, theta, source: str = 'model',
@@ -433,22 +439,27 @@ class PredictionRecord:
                  else self._at_horizons(offsets, published))
         if model is None or other is None or plan is None or shown is None:
             return
+        row = np.concatenate([model.ravel(), other.ravel(), plan.ravel(), shown.ravel(),
+                              [SOURCES.index(source)]])
+        if not self._predictions.append(float(t0), row, strict=False):
+            self.rejected['out_of_order'] += 1
+            return
         self._stale = True
-        self._t0.append(float(t0))
-        self._model.append(model)
-        self._candidate.append(other)
-        self._follow.append(plan)
-        self._published_at.append(shown)
-        self._published.append(source)
+
+    def _blocks(self) -> Dict[str, np.ndarray]:
+        """Return the stored predictions' θ (M, H, n) per kind and 'source' (M,), views."""
+        m, size = len(self._predictions), len(self.horizons) * self.n
+        rows = self._predictions.rows if m else np.empty((0, 4 * size + 1))
+        out = {kind: rows[:, k * size:(k + 1) * size].reshape(m, len(self.horizons), self.n)
+               for k, kind in enumerate(('model', 'candidate', 'plan', 'shown'))}
+        out['source'] = rows[:, -1]
+        return out
 
     def _prune(self, now: float) -> None:
         keep_from = now - self.window - self.horizons[-1] - 1.0
         self._states.prune(keep_from)
         self._reference.prune(keep_from)
-        while self._t0 and self._t0[0] < keep_from:
-            for store in (self._t0, self._model, self._candidate, self._follow,
-                          self._published_at, self._published):
-                store.popleft()
+        self._predictions.prune(keep_from, keep=0)
 
     # -- scoring --------------------------------------------------------------------------
 
@@ -470,20 +481,26 @@ class PredictionRecord:
         if self._cache is None or self._stale and not (
                 0.0 <= latest - self._cache_at < self.rescore_every):
             self._cache = self._compute_table()
+            self._memos = {}
             self._cache_at, self._stale = latest, False
             self._range_at = self.theta_range      # the scores' scale, with the table
         return self._cache
 
+    def _memo(self, key, compute):
+        """Return ``compute()``, computed once per table (the scores change only with it)."""
+        self._table()
+        if key not in self._memos:
+            self._memos[key] = compute()
+        return self._memos[key]
+
     def _compute_table(self) -> Dict[float, Optional[Dict[str, np.ndarray]]]:
         out: Dict[float, Optional[Dict[str, np.ndarray]]] = dict.fromkeys(self.horizons)
-        if len(self._states) < 2 or not self._t0:
+        if len(self._states) < 2 or not len(self._predictions):
             return out
         latest = self._states.t[-1]
-        t0 = np.fromiter(self._t0, float, len(self._t0))
-        stacks = {'model': np.array(self._model), 'candidate': np.array(self._candidate),
-                  'plan': np.array(self._follow),
-                  'shown': np.array(self._published_at)}                  # (M, H, n)
-        published = np.array(self._published)
+        t0 = self._predictions.t
+        stacks = self._blocks()                                         # (M, H, n)
+        published = stacks['source']
         start = self._states.interp(t0)                                  # (M, n)
         have_reference = len(self._reference) >= 2
         stamps = self._states.t
@@ -511,7 +528,7 @@ class PredictionRecord:
             chosen = published[select][valid]
             recorded = np.all(np.isfinite(shown), axis=1)
             for name in BASELINES:       # a baseline published without its θ: as recorded
-                rows = (chosen == name) & ~recorded
+                rows = (chosen == SOURCES.index(name)) & ~recorded
                 shown[rows] = errors[name][rows]
             errors['published'] = shown
             errors['target'] = target[select][valid]
@@ -531,7 +548,12 @@ class PredictionRecord:
         scored); ``count`` and ``candidate_count`` are the numbers of scored predictions
         of the model and of the candidate at that horizon. The baselines are scored on the
         model's targets once it has some. Empty for a horizon with nothing scored yet.
+        The result is shared until the scores are computed again: do not change it.
         """
+        return self._memo(('scores',), self._scores)
+
+    def _scores(self) -> Dict[float, Dict[str, float]]:
+        """See :meth:`scores`."""
         out = {}
         for h, errors in self._table().items():
             if errors is None or not errors['hold_last'].shape[0]:
@@ -556,6 +578,9 @@ class PredictionRecord:
 
     def rmse(self, predictor: str = 'published') -> Dict[float, np.ndarray]:
         """Return horizon -> windowed RMSE per joint (rad) of one predictor (NaN if none)."""
+        return self._memo(('rmse', predictor), lambda: self._rmse(predictor))
+
+    def _rmse(self, predictor: str) -> Dict[float, np.ndarray]:
         out = {}
         for h, errors in self._table().items():
             e = None if errors is None else errors.get(predictor)
@@ -565,11 +590,14 @@ class PredictionRecord:
                       else np.full(self.n, np.nan))
         return out
 
-    def _reached(self, store: deque) -> Tuple[float, ...]:
-        """Return the horizons that at least one stored prediction of ``store`` reaches."""
-        if not store:
+    def _reached(self, kind: str) -> Tuple[float, ...]:
+        """Return the horizons that a prediction of ``kind`` in the scores reaches."""
+        return self._memo(('reached', kind), lambda: self._reaching(kind))
+
+    def _reaching(self, kind: str) -> Tuple[float, ...]:
+        if not len(self._predictions):
             return ()
-        reach = np.any(np.all(np.isfinite(np.array(store)), axis=2), axis=0)     # (H,)
+        reach = np.any(np.all(np.isfinite(self._blocks()[kind]), axis=2), axis=0)   # (H,)
         return tuple(h for h, hit in zip(self.horizons, reach) if hit)
 
     def error_integral(self, t_from: float, t_to: float) -> Optional[np.ndarray]:

@@ -42,7 +42,6 @@ the node should publish the self-check's figure and may use the spread before an
 exists.
 """
 
-from collections import deque
 from dataclasses import dataclass, field
 import math
 from typing import Dict, NamedTuple, Optional, Sequence, Tuple
@@ -149,7 +148,7 @@ class SelfCheck(PredictionRecord):
         scores = self.scores()
         allowed = [b for b in BASELINES if b in publishable or b == 'hold_last']
         scored = [b for b in allowed if any(b in scores[h] for h in self.horizons)]
-        reached = self._reached(self._model)
+        reached = self._reached('model')
         counts = [scores[h].get('count', 0) for h in reached]
         if not reached or min(counts) < self.min_scored:
             # the baselines' first scores are few and from the start of the motion, when
@@ -185,6 +184,9 @@ class SelfCheck(PredictionRecord):
 
     def _recent_scores(self, horizons) -> Dict[float, Dict[str, float]]:
         """Return the model's and the baselines' errors on the targets of the last ``recent`` s."""
+        return self._memo(('recent', tuple(horizons)), lambda: self._recent(horizons))
+
+    def _recent(self, horizons) -> Dict[float, Dict[str, float]]:
         out = {}
         if not len(self._states):
             return out
@@ -211,7 +213,10 @@ class SelfCheck(PredictionRecord):
         horizon it reaches: better when its error, averaged over those horizons, is at most
         the model's on the same targets (always, when the model made no prediction there).
         """
-        reached = self._reached(self._candidate)
+        return self._memo(('trial',), self._trial)
+
+    def _trial(self) -> Optional[Verdict]:
+        reached = self._reached('candidate')
         if not reached:
             return None
         table = self._table()
@@ -232,21 +237,19 @@ class SelfCheck(PredictionRecord):
 
     def promote(self) -> None:
         """Make the candidate the model: its recorded predictions replace the model's."""
-        self._model = self._candidate
-        self._candidate = deque(np.full((len(self.horizons), self.n), np.nan)
-                                for _ in self._model)
+        blocks = self._blocks()
+        blocks['model'][:] = blocks['candidate']
+        blocks['candidate'][:] = np.nan
         self._cache = None
 
     def discard_candidate(self) -> None:
         """Forget the candidate's predictions."""
-        for at in self._candidate:
-            at[:] = np.nan
+        self._blocks()['candidate'][:] = np.nan
         self._cache = None
 
     def forget_model(self) -> None:
         """Forget the model's predictions (a model that replaced it untried)."""
-        for at in self._model:
-            at[:] = np.nan
+        self._blocks()['model'][:] = np.nan
         self._on_model = False
         self._cache = None
 

@@ -75,7 +75,7 @@ MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's 
 JOIN_TIMEOUT_S = 10.0
 DECIDE_EVERY_S = 0.1   # the publish decision is taken again at most this often (stamp time)
 RESCORE_EVERY_S = 0.1  # the self-check's scores are computed again at most this often
-CANDIDATE_EVERY_S = 0.05  # a candidate model predicts beside the model at most this often
+CANDIDATE_EVERY_S = 0.1   # a candidate model predicts beside the model at most this often
 REPORT_EVERY_S = 1.0   # scores handed to the executor this often (stamp time)
 CLOCK_JUMP_S = 1.0     # a state this much older than the last restarts the self-check
 MIN_GAP_S = 0.25       # states further apart: the predictions over them are not scored
@@ -192,6 +192,7 @@ class Predictor:
         self._fed = -math.inf  # stamp of the newest state fed to the self-check
         self._decision = None
         self._decided_at = -math.inf
+        self._sigma = None  # (source, K, last offset, the uncertainty (K, n)) in use
         self._reported_at = -math.inf
         self._candidate_at = -math.inf  # stamp time of the candidate's last rollout
         self._ready = threading.Event()  # the rollout kernels ran once (compiled)
@@ -274,7 +275,15 @@ class Predictor:
     # ------------------------------------------------------------------ predicting
 
     def predict(self) -> bool:
-        """Publish one prediction from the newest state now; return whether one was."""
+        """
+        Publish one prediction from the newest state now; return whether one was.
+
+        Only what the prediction needs comes before it is handed over (the feed, the
+        horizon, the model's rollout, the decision and the uncertainty taken after an
+        earlier prediction, both at most DECIDE_EVERY_S old); its scoring, the candidate's
+        rollout, the trial and the next decision come after, so the state-to-prediction
+        time is the rollout's.
+        """
         latest, joints = self._ingestion.latest_state, self._ingestion.joints
         if latest is None or joints is None:
             return False
@@ -292,29 +301,21 @@ class Predictor:
             model, candidate = self._model, self._candidate
         x0 = np.concatenate([latest.theta, latest.theta_dot])
         mine = self._rollout(model, joints, x0, horizon, latest.t, check)
-        theirs = None
-        if not 0.0 <= latest.t - self._candidate_at < CANDIDATE_EVERY_S:
-            # at most every CANDIDATE_EVERY_S: its trial compares it with the model on the
-            # same targets, and at 1 kHz with prediction.on_state a second rollout per
-            # prediction took half of the prediction thread
-            theirs = self._rollout(candidate, joints, x0, horizon, latest.t, check)
-            self._candidate_at = latest.t if theirs is not None else -math.inf
         publishable = ('follow_reference',) if horizon.theta_d is not None else ()
-        decision = self._decide(check, latest.t, publishable)
+        decision = self._decision
+        if decision is None:
+            decision = self._decide(check, latest.t, publishable)
         source = decision.source
-        if source == 'model' and mine is None:
+        if source == 'model' and mine is None or \
+                source == 'follow_reference' and not publishable:
             source = publishable[0] if publishable else 'hold_last'
         positions, velocities = self._published(source, mine, horizon, latest)
-        check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
-                             None if theirs is None else theirs[0],
-                             None if source == 'model' else positions, horizon.theta_d)
-        self._trial(check, latest.t, cfg)
         frame = 'model' if source == 'model' else f'baseline:{source}'
         if horizon.beyond is not None:
             frame += f';beyond_plan_from={horizon.beyond:.3f}'
         sec, nanosec = latest.stamp
         stamp = Time(sec=sec, nanosec=nanosec)
-        sigma = check.uncertainty(t, source)
+        sigma = self._uncertainty(check, t, source)
         new = latest.received_ns != self._last_predicted_ns  # not again from the same state
         self._last_predicted_ns = latest.received_ns
         self._publish(Prediction(
@@ -324,8 +325,31 @@ class Predictor:
             _state_ahead(latest.stamp, joints, t, positions, velocities,
                          cfg['prediction.lookahead'], frame)))
         self.inputs = horizon.what
+        # -- after the prediction is out: its scoring and what the next ones use
+        theirs = None
+        if not 0.0 <= latest.t - self._candidate_at < CANDIDATE_EVERY_S:
+            # at most every CANDIDATE_EVERY_S: its trial compares it with the model on the
+            # same targets, and at 1 kHz with prediction.on_state a second rollout per
+            # prediction took half of the prediction thread
+            theirs = self._rollout(candidate, joints, x0, horizon, latest.t, check)
+            self._candidate_at = latest.t if theirs is not None else -math.inf
+        check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
+                             None if theirs is None else theirs[0],
+                             None if source == 'model' else positions, horizon.theta_d)
+        self._trial(check, latest.t, cfg)
+        if self._decide(check, latest.t, publishable) is not decision or \
+                self._sigma is None or self._sigma[0] != source:
+            self._sigma = None  # the uncertainty with the new scores, for the next ones
+            self._uncertainty(check, t, self._decision.source)
         self._report(check, latest.t)
         return True
+
+    def _uncertainty(self, check: SelfCheck, t: np.ndarray, source: str) -> np.ndarray:
+        """Return the expected error at ``t`` (K, n) of ``source``, kept until rescored."""
+        key = (source, t.size, float(t[-1]))
+        if self._sigma is None or self._sigma[:3] != key:
+            self._sigma = key + (check.uncertainty(t, source),)
+        return self._sigma[3]
 
     def _self_check(self, cfg, n: int) -> SelfCheck:
         """Return the self-check for these settings (a new one if they changed), fed."""
