@@ -440,3 +440,31 @@ def test_case_unknown_predicts_with_the_linear_closed_loop_where_it_holds():
     rig.step(dt=REFIT_S)
     assert rig.lines("predictions go back to the search's model")
     assert rig.of(LoopUpdate)[-1].loop is None
+
+
+def test_case_pd_gains_predicts_with_the_linear_closed_loop_too():
+    # known gains: the same fit as case 3 (it needs neither torque nor the gains), closed
+    # with the fitted PD; the search runs with the known gains as before
+    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 16.0,
+                    rate=100.0, joint_names=JOINTS)
+    buffer = StreamBuffer(JOINTS, 0.01, 16.0, 0.1, need_tau=False, need_desired=True)
+    for k in range(data.n_samples):
+        buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+        buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+    pd = PDController.paper()
+    kp, kd = np.diag(pd.kp), np.diag(pd.kd)
+    rig = Rig(buffer, settings(case='pd_gains', kp=tuple(kp), kd=tuple(kd),
+                               model_publish_period=0.2,
+                               optimizer_settings={'population_size': 4}))
+    rig.run(3)
+    assert rig.lines('predictions roll out the closed loop fitted linearly')
+    first = rig.of(LoopUpdate)[0]
+    assert first.model is None and isinstance(first.loop.loop, TrigLoop)
+    law = first.loop.loop.law
+    # the fitted gains are the servo's up to one common factor
+    ratio = law.kp / kp
+    np.testing.assert_allclose(ratio, ratio.mean(), rtol=0.03)
+    rig.run(3, dt=0.3)
+    update = rig.of(ModelUpdate)[-1]
+    assert update.model.case == 'pd_gains'
+    assert isinstance(update.loop.loop, TrigLoop) and update.loop.model is update.model

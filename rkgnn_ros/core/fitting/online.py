@@ -44,9 +44,11 @@ The rules (the node's documentation states them for users):
   move. Without a law it runs on the measured torque, and no model prediction is made.
   Where the planar trigonometric basis holds the arm, predictions roll that global arm out
   closed with the law instead (:meth:`.case_one.LawKeeper.fit_trig`).
-- Case 'unknown': the arm and its servo fitted together by linear least squares on the
-  trigonometric basis (:class:`.case_three.ArmKeeper`) predict while they explain held-out
-  data; the search's model is published and predicts otherwise.
+- Cases 'unknown' and 'pd_gains': the arm and its servo fitted together by linear least
+  squares on the trigonometric basis (:class:`.case_three.ArmKeeper`) predict while they
+  explain held-out data; the search's model is published and predicts otherwise. (With
+  known gains too: the closed loop's prediction does not depend on the common scale the
+  fit leaves open, and the fit checks the servo's form on held-out data.)
 - θ̇ of the buffered data is the centred derivative of θ when the observation says so.
 - A stream silent for ``stale_timeout`` pauses the search (one warning); a reset, a change
   of the settings' ``version`` or of the case (``case: auto`` follows the streams) restarts
@@ -87,6 +89,9 @@ EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
 REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
 MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search restarts
 LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
+#: Cases whose predictions use the linear closed-loop fit on the trigonometric basis
+#: (:class:`.case_three.ArmKeeper`): it needs neither torque nor the gains.
+_CLOSED_FIT_CASES = ('unknown', 'pd_gains')
 
 
 def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[float]]]:
@@ -317,7 +322,7 @@ class OnlineIdentification:
         else:
             segments = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, False),
                                       estimate_velocity)
-            if settings.case == 'unknown':
+            if settings.case in _CLOSED_FIT_CASES:
                 fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock())
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
             self._reclose(fitted[1])
@@ -350,7 +355,7 @@ class OnlineIdentification:
         if line is not None:
             self._log(*line)
         model = self._model  # None: case 3's loop may predict before any model
-        if model is None or model.case in ('torque', 'unknown'):
+        if model is None or model.case in ('torque',) + _CLOSED_FIT_CASES:
             self._loop = (self._laws if model is not None and model.case == 'torque' else
                           self._arm3).close(model)
             self._events.append(LoopUpdate(model, self._loop))
@@ -508,7 +513,7 @@ class OnlineIdentification:
         law = self._laws.law
         model, closed = self._laws.published(model, settings.case)
         gains = model.implied_gains()
-        loop = self._arm3.close(model) if model.case == 'unknown' else None
+        loop = self._arm3.close(model) if model.case in _CLOSED_FIT_CASES else None
         if model.case == 'torque' and law is not None:
             gains = (law.kp, law.kd)
             loop = self._laws.close(model, closed)
