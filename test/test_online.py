@@ -468,3 +468,27 @@ def test_case_pd_gains_predicts_with_the_linear_closed_loop_too():
     update = rig.of(ModelUpdate)[-1]
     assert update.model.case == 'pd_gains'
     assert isinstance(update.loop.loop, TrigLoop) and update.loop.model is update.model
+
+
+def test_case_torque_predicts_with_the_trigonometric_arm_before_any_model():
+    # the law and the trigonometric arm fitted on the measured torque close a loop that
+    # predicts at once, as cases 2 and 3 do, instead of waiting for the search's model
+    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 16.0,
+                    rate=100.0, joint_names=JOINTS)
+    buffer = StreamBuffer(JOINTS, 0.01, 16.0, 0.1, need_tau=True, need_desired=True)
+    for k in range(data.n_samples):
+        buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+        buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+    rig = Rig(buffer, settings(case='torque', model_publish_period=0.2,
+                               optimizer_settings={'population_size': 4}))
+    rig.step()   # the law is learned (no loop yet), then the arm fitted and closed with it
+    assert rig.lines('predictions roll out the arm fitted on the trigonometric basis')
+    kinds = [type(e) for e in rig.events]
+    first = next(e for e in rig.events if isinstance(e, LoopUpdate) and e.loop is not None)
+    assert first.model is None and isinstance(first.loop.loop, TrigLoop)
+    assert first.loop.loop.law is rig.policy._laws.law
+    assert ModelUpdate not in kinds[:rig.events.index(first)]   # before the search's model
+    rig.run(3, dt=0.3)
+    update = rig.of(ModelUpdate)[-1]
+    assert update.model.case == 'torque'
+    assert isinstance(update.loop.loop, TrigLoop) and update.loop.model is update.model

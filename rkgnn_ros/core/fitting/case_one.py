@@ -338,20 +338,24 @@ class LawKeeper:
                              info=dict(model.info, controller_law=law.to_dict())), model
         return model, None
 
-    def close(self, model: RKGNNModel,
+    def close(self, model: Optional[RKGNNModel],
               closed: Optional[RKGNNModel] = None) -> Optional[PredictionLoop]:
         """
         Return the case-1 ``model`` closed with the law for prediction (None if it cannot be).
 
-        The trigonometric arm (:meth:`fit_trig`) when it holds the arm; else ``closed``, the
+        The trigonometric arm (:meth:`fit_trig`) when it holds the arm (also with ``model``
+        None: it predicts before the search has published a model); else ``closed``, the
         closed-loop search's own model (rolled out as it was searched); else the law's
         θ-terms are projected on the model's units over :attr:`theta`.
         """
         law = self.law
-        if law is None or law.n_joints != model.n_joints or not np.all(law.kp > 0.0):
+        if law is None or not np.all(law.kp > 0.0) or \
+                model is not None and law.n_joints != model.n_joints:
             return None
         if self.trig is not None and self.trig.law is law:
             return PredictionLoop(model, self.trig, self.time)
+        if model is None:
+            return None
         if closed is not None:
             return PredictionLoop(model, prediction_loop(closed, law), self.time)
         return PredictionLoop(model, closed_loop(model, law, theta_samples=self.theta),

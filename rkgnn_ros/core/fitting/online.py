@@ -325,7 +325,7 @@ class OnlineIdentification:
             if settings.case in _CLOSED_FIT_CASES:
                 fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock())
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
-            self._reclose(fitted[1])
+            self._reclose(fitted[1], settings.case)
         train, validation, seconds = split_validation(
             segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)
         if seconds < settings.min_window or not train:
@@ -350,14 +350,14 @@ class OnlineIdentification:
         self._data_version += 1
         return True
 
-    def _reclose(self, line: Optional[Tuple[str, str]]) -> None:
-        """Log ``line``; close the published model (case 1 or 3) again for prediction."""
+    def _reclose(self, line: Optional[Tuple[str, str]], case: str) -> None:
+        """Log ``line``; close the published model (``case`` if none yet) for prediction."""
         if line is not None:
             self._log(*line)
-        model = self._model  # None: case 3's loop may predict before any model
+        model = self._model  # None: a global loop may predict before any model
         if model is None or model.case in ('torque',) + _CLOSED_FIT_CASES:
-            self._loop = (self._laws if model is not None and model.case == 'torque' else
-                          self._arm3).close(model)
+            torque = (case if model is None else model.case) == 'torque'
+            self._loop = (self._laws if torque else self._arm3).close(model)
             self._events.append(LoopUpdate(model, self._loop))
 
     def _update_law(self, segments: List[Dataset], origin: float) -> Optional[ControllerLaw]:
@@ -384,7 +384,7 @@ class OnlineIdentification:
             self._resume = resume
         elif searching:
             self._drop_search('the controller law changed')
-        self._reclose(refit.line)
+        self._reclose(refit.line, 'torque')
         return refit.law
 
     def _build_search(self, settings: OnlineSettings, train, joints, seconds: float) -> None:
