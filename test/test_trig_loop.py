@@ -24,7 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_MAX_TORQUE_ERROR,
+from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_FIRST_RETRY_S,
+                                             TRIG_MAX_TORQUE_ERROR, TRIG_MIN_SAMPLES,
                                              TRIG_RETRY_S)
 from rkgnn_ros.core.fitting.case_three import ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S
 from rkgnn_ros.core.fitting.trig_loop import fit_closed_trig_loop, fit_trig_loop
@@ -165,9 +166,24 @@ def test_the_keeper_predicts_with_it_only_where_the_basis_holds_the_arm(pd_data)
                                                       wrong.tau.shape))
     ran, line = keeper.fit_trig(train + [wrong], fraction, 1.0)
     assert ran and keeper.trig is None and 'back' in line[1]
-    # an arm it did not hold is fitted again only TRIG_RETRY_S later
-    assert keeper.fit_trig(train + [wrong], fraction, 2.0) == (False, None)
-    assert keeper.fit_trig(train + [wrong], fraction, 1.0 + TRIG_RETRY_S)[0]
+    # an arm it did not hold is fitted again 1 s later, then after 2, 4, ... at most
+    # TRIG_RETRY_S: a spatial arm does not pay the fit at every refresh
+    tried, wait = 1.0, TRIG_FIRST_RETRY_S
+    for _ in range(6):
+        assert keeper.fit_trig(train + [wrong], fraction, tried + 0.9 * wait) == (False, None)
+        tried += wait
+        assert keeper.fit_trig(train + [wrong], fraction, tried)[0] and keeper.trig is None
+        wait = min(TRIG_RETRY_S, 2.0 * wait)
+    assert wait == TRIG_RETRY_S
+
+
+def test_the_keeper_waits_for_enough_samples_without_starting_its_retry_clock(pd_data):
+    keeper = LawKeeper()
+    keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
+    few = pd_data.slice(0, TRIG_MIN_SAMPLES // 2)
+    assert keeper.fit_trig([few], 0.2, 0.0) == (False, None)
+    ran, line = keeper.fit_trig([pd_data.slice(0, 1800)], 300 / 1800, 0.1)   # at once
+    assert ran and keeper.trig is not None and 'trigonometric' in line[1]
 
 
 @pytest.mark.parametrize('servo,noise', [

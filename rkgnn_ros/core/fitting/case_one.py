@@ -74,8 +74,11 @@ LAW_THETA_SAMPLES = 2000    # θ samples kept to project a law's θ-terms on a m
 #: is at most this (a planar arm fits it to 0.5-2 %; an arm the basis does not hold, far worse).
 TRIG_MAX_TORQUE_ERROR = 0.1
 
-#: Seconds after which a trigonometric arm that did not hold is fitted again.
+#: Seconds after which a trigonometric arm that did not hold is fitted again: 1 s after the
+#: first try (the window grows fast then), doubling with each further one up to 10 s.
 TRIG_RETRY_S = 10.0
+TRIG_FIRST_RETRY_S = 1.0
+TRIG_MIN_SAMPLES = 200      # training samples (with torque) needed to try the fit
 
 
 def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples: int = 50,
@@ -253,6 +256,7 @@ class LawKeeper:
         self.theta: Optional[np.ndarray] = None
         self.trig: Optional[TrigLoop] = None    # the global arm closed with the law
         self._trig_tried = -math.inf             # when it was last fitted (clock s)
+        self._trig_failures = 0                  # fits in a row that did not hold
 
     def fit_trig(self, paired: Sequence[Dataset], validation_fraction: float,
                  now: float) -> Tuple[bool, Optional[Tuple[str, str]]]:
@@ -260,25 +264,33 @@ class LawKeeper:
         Fit the trigonometric arm on ``paired`` and close it with the law in use.
 
         The newest ``validation_fraction`` is held out; the arm predicts (:meth:`close`)
-        while its torque error there is at most :data:`TRIG_MAX_TORQUE_ERROR`. Where it did
-        not hold, it is fitted again only :data:`TRIG_RETRY_S` after the last try (clock
-        ``now``, s): an arm the planar basis does not hold (a spatial one) would pay the fit
-        at every refresh for nothing. Returns whether it was fitted, and the (level, text)
-        to log when whether it predicts changed.
+        while its torque error there is at most :data:`TRIG_MAX_TORQUE_ERROR`. Until
+        :data:`TRIG_MIN_SAMPLES` training samples are buffered it is not tried. Where it did
+        not hold, it is fitted again :data:`TRIG_FIRST_RETRY_S` after the try (clock ``now``,
+        s), doubling with each further failure up to :data:`TRIG_RETRY_S`: an arm the planar
+        basis does not hold (a spatial one) would pay the fit at every refresh for nothing.
+        Returns whether it was fitted, and the (level, text) to log when whether it predicts
+        changed.
         """
-        if self.trig is None and now - self._trig_tried < TRIG_RETRY_S:
+        wait = min(TRIG_RETRY_S, TRIG_FIRST_RETRY_S * 2.0 ** max(0, self._trig_failures - 1))
+        if self.trig is None and now - self._trig_tried < wait:
             return False, None
-        self._trig_tried = now
         train, validation, _ = split_validation(paired, validation_fraction,
                                                 MIN_SEGMENT_SAMPLES)
+        if self.trig is None and sum(seg.n_samples for seg in train
+                                     if seg.tau is not None) < TRIG_MIN_SAMPLES:
+            return False, None   # too few to try: tried again at the next refresh
+        self._trig_tried = now
         before = self.trig is not None
-        loop = fit_trig_loop(train, validation, self.law) if self.law is not None else None
+        loop = (fit_trig_loop(train, validation, self.law, TRIG_MIN_SAMPLES)
+                if self.law is not None else None)
         if loop is not None and not loop.torque_error <= TRIG_MAX_TORQUE_ERROR:
             why = f'held-out torque error {loop.torque_error:.1%}'
             loop = None
         else:
             why = 'no law or too few samples'
         self.trig = loop
+        self._trig_failures = 0 if loop is not None else self._trig_failures + 1
         if loop is not None and not before:
             return True, ('info', 'predictions roll out the arm fitted on the trigonometric '
                           f'basis (held-out torque error {loop.torque_error:.2%}) closed with '
