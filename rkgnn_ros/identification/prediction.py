@@ -275,15 +275,7 @@ class Predictor:
     # ------------------------------------------------------------------ predicting
 
     def predict(self) -> bool:
-        """
-        Publish one prediction from the newest state now; return whether one was.
-
-        Only what the prediction needs comes before it is handed over (the feed, the
-        horizon, the model's rollout, the decision and the uncertainty taken after an
-        earlier prediction, both at most DECIDE_EVERY_S old); its scoring, the candidate's
-        rollout, the trial and the next decision come after, so the state-to-prediction
-        time is the rollout's.
-        """
+        """Publish one prediction from the newest state, then score it; return if one was."""
         latest, joints = self._ingestion.latest_state, self._ingestion.joints
         if latest is None or joints is None:
             return False
