@@ -41,7 +41,9 @@ order, and the first failing one gives the reason:
    (NaN is the ROS convention for "not filled"), rejected as ``'missing_velocity'``; the
    sample is dropped, velocities are never estimated from positions here. An infinite
    velocity is ``'non_finite'``. When velocity is not needed, a missing or non-finite
-   velocity is returned as None and never causes a rejection.
+   velocity is returned as None and never causes a rejection. With ``need_velocity`` set
+   to :data:`IF_PRESENT`, a missing velocity is None and an infinite one ``'non_finite'``
+   (the first non-finite value decides which).
 7. Effort, when ``need_effort``: the same rule with ``'missing_effort'``.
 
 Any other failure (an object that is not a JointState at all) is ``'malformed'``.
@@ -74,7 +76,7 @@ from .messages import (duration_to_seconds, make_float64_multiarray, make_joint_
                        seconds_to_stamp, serialize_joint_trajectory, stamp_to_seconds)
 
 __all__ = [
-    'REJECTION_REASONS', 'Rejection', 'JointSample', 'TrajectorySample',
+    'REJECTION_REASONS', 'IF_PRESENT', 'Rejection', 'JointSample', 'TrajectorySample',
     'MAX_MESSAGE_JOINTS', 'MAX_NAME_BYTES', 'MAX_STATE_BYTES', 'MAX_TRAJECTORY_BYTES',
     'MAX_TRAJECTORY_POINTS',
     'joint_state_to_arrays', 'joint_state_cdr_to_arrays', 'parse_joint_state_cdr',
@@ -196,6 +198,10 @@ def _bytes_rejection(raw, limit: int, what: str) -> Optional[Rejection]:
     return None
 
 
+#: ``need_velocity`` / ``need_effort`` value: a missing field is None, an infinite one rejects.
+IF_PRESENT = 'if_present'
+
+
 @lru_cache(maxsize=64)
 def _names_rejection(names: Tuple[str, ...]) -> Optional[Rejection]:
     """Return the rejection of joint names over the budgets, else None (cached as above)."""
@@ -222,10 +228,11 @@ def _optional_field(values, index, joints, field_name, needed, missing_reason):
     """
     Pick a velocity/effort field; returns ``(array or None, Rejection or None)``.
 
-    Empty or NaN means missing; inf is non-finite. Only a needed field can reject.
+    Empty or NaN means missing; inf is non-finite. A needed field (True) rejects either; a
+    field that is not (False) is None then; :data:`IF_PRESENT`: missing is None, inf rejects.
     """
     if values.size == 0:
-        if needed:
+        if needed and needed is not IF_PRESENT:
             return None, Rejection(missing_reason, f'{field_name} is empty')
         return None, None
     used = values[index]
@@ -236,6 +243,8 @@ def _optional_field(values, index, joints, field_name, needed, missing_reason):
         return None, None
     bad = int(np.flatnonzero(~finite)[0])
     if np.isnan(used[bad]):
+        if needed is IF_PRESENT:
+            return None, None
         return None, Rejection(missing_reason, f'{field_name} is NaN for joint {joints[bad]!r}')
     return None, Rejection(
         'non_finite', f'{field_name} is {used[bad]} for joint {joints[bad]!r}')

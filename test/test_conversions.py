@@ -522,3 +522,41 @@ def test_property_arbitrary_messages_never_raise_and_stay_finite(
         assert np.isfinite(reference[0]).all() and np.isfinite(reference[1]).all()
     stats = buffer.stats()
     assert stats['counters']['resample_failed'] == 0
+
+
+def _three_passes(raw, need_effort):
+    """Read as read_joint_state did, in three passes: strict, then without what is missing."""
+    def read(velocity, effort):
+        return conv.joint_state_cdr_to_arrays(raw, JOINTS, velocity, effort)
+    sample = read(True, True)
+    if not sample.ok:
+        if sample.reason == 'missing_velocity':
+            sample = read(False, True)
+            if not sample.ok and sample.reason == 'missing_effort':
+                sample = read(False, False)
+        elif sample.reason == 'missing_effort':
+            sample = read(True, False)
+    if sample.ok and need_effort and sample.effort is None:
+        return conv.Rejection('missing_effort', 'effort is empty or NaN (case torque)')
+    return sample
+
+
+_FIELD = st.one_of(st.just(()), st.lists(st.sampled_from([0.5, -1.0, math.nan, math.inf]),
+                                         min_size=2, max_size=2))
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(velocity=_FIELD, effort=_FIELD, need_effort=st.booleans())
+def test_one_pass_read_equals_the_strict_then_relaxed_rule(velocity, effort, need_effort):
+    from rkgnn_ros.identification.sources import read_joint_state
+    raw = serialize_message(joint_state(velocity=velocity, effort=effort))
+    got, expected = read_joint_state(raw, JOINTS, need_effort), _three_passes(raw, need_effort)
+    assert got.ok == expected.ok
+    if expected.ok:
+        for name in ('position', 'velocity', 'effort'):
+            a, b = getattr(got, name), getattr(expected, name)
+            assert (a is None) == (b is None)
+            if a is not None:
+                np.testing.assert_array_equal(a, b)
+    else:
+        assert (got.reason, got.message) == (expected.reason, expected.message)

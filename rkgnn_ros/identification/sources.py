@@ -57,7 +57,8 @@ from typing import Dict, Optional, Tuple
 import numpy as np
 from rclpy.serialization import deserialize_message
 from rkgnn_ros.cdr import is_plain_cdr
-from rkgnn_ros.conversions import joint_state_cdr_to_arrays, joint_state_to_arrays, Rejection
+from rkgnn_ros.conversions import (IF_PRESENT, joint_state_cdr_to_arrays, joint_state_to_arrays,
+                                   Rejection)
 from rkgnn_ros.core.differentiate import CAUSAL_ORDER, causal_slope, CAUSAL_WINDOW
 from rkgnn_ros.identification.parameters import auto_case
 from sensor_msgs.msg import JointState
@@ -227,18 +228,11 @@ def read_joint_state(raw: bytes, joints, need_effort: bool):
     Read a raw JointState whose velocity and effort may be missing (empty or NaN).
 
     A missing field comes back as None; inf in a field it has is 'non_finite'; with
-    ``need_effort`` a missing effort is 'missing_effort'. Read strictly first (the usual
-    message: one pass), then without the missing field.
+    ``need_effort`` a missing effort is 'missing_effort'. One pass over the bytes, usual
+    message or not (commands carry no effort: at 1 kHz a second pass cost a third of
+    their handling).
     """
-    sample = _read(raw, joints, True, True)
-    if sample.ok:
-        return sample
-    if sample.reason == 'missing_velocity':
-        sample = _read(raw, joints, False, True)
-        if not sample.ok and sample.reason == 'missing_effort':
-            sample = _read(raw, joints, False, False)
-    elif sample.reason == 'missing_effort':
-        sample = _read(raw, joints, True, False)
+    sample = _read(raw, joints, IF_PRESENT, IF_PRESENT)
     if sample.ok and need_effort and sample.effort is None:
         return Rejection('missing_effort', 'effort is empty or NaN (case torque)')
     return sample
