@@ -21,9 +21,13 @@ handling and the shared parameter row type. The node's behaviour through its top
 services is in ``test_identifier.py`` and ``test_reliability.py``.
 """
 
+import json
 import math
 import os
 import random
+import subprocess
+import sys
+import threading
 
 import numpy as np
 import pytest
@@ -434,6 +438,47 @@ def test_the_worker_logs_counts_and_survives_a_failing_step(data):
     assert 'identification worker failed (1 in a row), retrying in 0.5 s' in failures[0]
     assert 'Traceback' in failures[0] and 'injected' in failures[0]
     assert 'retrying in 1.0 s' in failures[1]  # backing off
+
+
+def test_the_worker_runs_blas_on_its_own_thread_only(data, monkeypatch):
+    from rkgnn_ros.identification import worker as worker_module
+    threads = []
+    monkeypatch.setattr(worker_module, 'single_threaded_blas',
+                        lambda: threads.append(threading.current_thread().name))
+    outbox = Outbox()
+    ingestion = Ingestion(make_config(joints=list(JOINTS)), outbox.log)
+    worker = SearchWorker(ingestion, Predictor(ingestion, lambda raw: None, make_config),
+                          outbox, policy=_Failing)
+    worker.start()
+    try:
+        assert wait_for(lambda: threads, 60.0)
+    finally:
+        assert worker.stop()
+    assert threads == ['rkgnn_identifier']
+
+
+def test_single_threaded_blas_set_from_a_thread_holds_for_the_process():
+    pytest.importorskip('threadpoolctl')
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip('one core: BLAS runs one thread anyway')
+    script = (
+        'import json, threading, numpy, scipy.linalg, threadpoolctl\n'
+        'from rkgnn_ros.identification.worker import single_threaded_blas\n'
+        'info = lambda: [lib["num_threads"] for lib in threadpoolctl.threadpool_info()\n'
+        '                if lib["user_api"] == "blas"]\n'
+        'before = info()\n'
+        'thread = threading.Thread(target=single_threaded_blas)\n'
+        'thread.start()\n'
+        'thread.join()\n'
+        'print(json.dumps([before, info()]))\n')
+    env = dict(os.environ)
+    env.pop('OPENBLAS_NUM_THREADS', None)
+    env.pop('OMP_NUM_THREADS', None)
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                         timeout=120, env=env, check=True).stdout
+    before, after = json.loads(out.strip().splitlines()[-1])
+    assert before and max(before) > 1  # numpy's default: a thread per core
+    assert after == [1] * len(before)
 
 
 def test_the_worker_reports_status_and_pause(data):
