@@ -30,6 +30,7 @@ exit 1) and SIGINT mid-generation (exit 0, saved model).
 import math
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -531,11 +532,18 @@ def test_a_model_with_wrong_gravity_is_replaced_by_the_baseline_with_the_reason(
         reason = values['prediction_source_reason']
         assert 'error over the last' in reason and 'for follow_reference' in reason
         assert reason.endswith('publishing follow_reference'), reason
-        # the scores say why: the model's error against the baselines', on the same targets
-        scores = values['selfcheck.0.5s']
-        model_score = float(scores.split('model ')[1].split('%')[0])
-        follow_score = float(scores.split('follow_reference ')[1].split('%')[0])
-        assert model_score > follow_score
+        # the reason gives the figures it was decided on (a horizon, the full or the recent
+        # window, and while the model is not in use the margin it must beat): they say so.
+        # (Not the 0.5 s row of the scores: the decision may rest on another horizon or
+        # window, and with the margin a model 7 % better than following is still set aside;
+        # a CI run under load saw 9.99 % against 10.77 % there.)
+        figures = re.search(r'is ([0-9.]+)% of the range against ([0-9.]+)% for \w+'
+                            r'(?: \(it must be ([0-9]+)% better\))?', reason)
+        assert figures, reason
+        mine, theirs = float(figures[1]), float(figures[2])
+        margin = float(figures[3]) / 100.0 if figures[3] else 0.0
+        assert mine >= (1.0 - margin) * theirs - 0.01, reason  # printed to 0.01 %
+        assert float(values['selfcheck.0.5s'].split('model ')[1].split('%')[0]) > 0.0
         # what went out while it said so is marked as that baseline (under load the better
         # baseline may change by the time the next prediction arrives: look at them all)
         assert wait_for(lambda: any(m.header.frame_id == 'baseline:follow_reference'
