@@ -79,6 +79,17 @@ def buffer_with(data, seconds, case='unknown', commands=True):
     return buffer
 
 
+def sixteen_seconds(need_tau):
+    """Return a 16 s buffer of the paper's arm under its PD, states and commands."""
+    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 16.0,
+                    rate=100.0, joint_names=JOINTS)
+    buffer = StreamBuffer(JOINTS, 0.01, 16.0, 0.1, need_tau=need_tau, need_desired=True)
+    for k in range(data.n_samples):
+        buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+        buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+    return buffer
+
+
 class Rig:
     """A policy, its fake clock, what it said, and the observation it is given."""
 
@@ -445,12 +456,7 @@ def test_case_unknown_predicts_with_the_linear_closed_loop_where_it_holds():
 def test_case_pd_gains_predicts_with_the_linear_closed_loop_too():
     # known gains: the same fit as case 3 (it needs neither torque nor the gains), closed
     # with the fitted PD; the search runs with the known gains as before
-    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 16.0,
-                    rate=100.0, joint_names=JOINTS)
-    buffer = StreamBuffer(JOINTS, 0.01, 16.0, 0.1, need_tau=False, need_desired=True)
-    for k in range(data.n_samples):
-        buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
-        buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+    buffer = sixteen_seconds(need_tau=False)
     pd = PDController.paper()
     kp, kd = np.diag(pd.kp), np.diag(pd.kd)
     rig = Rig(buffer, settings(case='pd_gains', kp=tuple(kp), kd=tuple(kd),
@@ -473,12 +479,7 @@ def test_case_pd_gains_predicts_with_the_linear_closed_loop_too():
 def test_case_torque_predicts_with_the_trigonometric_arm_before_any_model():
     # the law and the trigonometric arm fitted on the measured torque close a loop that
     # predicts at once, as cases 2 and 3 do, instead of waiting for the search's model
-    data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 16.0,
-                    rate=100.0, joint_names=JOINTS)
-    buffer = StreamBuffer(JOINTS, 0.01, 16.0, 0.1, need_tau=True, need_desired=True)
-    for k in range(data.n_samples):
-        buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
-        buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+    buffer = sixteen_seconds(need_tau=True)
     rig = Rig(buffer, settings(case='torque', model_publish_period=0.2,
                                optimizer_settings={'population_size': 4}))
     rig.step()   # the law is learned (no loop yet), then the arm fitted and closed with it
