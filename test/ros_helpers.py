@@ -100,6 +100,35 @@ def stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
+class Spinner:
+    """
+    Spin ``executor`` in a background thread until :meth:`stop`.
+
+    ``Executor.shutdown`` from another thread races the spinning one in rclpy (Jazzy 7.1):
+    it destroys the executor's guard condition at once, and a spin that is building its
+    wait set then raises ("wait set is empty", or the context is not valid) and its thread
+    dies with an unhandled exception. Here the thread spins in short waits and leaves on
+    its own; the executor is shut down after it has gone.
+    """
+
+    def __init__(self, executor, period: float = 0.05):
+        self.executor = executor
+        self._period = period
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        while not self._stop.is_set() and self.executor.context.ok():
+            self.executor.spin_once(timeout_sec=self._period)
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop spinning, wait for the thread, then shut the executor down."""
+        self._stop.set()
+        self._thread.join(timeout)
+        self.executor.shutdown(timeout_sec=2.0)
+
+
 @contextmanager
 def spinning_context(domain_id):
     """Yield (context, executor) on a private context, the executor spinning in a thread."""
@@ -108,11 +137,9 @@ def spinning_context(domain_id):
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
     executor = SingleThreadedExecutor(context=context)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
+    spinner = Spinner(executor)
     try:
         yield context, executor
     finally:
-        executor.shutdown(timeout_sec=2.0)
+        spinner.stop()
         rclpy.try_shutdown(context=context)
-        thread.join(timeout=5.0)

@@ -55,7 +55,7 @@ from rkgnn_ros.identification.parameters import (make_config, MAX_POPULATION,
                                                  PARAMETERS)
 from rkgnn_ros.identifier import IdentifierNode
 from rkgnn_ros.stream_buffer import StreamBuffer
-from ros_helpers import Rosout, wait_for
+from ros_helpers import Rosout, Spinner, wait_for
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
@@ -107,8 +107,7 @@ class LiveNode:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.client)
-        self.spinner = threading.Thread(target=self.executor.spin, daemon=True)
-        self.spinner.start()
+        self.spinner = Spinner(self.executor)
 
     def _on_prediction(self, msg):
         values = np.array([list(p.positions) + list(p.velocities) for p in msg.points])
@@ -162,8 +161,7 @@ class LiveNode:
         return halt
 
     def close(self):
-        self.executor.shutdown(timeout_sec=2.0)
-        self.spinner.join(5.0)
+        self.spinner.stop()
         self.node.stop()
         self.node.destroy_node()
         self.client.destroy_node()

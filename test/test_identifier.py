@@ -52,7 +52,7 @@ from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode
-from ros_helpers import retire_node, run_in_executor, wait_for
+from ros_helpers import retire_node, run_in_executor, Spinner, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
@@ -235,8 +235,7 @@ def rig():
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     executor.add_node(test_node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
+    spinner = Spinner(executor)
     streamer = Streamer(test_node, data)
     rig = type('Rig', (), {})()
     rig.node, rig.test_node, rig.probe, rig.streamer = node, test_node, probe, streamer
@@ -247,8 +246,7 @@ def rig():
     finally:
         streamer.stop()
         node.stop()
-        executor.shutdown(timeout_sec=2.0)
-        spinner.join(5.0)
+        spinner.stop()
         node.destroy_node()
         test_node.destroy_node()
         rclpy.try_shutdown(context=context)

@@ -70,7 +70,7 @@ from rkgnn_ros.identification.publishing import Outbox
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.identifier import IdentifierNode
 from rkgnn_ros.stream_buffer import StreamBuffer
-from ros_helpers import Rosout, wait_for
+from ros_helpers import Rosout, Spinner, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
@@ -477,8 +477,7 @@ class NodeRig:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.executor.add_node(self.client)
-        self.spinner = threading.Thread(target=self.executor.spin, daemon=True)
-        self.spinner.start()
+        self.spinner = Spinner(self.executor)
 
     def _add(self, store, msg):
         with self.lock:
@@ -490,8 +489,7 @@ class NodeRig:
                 self._add(self.diagnostics, {kv.key: kv.value for kv in status.values})
 
     def close(self):
-        self.executor.shutdown(timeout_sec=2.0)
-        self.spinner.join(5.0)
+        self.spinner.stop()
         self.node.stop()
         self.node.destroy_node()
         self.client.destroy_node()

@@ -45,7 +45,7 @@ from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.sim_arm import SimArm
 from rkgnn_ros.sim_arm_parameters import ConfigurationError, PARAMETERS
-from ros_helpers import retire_node
+from ros_helpers import retire_node, Spinner
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -69,12 +69,10 @@ def ros():
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=DOMAIN_ID)
     executor = SingleThreadedExecutor(context=context)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
+    spinner = Spinner(executor)
     yield context, executor
-    executor.shutdown(timeout_sec=2.0)
+    spinner.stop()
     rclpy.try_shutdown(context=context)
-    thread.join(timeout=5.0)
 
 
 def stamp_ns(msg) -> int:
