@@ -78,6 +78,26 @@ def test_decode_maps_the_normalised_genome_to_physical_units():
     np.testing.assert_allclose(p.kd[0], [3.0 / 0.5 * 3.0, 1.0 / 0.25 * 4.0])
 
 
+def test_extreme_width_genes_decode_to_finite_widths_without_warnings():
+    # an ES with a large step can sample width genes far out: exp(-2 g) must not overflow,
+    # and a unit at its own centre must not give inf * 0
+    import warnings
+    from rkgnn_ros.core.model.basis.rbf import LOG_WIDTH_LIMIT
+    spec = NetworkSpec(2, 'unknown', theta_units=2, torque_units=1, torque_linear=True)
+    g = np.zeros(spec.genome_size)
+    set_block(spec, g, 'theta_widths', [-1e4, 1e4])
+    set_block(spec, g, 'p_net', [[[0.0], [0.0]], [[-1e4], [1e4]], [[1.0], [1.0]]])
+    scales = unit_scales(2)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        p = spec.decode(g, scales)
+    assert np.all(np.isfinite(p.features)) and np.all(np.isfinite(p.p_inv_width2))
+    assert p.features[0, 0, 2] == pytest.approx(math.exp(2 * LOG_WIDTH_LIMIT) /
+                                                np.sum(scales.theta_spread ** 2))
+    assert 0.0 < p.features[0, 1, 2] < 1e-40                 # a flat unit, not a zero width
+    assert 0.0 < p.p_inv_width2[0, 0, 0] and np.isfinite(p.p_inv_width2[0, 1, 0])
+
+
 def test_decode_rejects_a_wrong_length():
     spec = NetworkSpec.paper(3)
     with pytest.raises(ValueError, match=r'shape \(P, 99\)'):

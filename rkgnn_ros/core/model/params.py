@@ -30,6 +30,7 @@ from numba import njit
 import numpy as np
 
 from .basis import registry
+from .basis.rbf import LOG_WIDTH_LIMIT
 
 CASE_IDS = {'torque': 0, 'pd_gains': 1, 'unknown': 2}
 
@@ -182,7 +183,8 @@ def decode(spec, genomes, scales) -> NetworkParams:
         if spec.case == 'unknown' and kt > 0:
             net = blk[f'{name}_net']
             torque_nets[name] = (scale_in[:, None] * net[:, 0],
-                                 np.exp(-2.0 * net[:, 1]) / scale_in[:, None] ** 2,
+                                 np.exp(-2.0 * np.clip(net[:, 1], -LOG_WIDTH_LIMIT,
+                                                       LOG_WIDTH_LIMIT)) / scale_in[:, None] ** 2,
                                  s.torque[:, None] * net[:, 2])
         else:
             torque_nets[name] = (np.zeros((pop, n, 0)),) * 3

@@ -31,6 +31,9 @@ from .base import Basis
 
 #: Code of this basis in the compiled dispatch (:mod:`.registry`).
 KIND = 0
+#: Width genes are read within ±this: e^50 spreads is flat, e^-50 a point; beyond it
+#: exp(-2 g) overflows and a unit at its centre would give inf · 0.
+LOG_WIDTH_LIMIT = 50.0
 
 
 @njit(cache=True, nogil=True, inline='always')
@@ -77,7 +80,8 @@ class GaussianRBF(Basis):
         """Return ``[c (n), 1/s²]`` per unit, shape (P, K, n + 1)."""
         centres = scales.theta_center + scales.theta_spread * blocks['theta_centres']
         width0 = float(np.linalg.norm(scales.theta_spread))
-        inv_width2 = np.exp(-2.0 * blocks['theta_widths']) / width0 ** 2
+        log_width = np.clip(blocks['theta_widths'], -LOG_WIDTH_LIMIT, LOG_WIDTH_LIMIT)
+        inv_width2 = np.exp(-2.0 * log_width) / width0 ** 2
         return np.concatenate([centres, inv_width2[..., None]], axis=-1)
 
     def initial(self, spec, rng=None):
