@@ -42,7 +42,7 @@ import numpy as np
 
 from .series import Series as _Series
 
-__all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'ahead_errors', 'range_normalised_rmse',
+__all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'ahead_errors', 'nrmse', 'range_normalised_rmse',
            'rollout_spread', 'finite_rows', 'PredictionRecord']
 
 #: Default horizons (s) scored.
@@ -100,6 +100,16 @@ def ahead_errors(stamps: Sequence[float], times: Sequence[np.ndarray],
     if not out_t:
         return np.empty(0), np.empty((0, meas_theta.shape[1]))
     return np.asarray(out_t), np.asarray(out_e)
+
+
+def nrmse(predicted, measured) -> float:
+    """θ-NRMSE: RMSE / std of the measured θ per joint, averaged over joints (inf if NaN)."""
+    predicted = np.asarray(predicted, dtype=float)
+    measured = np.asarray(measured, dtype=float)
+    if not np.all(np.isfinite(predicted)):
+        return float('inf')
+    rmse = np.sqrt(np.mean(np.square(predicted - measured), axis=0))
+    return float(np.mean(rmse / np.maximum(np.std(measured, axis=0), 1e-12)))
 
 
 def range_normalised_rmse(errors, theta_range) -> float:

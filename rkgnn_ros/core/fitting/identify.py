@@ -36,6 +36,7 @@ from ..integration.rkg import choose_substeps
 from ..model.model import RKGNNModel
 from ..model.scales import Scales
 from ..model.spec import NetworkSpec
+from ..scoring import nrmse  # noqa: F401 (re-exported: the API of identify)
 
 CASE_ALIASES = {'1': 'torque', 'torque': 'torque', '2': 'pd_gains', 'pd_gains': 'pd_gains',
                 '3': 'unknown', 'unknown': 'unknown'}
@@ -242,23 +243,30 @@ def fit(datasets, case, spec: Optional[NetworkSpec] = None, optimizer='cmaes', s
                      final_cost=float(evo.optimizer.best_cost))
 
 
-def nrmse(predicted, measured) -> float:
-    """θ-NRMSE: RMSE / std of the measured θ per joint, averaged over joints (inf if NaN)."""
-    predicted = np.asarray(predicted, dtype=float)
-    measured = np.asarray(measured, dtype=float)
-    if not np.all(np.isfinite(predicted)):
-        return float('inf')
-    rmse = np.sqrt(np.mean(np.square(predicted - measured), axis=0))
-    return float(np.mean(rmse / np.maximum(np.std(measured, axis=0), 1e-12)))
-
-
 def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = None, kp=None,
              kd=None, seed=0, shootings=(20, 0), lm_fraction=0.7, lm_nfev=30,
-             polish_sigma=0.05, callback: Optional[Callable[[dict], None]] = None,
+             polish_sigma=None, callback: Optional[Callable[[dict], None]] = None,
              theta_units=None, equation_nfev=500, equation_fraction=0.3,
-             max_generations: Optional[int] = None, **evolution_kw) -> FitResult:
+             max_generations: Optional[int] = None, basis: str = 'trig',
+             validation_fraction: float = 0.2, max_evaluations: Optional[int] = None,
+             **evolution_kw) -> FitResult:
     """
     Identify with our best pipeline inside a wall-time budget.
+
+    By default the network is global (:func:`.global_fit.global_spec` on ``basis``, the
+    trigonometric basis of a planar arm: M, V, G, F right on the whole joint range, not only
+    along the data), fitted by :func:`.global_fit.fit_global`: the closed-form fit of the
+    arm's coefficients, Levenberg-Marquardt on the rollouts over those coefficients (until
+    ``lm_fraction`` of the budget), CMA-ES over them (spread ``polish_sigma``, 0.01 of each
+    coefficient by default) for the rest, ``max_generations`` or ``max_evaluations``, or
+    until it stalls. The newest ``validation_fraction`` of the data is held out, and of the
+    stages' results the one with the lowest θ-NRMSE there is returned
+    (``info['validation_nrmse']``, ``info['selected']``). Each history entry has ``phase``
+    ('start', 'linear', 'lm', 'cmaes'), ``cost``, ``kept``, ``best_cost``, ``evaluations``,
+    ``wall_s`` and, when kept, ``validation_nrmse``.
+
+    With ``basis='rbf'``, ``theta_units`` or a ``spec`` that is not global, the paper-shaped
+    RBF network is fitted by the earlier pipeline, on all the data:
 
     1. Equation error: the genome fitted to the inverse dynamics M θ̈ + V + G + F = τ at
        every sample (no rollout: fast, and it places gravity and inertia, which short
@@ -287,6 +295,7 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     CMA-ES entries also carry :meth:`Evolution.step`'s statistics.
     """
     from dataclasses import replace
+    from . import global_fit
     from .refine import refine_equation_error, refine_lm
     # default θ units per case: chosen on held-out data of the paper's arm (README)
     default_units = {'torque': 5, 'pd_gains': 5, 'unknown': 8}
@@ -294,6 +303,15 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
         datasets = [datasets]
     case = normalize_case(case)
     n = datasets[0].n_joints
+    if spec is None and theta_units is None and basis != 'rbf':
+        spec = global_fit.global_spec(n, case, basis)
+    if spec is not None and global_fit.is_global(spec):
+        return _fit_global_best(datasets, spec, time_budget, kp, kd, seed, shootings,
+                                lm_fraction, lm_nfev, 0.01 if polish_sigma is None
+                                else polish_sigma, callback, max_generations,
+                                validation_fraction, max_evaluations,
+                                evolution_kw.get('torque_interpolation', 'linear'))
+    polish_sigma = 0.05 if polish_sigma is None else polish_sigma
     if spec is None:
         spec = NetworkSpec.recommended(n, case)
         units = default_units[case] if theta_units is None else int(theta_units)
@@ -372,6 +390,41 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     return FitResult(model=model, history=history, evaluations=evaluations,
                      generations=evo.optimizer.generation,
                      wall_s=time.perf_counter() - t0, final_cost=best['cost'])
+
+
+def _fit_global_best(datasets, spec, time_budget, kp, kd, seed, shootings, lm_fraction,
+                     lm_nfev, polish_sigma, callback, max_generations, validation_fraction,
+                     max_evaluations, torque_interpolation) -> FitResult:
+    """:func:`fit_best` for a global network (:func:`.global_fit.fit_global`)."""
+    from .global_fit import fit_global
+    from .validation import split_validation
+    t0 = time.perf_counter()
+    train, validation, _ = split_validation(datasets, validation_fraction)
+    if not train:
+        train, validation = list(datasets), []
+    scales = Scales.from_datasets(datasets, spec.case, kp, kd)
+    substeps = default_substeps(datasets[0].dt, spec.case, kd, scales)
+
+    def on_stage(entry):
+        entry['wall_s'] = time.perf_counter() - t0
+        if callback is not None:
+            callback(entry)
+
+    result = fit_global(train, validation, spec, scales, substeps, kp, kd,
+                        deadline=t0 + time_budget, lm_deadline=t0 + lm_fraction * time_budget,
+                        shootings=shootings, lm_nfev=lm_nfev, polish_sigma=polish_sigma,
+                        max_generations=max_generations, max_evaluations=max_evaluations,
+                        seed=seed, torque_interpolation=torque_interpolation,
+                        on_stage=on_stage)
+    info = {'cost': result.cost, 'pipeline': 'linear+lm+cmaes', 'selected': result.phase,
+            'validation_nrmse': result.validation_nrmse,
+            'validation_s': float(sum(seg.duration for seg in validation))}
+    model = RKGNNModel(spec, scales, result.genome, datasets[0].joint_names, kp, kd,
+                       dt=datasets[0].dt, substeps=substeps,
+                       torque_interpolation=torque_interpolation, info=info)
+    return FitResult(model=model, history=result.history, evaluations=result.evaluations,
+                     generations=result.generations, wall_s=time.perf_counter() - t0,
+                     final_cost=result.cost)
 
 
 def precompile(n_joints=3) -> float:

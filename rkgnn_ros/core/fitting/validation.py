@@ -24,9 +24,9 @@ from typing import List, Sequence, Tuple
 
 import numpy as np
 
-from .identify import nrmse
 from ..data import Dataset
 from ..model.model import RKGNNModel
+from ..scoring import nrmse
 
 __all__ = ['MIN_SEGMENT_SAMPLES', 'split_validation', 'validation_nrmse']
 

@@ -238,6 +238,12 @@ class TrigDynamics:
             self.kp_ = self.kd_ = None
         self._full_coef = coef.copy()
 
+    @property
+    def full_coefficients(self) -> np.ndarray:
+        """Return every coefficient in :class:`Layout` order, the case-3 gains included."""
+        self._check()
+        return self._full_coef.copy()
+
     def _check(self):
         if self.coef_ is None:
             raise RuntimeError(f'{type(self).__name__} is not fitted yet: call fit() first')
