@@ -21,6 +21,7 @@ by hand.
 """
 
 import json
+import math
 import os
 import sys
 
@@ -95,7 +96,7 @@ def peers_section(d):
 
 
 def _cost(value):
-    return 'diverged' if value is None else f'{value:.4g}'
+    return 'diverged' if value is None or not math.isfinite(value) else f'{value:.4g}'
 
 
 def _held(entry):

@@ -364,7 +364,11 @@ def fit_global(train: Sequence[Dataset], validation: Sequence[Dataset], spec: Ne
         evaluations += xs.shape[0]
         i = int(np.argmin(np.where(np.isfinite(costs), costs, np.inf)))
         before = best['cost']
-        record('cmaes', xs[i], float(costs[i]), generation=int(optimizer.generation))
+        finite = costs[np.isfinite(costs)]
+        record('cmaes', xs[i], float(costs[i]), generation=int(optimizer.generation),
+               mean_cost=float(np.mean(finite)) if finite.size else math.inf,
+               finite=int(finite.size), population=int(costs.size),
+               spread=float(optimizer.spread))
         stall = 0 if best['cost'] < before * (1.0 - 1e-6) else stall + 1
         generation_s = time.perf_counter() - t0
 
