@@ -295,14 +295,14 @@ def torque_nrmse(inverse, held, noisy):
     return float(np.mean(out))
 
 
-def pysindy_predictor(case, fit, noisy, log):
+def pysindy_predictor(case, fit, noisy, log, held):
     """
     Fit SINDy with control, rolled out by a fixed-step RK4 on its own ``predict``.
 
     PySINDy's ``simulate`` hands the model to an adaptive ``solve_ivp``; on this stiff closed
     loop a nearly unstable candidate drove it to tiny steps for tens of minutes. The same
-    model is integrated here with RK4 at 2 steps per sample, all 2 s-ahead start points of
-    a run in one batch (the same vector field, evaluated by ``SINDy.predict``).
+    model is integrated here with RK4 at one step per sample, the rollouts of every held-out
+    run of one length in one batch (the same vector field, evaluated by ``SINDy.predict``).
     """
     import pysindy as ps
     u = inputs(case, fit, None, None)
@@ -363,16 +363,25 @@ def pysindy_predictor(case, fit, noisy, log):
     cache = {}
 
     def predict(name, data, k0, steps):
+        """Roll every held-out run's starts of this length out in one batch, then look up."""
         key = (name, steps)
         if key not in cache:
-            uu = inputs(case, data, None, None)
-            starts = ([0] if steps == data.n_samples - 1
-                      else list(range(0, data.n_samples - steps, int(round(1.0 / data.dt)))))
-            batch_u = np.stack([uu[s:s + steps + 1] for s in starts])
-            states = rollout(model, data.state[starts], batch_u, data.dt)
-            cache[key] = {s: states[i, :, :N] for i, s in enumerate(starts)}
+            runs = {other: run for other, run in held.items()
+                    if (steps == run.n_samples - 1) == (steps == data.n_samples - 1)
+                    and run.n_samples > steps}
+            rows, x0, u_rows = [], [], []
+            for other, run in runs.items():
+                uu = inputs(case, run, None, None)
+                starts = ([0] if steps == run.n_samples - 1 else
+                          list(range(0, run.n_samples - steps, int(round(1.0 / run.dt)))))
+                for s in starts:
+                    rows.append((other, s))
+                    x0.append(run.state[s])
+                    u_rows.append(uu[s:s + steps + 1])
+            states = rollout(model, np.array(x0), np.stack(u_rows), data.dt)
+            for i, (other, s) in enumerate(rows):
+                cache.setdefault((other, steps), {})[s] = states[i, :, :N]
         return cache[key][k0]
-    predict.batch = True
     return predict
 
 
@@ -494,7 +503,7 @@ def run(noisy, args, log, table, on_case=None):
             record('rkgnn_trig', predictor, fitted, inverse=inverse)
         if 'pysindy' in args.methods:
             t0 = time.perf_counter()
-            record('pysindy', pysindy_predictor(case, fit, noisy, log),
+            record('pysindy', pysindy_predictor(case, fit, noisy, log, held),
                    time.perf_counter() - t0)
         if 'least_squares' not in args.methods:
             pass
