@@ -297,6 +297,11 @@ def test_evolution_layout_and_increasing_generations(rig):
     values = rig.probe.diagnostic(lambda s, v: v['state'] == 'evolving', PATIENCE)
     assert values and int(values['generation']) > 0 and int(values['samples_buffered']) > 0
     assert values['joints'] == ','.join(JOINTS)  # learned from the first joint_states
+    # the excitation memory: filled from the first window, its regressor's condition number
+    last = dict(zip(EVOLUTION_LABELS, messages[-1].data))
+    assert last['memory_samples'] > 0 and last['condition_number'] >= 1.0
+    assert int(values['excitation.memory_samples']) > 0
+    assert float(values['excitation.condition_number']) >= 1.0
 
 
 def test_prediction_starts_exactly_at_a_published_state(rig):

@@ -14,11 +14,13 @@
 
 """The excitation-aware data memory (core/fitting/memory.py)."""
 
+import math
+
 import numpy as np
 import pytest
-from rkgnn_ros.core.fitting.linear import (LinearDynamics, Samples, samples_from_datasets,
-                                           torque_nrmse)
-from rkgnn_ros.core.fitting.memory import ExcitationMemory
+from rkgnn_ros.core.fitting.linear import (default_window, LinearDynamics, Samples,
+                                           samples_from_datasets, torque_nrmse)
+from rkgnn_ros.core.fitting.memory import ExcitationMemory, MemoryFeed
 from rkgnn_ros.core.model.trig import TrigBasis
 from rkgnn_ros.core.model.trig_dynamics import regressor
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
@@ -119,3 +121,26 @@ def test_starts_empty_and_refuses_bad_settings():
         ExcitationMemory(BASIS, weights=[1.0, -1.0, 1.0])
     with pytest.raises(TypeError, match='TrigBasis'):
         ExcitationMemory(3)
+
+
+def test_the_feed_offers_each_sample_once_away_from_the_ends():
+    data = simulate(ARM, PD, paper_reference(3), 6.0, rate=100.0)
+    feed = MemoryFeed(capacity=1000, every=5)
+    assert feed.size == 0 and math.isnan(feed.condition_number()) and feed.samples is None
+    first = feed.feed([data.slice(0, 301)], 50.0, 'torque')
+    edge = default_window(data.dt) // 2
+    # stamps 50 + k / 100 s: every 5th by stamp, half a Savitzky-Golay window from the ends
+    assert first == len([k for k in range(edge, 301 - edge) if k % 5 == 0])
+    assert feed.feed([data.slice(0, 301)], 50.0, 'torque') == 0      # nothing new
+    grown = feed.feed([data.slice(0, 501)], 50.0, 'torque')          # only the new samples
+    assert grown == len([k for k in range(301 - edge, 501 - edge) if k % 5 == 0])
+    kept = feed.samples.theta
+    assert len({tuple(row) for row in kept}) == kept.shape[0] == first + grown
+    offered = [k for k in range(edge, 501 - edge) if k % 5 == 0]
+    assert np.isin(kept[:, 0], data.theta[offered, 0]).all()
+    assert feed.condition_number() >= 1.0
+    # another case (or other gains) starts over
+    assert feed.feed([data.slice(0, 301)], 50.0, 'unknown') == first
+    assert feed.size == first
+    feed.reset()
+    assert feed.size == 0

@@ -493,3 +493,22 @@ def test_case_torque_predicts_with_the_trigonometric_arm_before_any_model():
     update = rig.of(ModelUpdate)[-1]
     assert update.model.case == 'torque'
     assert isinstance(update.loop.loop, TrigLoop) and update.loop.model is update.model
+
+
+def test_the_excitation_memory_is_fed_reported_and_reset(data):
+    """Refreshes feed the memory once per sample; its figures go to the status and stats."""
+    rig = Rig(buffer_with(data, 4.0), settings())
+    rig.run(2)
+    first = rig.status.memory_samples
+    assert first > 0 and math.isfinite(rig.status.condition_number)
+    assert rig.status.condition_number >= 1.0
+    stats = rig.of(GenerationStats)[-1]
+    assert stats.memory_samples == first and stats.condition_number == rig.status.condition_number
+    rig.run(5, dt=0.3)  # refreshes of the same buffer offer nothing new
+    assert rig.status.memory_samples == first
+    # every 5th sample of the window's training part, away from its ends: 3 s of 100 Hz
+    assert first <= 300 // 5 + 1
+    rig.reset = True
+    rig.run(1)  # the search restarts from nothing: the memory too, refilled by this window
+    assert rig.lines('restarting the search', '~/reset')
+    assert rig.status.memory_samples == first

@@ -239,6 +239,8 @@ class Publishing:
             ('generations_per_s', f'{status.generations_per_s:.2f}'),
             ('samples_buffered', ingestion.samples_buffered()),
             ('population_size', status.population_size),
+            ('excitation.condition_number', f'{status.condition_number:.4g}'),
+            ('excitation.memory_samples', status.memory_samples),
             ('case', self._parameters.config.case),
             ('joints', ','.join(ingestion.joints or ())),
             ('prediction_inputs', self._predictor.inputs),

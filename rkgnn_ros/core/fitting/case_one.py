@@ -259,7 +259,7 @@ class LawKeeper:
         self._trig_failures = 0                  # fits in a row that did not hold
 
     def fit_trig(self, paired: Sequence[Dataset], validation_fraction: float,
-                 now: float) -> Tuple[bool, Optional[Tuple[str, str]]]:
+                 now: float, prior=None) -> Tuple[bool, Optional[Tuple[str, str]]]:
         """
         Fit the trigonometric arm on ``paired`` and close it with the law in use.
 
@@ -269,6 +269,8 @@ class LawKeeper:
         not hold, it is fitted again :data:`TRIG_FIRST_RETRY_S` after the try (clock ``now``,
         s), doubling with each further failure up to :data:`TRIG_RETRY_S`: an arm the planar
         basis does not hold (a spatial one) would pay the fit at every refresh for nothing.
+        ``prior`` (:class:`~.linear.Samples`, the excitation memory's) joins the training
+        samples, so the arm keeps what it learned where the window no longer goes.
         Returns whether it was fitted, and the (level, text) to log when whether it predicts
         changed.
         """
@@ -282,7 +284,7 @@ class LawKeeper:
             return False, None   # too few to try: tried again at the next refresh
         self._trig_tried = now
         before = self.trig is not None
-        loop = (fit_trig_loop(train, validation, self.law, TRIG_MIN_SAMPLES)
+        loop = (fit_trig_loop(train, validation, self.law, TRIG_MIN_SAMPLES, prior)
                 if self.law is not None else None)
         if loop is not None and not loop.torque_error <= TRIG_MAX_TORQUE_ERROR:
             why = f'held-out torque error {loop.torque_error:.1%}'

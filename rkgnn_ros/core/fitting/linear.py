@@ -367,14 +367,16 @@ class LinearDynamics(TrigDynamics):
         return model
 
     # ----- fitting
-    def fit(self, datasets, case: str = 'torque', kp=None, kd=None) -> 'LinearDynamics':
+    def fit(self, datasets, case: str = 'torque', kp=None, kd=None,
+            prior: Optional[Samples] = None) -> 'LinearDynamics':
         """
         Fit to one or more datasets (see :func:`samples_from_datasets`); returns ``self``.
 
         Case 'pd_gains' keeps ``kp``, ``kd`` for closed-loop rollouts; case 'unknown'
         identifies them (normalised, see the module docstring). The Savitzky-Golay window
         of θ̈ is chosen with the ridge weight on the held-out samples, among ``windows``
-        (or fixed by ``window``).
+        (or fixed by ``window``). ``prior``: samples with θ̈ already estimated (an
+        :class:`~.memory.ExcitationMemory`'s) fitted beside the datasets, as older ones.
         """
         if not isinstance(datasets, (list, tuple)):
             datasets = [datasets]
@@ -385,6 +387,8 @@ class LinearDynamics(TrigDynamics):
             windows = sorted({max(5, 2 * int(round(0.5 * w / dt)) + 1) for w in self.windows})
         candidates = [samples_from_datasets(datasets, case, kp, kd, w, self.integral)
                       for w in windows]
+        if prior is not None:  # older samples (a memory's): never among the held-out newest
+            candidates = [Samples.concatenate([prior, c]) for c in candidates]
         self._fit(candidates, windows, case, kp, kd)
         return self
 

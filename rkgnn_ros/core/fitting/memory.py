@@ -47,7 +47,7 @@ from typing import Optional
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 
-from .linear import Samples
+from .linear import default_window, Samples, samples_from_datasets
 from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
 
@@ -225,3 +225,102 @@ class ExcitationMemory:
         if sv.size == 0 or sv.min() <= 0.0:
             return float('inf')
         return float(sv.max() / sv.min())
+
+
+#: Every how many new samples one is offered (neighbours at 100 Hz say nearly the same).
+OFFER_EVERY = 5
+
+#: Samples the identifier's memory keeps.
+MEMORY_CAPACITY = 500
+
+
+class MemoryFeed:
+    """
+    The identifier's :class:`ExcitationMemory`, fed from the refreshed window.
+
+    At every data refresh each new sample is considered once: every :data:`OFFER_EVERY`-th
+    (by its stamp, so a sample is never offered twice however the windows overlap), away
+    from a segment's ends by half the Savitzky-Golay window (there θ̈ is extrapolated: such
+    samples look the most exciting and are the least true). The regressor is the planar
+    trigonometric arm's: the arm's in cases 'torque' (measured torque) and 'pd_gains' (the
+    known PD's torque), the closed loop's in case 'unknown' (with the servo's gain
+    columns). A new case, joint count or gains starts the memory over, as does
+    :meth:`reset`.
+    """
+
+    def __init__(self, capacity: int = MEMORY_CAPACITY, every: int = OFFER_EVERY):
+        self.capacity = int(capacity)
+        self.every = int(every)
+        self.memory: Optional[ExcitationMemory] = None
+        self._key = None
+        self._fed_until = -np.inf
+
+    def reset(self) -> None:
+        """Forget every sample."""
+        self.memory, self._key, self._fed_until = None, None, -np.inf
+
+    @property
+    def size(self) -> int:
+        """Return the samples kept."""
+        return 0 if self.memory is None else self.memory.size
+
+    @property
+    def samples(self) -> Optional[Samples]:
+        """Return the samples kept (None while empty)."""
+        return None if self.memory is None else self.memory.samples
+
+    def condition_number(self) -> float:
+        """Return the kept regressor's condition number (NaN while the memory is empty)."""
+        return np.nan if self.size == 0 else self.memory.condition_number()
+
+    def feed(self, segments, origin: float, case: str, kp=None, kd=None) -> int:
+        """
+        Offer the samples of ``segments`` not considered yet; return how many were kept.
+
+        Parameters
+        ----------
+        segments : sequence of Dataset
+            The refreshed window, oldest first (torque in case 'torque', the commands in
+            the others).
+        origin : float
+            Stamp time (s) of the segments' t = 0.
+        case : str
+            'torque', 'pd_gains' (``kp``, ``kd`` known) or 'unknown'.
+        kp, kd : array_like, shape (n,), optional
+            The known PD gains (case 'pd_gains': its torque is theirs).
+
+        """
+        segments = [seg for seg in segments if seg.n_samples > 0]
+        if not segments:
+            return 0
+        n = segments[0].n_joints
+        gains = tuple(np.ravel(kp).tolist() + np.ravel(kd).tolist()) if case == 'pd_gains' \
+            else ()
+        if (case, n, gains) != self._key:
+            self.reset()
+            self._key = (case, n, gains)
+        parts, until = [], self._fed_until
+        for seg in segments:
+            window = default_window(seg.dt)
+            edge = window // 2
+            if seg.n_samples <= 2 * edge:
+                continue
+            stamps = origin + seg.t
+            index = np.arange(edge, seg.n_samples - edge)
+            tick = np.round(stamps[index] / seg.dt).astype(np.int64)
+            index = index[(stamps[index] > self._fed_until) & (tick % self.every == 0)]
+            until = max(until, float(stamps[seg.n_samples - edge - 1]))
+            if index.size:
+                parts.append(samples_from_datasets([seg], case, kp, kd, window).take(index))
+        self._fed_until = until
+        if not parts:
+            return 0
+        samples = Samples.concatenate(parts)
+        if self.memory is None:
+            weights = None
+            if samples.tau is not None:
+                rms = np.sqrt(np.mean(np.square(samples.tau), axis=0))
+                weights = 1.0 / np.maximum(rms, 1e-6 * max(float(rms.max()), 1e-300))
+            self.memory = ExcitationMemory(TrigBasis(n, planar=True, tied=True),
+                                           self.capacity, weights)
+        return self.memory.offer(samples)

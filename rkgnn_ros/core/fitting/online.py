@@ -68,6 +68,7 @@ from .case_one import LawKeeper, search_segments
 from .case_three import ArmKeeper
 from .controller import ControllerLaw
 from .identify import Evolution
+from .memory import MemoryFeed
 from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
                              ModelUpdate, Observation, OnlineSettings, Status, StepResult,
                              StreamCapture)
@@ -139,6 +140,33 @@ def _search_structure(settings: OnlineSettings, law: Optional[ControllerLaw], jo
     return spec, None, None
 
 
+class _Staleness:
+    """Whether the streams the case needs are fresh; says when they stop and return."""
+
+    def __init__(self):
+        self.warned = False
+
+    def fresh(self, obs: Observation, now: float, log, set_status) -> bool:
+        """Return True if fresh; else set the status (and warn once) and return False."""
+        stale = _stale_stream(obs, now)
+        if stale is None:
+            if self.warned:
+                self.warned = False
+                log('info', 'data is flowing again: the search resumes')
+            return True
+        key, age = stale
+        topic = 'joint_states' if key == 'state' else 'joint_commands'
+        if age is None:
+            set_status('waiting for data', f'no {topic} accepted yet')
+            return False
+        if not self.warned:
+            self.warned = True
+            log('warning', f'{topic}: no data for {age:.1f} s: the search pauses until data '
+                           'returns')
+        set_status('stale', f'{topic} silent for {age:.1f} s')
+        return False
+
+
 class OnlineIdentification:
     """
     The identification policy, advanced by :meth:`step` between generations.
@@ -196,7 +224,8 @@ class OnlineIdentification:
         self._val_key = None
         self._last_val_generation = -VALIDATION_EVERY
         self._last_stats = -math.inf
-        self._stale_warned = False
+        self._staleness = _Staleness()
+        self._memory = MemoryFeed()  # samples that keep the linear fit's regressor rich
         self._had_finite = False
         self._failures = None  # (optimizer, its numerical failures) last seen
 
@@ -244,6 +273,7 @@ class OnlineIdentification:
         if obs.reset:
             self._drop_search('~/reset')
             self._start_model = None
+            self._memory.reset()
         if self._evo is not None and self._evo_version != settings.version:
             self._drop_search('structural parameters changed')
         if self._evo is not None and self._evo_case != settings.case:
@@ -260,7 +290,7 @@ class OnlineIdentification:
         if obs.joints is None:
             self._set_status('waiting for data', 'no joint_states yet (joints unknown)')
             return False
-        if not self._streams_fresh(obs):
+        if not self._staleness.fresh(obs, self._clock(), self._log, self._set_status):
             return False
         since = self._clock() - self._last_refresh
         due = since >= DATA_REFRESH_S or (self._evo is None and since >= WAITING_REFRESH_S)
@@ -287,41 +317,25 @@ class OnlineIdentification:
         limit = settings.max_generations
         return bool(searching and limit and self._generation >= limit)
 
-    def _streams_fresh(self, obs: Observation) -> bool:
-        stale = _stale_stream(obs, self._clock())
-        if stale is None:
-            if self._stale_warned:
-                self._stale_warned = False
-                self._log('info', 'data is flowing again: the search resumes')
-            return True
-        key, age = stale
-        topic = 'joint_states' if key == 'state' else 'joint_commands'
-        if age is None:
-            self._set_status('waiting for data', f'no {topic} accepted yet')
-            return False
-        if not self._stale_warned:
-            self._stale_warned = True
-            self._log('warning', f'{topic}: no data for {age:.1f} s: the search pauses until '
-                                 'data returns')
-        self._set_status('stale', f'{topic} silent for {age:.1f} s')
-        return False
-
     def _refresh_data(self, settings: OnlineSettings, capture, joints,
                       estimate_velocity: bool = False) -> bool:
         """Take the captured data; build the search or hand it the new data."""
         self._last_refresh = self._clock()
         law = None
+        fraction, fitted = settings.validation_fraction, (False, None)
         if settings.case == 'torque':
             paired = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, True),
                                     estimate_velocity)
+            self._feed_memory(settings, paired, capture.time_origin)
             law = self._update_law(paired, capture.time_origin) or self._laws.law
-        fraction, fitted = settings.validation_fraction, (False, None)
         if law is not None:  # the closed-loop search: θd shifted by the law's other terms
             segments = search_segments(paired, law)
-            fitted = self._laws.fit_trig(paired, fraction, self._clock())
+            fitted = self._laws.fit_trig(paired, fraction, self._clock(), self._memory.samples)
         else:
             segments = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, False),
                                       estimate_velocity)
+            if settings.case != 'torque':
+                self._feed_memory(settings, segments, capture.time_origin)
             if settings.case in _CLOSED_FIT_CASES:
                 fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock())
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
@@ -349,6 +363,19 @@ class OnlineIdentification:
         self._validation = validation
         self._data_version += 1
         return True
+
+    def _feed_memory(self, settings: OnlineSettings, segments, origin: float) -> None:
+        """Offer the window's training part (never what validates) to the memory."""
+        train = split_validation(segments, settings.validation_fraction,
+                                 MIN_SEGMENT_SAMPLES)[0]
+        try:
+            self._memory.feed(train, origin, settings.case, settings.kp, settings.kd)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            self._memory.reset()
+            self._log_throttled('memory', 'warning', f'excitation memory cleared: {exc}')
+        self._set_status(self._status.state, self._status.detail,
+                         condition_number=self._memory.condition_number(),
+                         memory_samples=self._memory.size)
 
     def _reclose(self, line: Optional[Tuple[str, str]], case: str) -> None:
         """Log ``line``; close the published model (``case`` if none yet) for prediction."""
@@ -478,7 +505,8 @@ class OnlineIdentification:
             self._last_stats = now
             self._events.append(GenerationStats(
                 self._generation, stats['best_cost'], stats['mean_cost'], stats['spread'],
-                self._evaluations, self._val_nrmse, stats['population']))
+                self._evaluations, self._val_nrmse, stats['population'],
+                self._status.condition_number, self._memory.size))
         self._set_status('evolving', f'generation {self._generation}',
                          generation=self._generation, best_cost=stats['best_cost'],
                          validation_nrmse=self._val_nrmse, generations_per_s=rate,

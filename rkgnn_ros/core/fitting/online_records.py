@@ -133,6 +133,8 @@ class Status(NamedTuple):
     validation_nrmse: float = math.nan
     generations_per_s: float = 0.0
     population_size: int = 0
+    condition_number: float = math.nan  # of the excitation memory's regressor (NaN: empty)
+    memory_samples: int = 0
 
 
 class ClosedLoop(NamedTuple):
@@ -172,6 +174,8 @@ class GenerationStats(NamedTuple):
     evaluations: float
     validation_nrmse: float
     population_size: float
+    condition_number: float = math.nan  # the excitation memory's (Status.condition_number)
+    memory_samples: float = 0.0
 
 
 class LogLine(NamedTuple):

@@ -52,7 +52,7 @@ from numba import njit
 import numpy as np
 
 from .controller_laws import ControllerLaw, TrigFeatures
-from .linear import LinearDynamics, samples_from_datasets
+from .linear import LinearDynamics, Samples, samples_from_datasets
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..control.gate import paired_torques, torque_error
 from ..data import Dataset
@@ -355,15 +355,17 @@ class TrigLoop:
 
 
 def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
-                  law: ControllerLaw, min_samples: int = 200) -> Optional[TrigLoop]:
+                  law: ControllerLaw, min_samples: int = 200,
+                  prior: Optional[Samples] = None) -> Optional[TrigLoop]:
     """
     Return the trigonometric arm fitted on ``train`` (case 1) closed with ``law``.
 
     The arm's held-out torque error (:func:`~rkgnn_ros.core.control.gate.torque_error` of
     its inverse dynamics on ``validation``, worst joint) is kept in
     :attr:`TrigLoop.torque_error` (inf without validation samples): the caller decides
-    whether the basis holds this arm (it is a planar arm's). None when ``train`` holds
-    fewer than ``min_samples`` samples or the fit fails.
+    whether the basis holds this arm (it is a planar arm's). ``prior``: samples fitted
+    beside ``train`` (the excitation memory's). None when ``train`` holds fewer than
+    ``min_samples`` samples or the fit fails.
     """
     if law is None or not np.all(law.kp > 0.0):
         return None
@@ -372,7 +374,7 @@ def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
         return None
     basis = TrigBasis(train[0].n_joints, planar=True, tied=True)
     try:
-        arm = LinearDynamics(basis, certify=False).fit(train, 'torque')
+        arm = LinearDynamics(basis, certify=False).fit(train, 'torque', prior=prior)
         predicted, reference = paired_torques(arm, [seg for seg in validation
                                                     if seg.tau is not None])
     except (ValueError, np.linalg.LinAlgError):
