@@ -399,7 +399,7 @@ def pd_study(generations, seeds, log, path, argv):
 
 def _percent(value):
     """Format a fraction as a percentage; a diverged rollout (inf/NaN) says so."""
-    return f'{value:.2%}' if np.isfinite(value) else 'diverged'
+    return f'{100 * value:.3g}%' if np.isfinite(value) else 'diverged'
 
 
 def _cost(value):
