@@ -24,8 +24,14 @@ Expected, and what the fit checks: the work is one rollout per individual, each 
 evaluating N_f: the RBF outputs (units x n² M entries, n³ B and C terms for the paper's
 learned V), a Cholesky solve (n³/3) and the Christoffel terms (n³ per unit). So time is
 linear in the window and the population (exponent 1; below 1 while the parallel kernel's
-fixed overhead still matters) and between quadratic and cubic in n. Writes
-``bench/results/scaling.json``.
+fixed overhead still matters) and between quadratic and cubic in n.
+
+``linear_fit``: the closed-form fit that starts the global network
+(:class:`~rkgnn_ros.core.fitting.linear.LinearDynamics` on the tied planar trigonometric
+basis, torque measured, its ridge and θ̈ window chosen on held-out samples, M certified
+positive on the joint range where the certificate is attempted: up to 4 joints) on 20 s of
+100 Hz data, per joint count (median of ``--repeats``; goals 0.5 s at 3 joints, 3 s at 6).
+Writes ``bench/results/scaling.json``.
 """
 
 import argparse
@@ -41,7 +47,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.fitting.fitness import FitnessProblem  # noqa: E402
+from rkgnn_ros.core.fitting.linear import LinearDynamics  # noqa: E402
 from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
+from rkgnn_ros.core.model.trig import TrigBasis  # noqa: E402
 from rkgnn_ros.core.sim.parameters import ArmParameters  # noqa: E402
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
@@ -76,6 +84,18 @@ def time_generation(n, samples, population, repeats, seed=0):
     return float(np.median(times))
 
 
+def time_linear_fit(n, repeats, seconds=20.0):
+    """Return the median seconds of the closed-form fit on ``seconds`` of 100 Hz data."""
+    plant, pd = arm(n)
+    data = simulate(plant, pd, paper_reference(n), seconds, rate=100.0)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        LinearDynamics(TrigBasis(n, planar=True, tied=True)).fit([data], 'torque')
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
 def exponent(xs, ys):
     """Return the least-squares slope of log y over log x."""
     return float(np.polyfit(np.log(xs), np.log(ys), 1)[0])
@@ -106,6 +126,12 @@ def main(argv=None):
                         'growth_exponent': slope}
         shown = '  '.join(f'{v}: {1e3 * s:.1f} ms' for v, s in zip(values, seconds))
         print(f'{name:15s} {shown}  -> exponent {slope:.2f}', flush=True)
+    joints = [2, 3, 4, 6]
+    seconds = [time_linear_fit(n, args.repeats) for n in joints]
+    result['linear_fit'] = {'joints': joints, 'data_s': 20.0, 'rate_hz': 100.0,
+                            'seconds': seconds}
+    shown = '  '.join(f'{n}: {s:.3f} s' for n, s in zip(joints, seconds))
+    print(f'linear fit, 20 s at 100 Hz   {shown}', flush=True)
     result['load_end'] = os.getloadavg()
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, 'w', encoding='utf-8') as f:
