@@ -44,7 +44,8 @@ Models (per n):
   ``LinearDynamics`` on the tied trigonometric basis of a planar arm), fitted as the node
   fits it: on the older 80 % of the fitting run, the newest 20 % held out for the gate
   (``gate_error``: the gate's metric there); torque measured, or from the known PD gains;
-- ``rbf_case1``, ``rbf_case2``: the RBF model of the online search, ``identify.fit_best``
+- ``rbf_case1``, ``rbf_case2``: the paper-shaped RBF network (what the online search runs
+  where the planar trigonometric arm does not hold), ``identify.fit_best(basis='rbf')``
   on the whole fitting run (torque measured; PD gains known), seed ``--seed``,
   ``--budget`` seconds of wall time each (``--no-rbf`` leaves them out).
 
@@ -207,7 +208,8 @@ def run_arm(n, args, log):
             continue
         t0 = time.perf_counter()
         gains = {} if case == 'torque' else {'kp': servo.kp, 'kd': servo.kd}
-        result = fit_best(fit_run, case, time_budget=args.budget, seed=args.seed, **gains)
+        result = fit_best(fit_run, case, time_budget=args.budget, seed=args.seed,
+                          basis='rbf', **gains)
         models[key] = result.model
         log(f'n = {n}: {key} fitted in {time.perf_counter() - t0:.0f} s, cost '
             f'{result.final_cost:.4g}')
@@ -280,7 +282,7 @@ def main(argv=None):
         'ours': "the identifier's feed-forward model in cases 1 and 2: "
                 'core/control/model.py feedforward_model (LinearDynamics, tied planar '
                 f'trigonometric basis), fitted on the older {1 - VALIDATION_FRACTION:.0%} of '
-                "the fitting run; rbf_*: the online search's RBF model (fit_best)",
+                "the fitting run; rbf_*: the RBF network (fit_best(basis='rbf'))",
         'feedforward': f'points every {POINT_SPACING * 1000:.0f} ms, θ̈d by the Hermite '
                        'interpolant, linear at the servo, not gated or clipped',
         'metric': 'tracking_rmse: RMSE of θd − θ (rad) over 10 s, mean over joints, mean '
