@@ -66,6 +66,7 @@ NS = f'/idtest{os.getpid()}_{random.randint(0, 9999)}'
 JOINTS = ('j1', 'j2', 'j3')
 RATE = 100.0
 POPULATION = 16
+POPULATION_FIELD = EVOLUTION_LABELS.index('population_size')  # ~/evolution's layout
 OVERRIDES = {
     'case': 'unknown', 'window': 4.0, 'min_window': 1.5, 'validation_fraction': 0.25,
     'model_publish_period': 0.3, 'prediction.rate': 5.0, 'prediction.horizon': 0.5,
@@ -349,7 +350,8 @@ def test_set_parameters_changes_the_running_search_and_rejects_bad_values(rig):
     result, = probe.set_parameters(Parameter('es.population_size', value=12))
     assert result.successful, result.reason
     assert wait_for(lambda: [m for m in probe.since(probe.evolution, t_set)
-                             if m.data[-1] == 12], PATIENCE), 'population_size not applied'
+                             if m.data[POPULATION_FIELD] == 12],
+                    PATIENCE), 'population_size not applied'
 
     def rejected(param, *words):
         res, = probe.set_parameters(param)
@@ -385,7 +387,7 @@ def test_set_parameters_changes_the_running_search_and_rejects_bad_values(rig):
     assert probe.get_parameter('es.population_size') == 12
     t_after = time.monotonic()
     assert wait_for(lambda: len(probe.since(probe.evolution, t_after)) >= 3, PATIENCE)
-    assert all(m.data[-1] == 12 for m in probe.since(probe.evolution, t_after))
+    assert all(m.data[POPULATION_FIELD] == 12 for m in probe.since(probe.evolution, t_after))
 
 
 def test_parameter_burst_is_applied_between_generations(rig):
@@ -400,7 +402,7 @@ def test_parameter_burst_is_applied_between_generations(rig):
             Parameter('es.sigma', value=rng.uniform(0.1, 1.0)))
         assert all(r.successful for r in results), [r.reason for r in results]
     assert wait_for(lambda: [m for m in probe.since(probe.evolution, time.monotonic() - 0.2)
-                             if m.data[-1] == size], PATIENCE)
+                             if m.data[POPULATION_FIELD] == size], PATIENCE)
     generations = probe.generations(t0)
     assert all(b > a for a, b in zip(generations, generations[1:])), generations
     res, = probe.set_parameters(Parameter('es.population_size', value=12))

@@ -27,6 +27,7 @@ import pytest
 from rkgnn_ros.core.differentiate import centred_derivative
 from rkgnn_ros.core.fitting import case_one
 from rkgnn_ros.core.fitting.case_three import REFIT_S
+from rkgnn_ros.core.fitting.global_fit import is_global
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Observation, OnlineIdentification, OnlineSettings,
@@ -512,3 +513,37 @@ def test_the_excitation_memory_is_fed_reported_and_reset(data):
     rig.run(1)  # the search restarts from nothing: the memory too, refilled by this window
     assert rig.lines('restarting the search', '~/reset')
     assert rig.status.memory_samples == first
+
+
+@pytest.mark.parametrize('case', ['torque', 'unknown', 'pd_gains'])
+def test_network_auto_searches_the_global_network_where_the_trigonometric_arm_holds(case):
+    """``network.basis: auto``: the closed-form start, a global ~/model of the arm."""
+    pd = PDController.paper()
+    gains = {'kp': tuple(np.diag(pd.kp)), 'kd': tuple(np.diag(pd.kd))} if case == 'pd_gains' \
+        else {}
+    rig = Rig(sixteen_seconds(need_tau=case == 'torque'),
+              settings(case=case, network={'basis': 'auto'}, model_publish_period=0.2,
+                       optimizer_settings={'population_size': 4}, **gains))
+    rig.run(3, dt=0.3)
+    assert rig.lines('search started from the closed-form fit on the trigonometric basis')
+    update = rig.of(ModelUpdate)[-1]
+    model = update.model
+    assert is_global(model.spec) and model.spec.basis == 'trig' and model.case == case
+    # the arm it publishes is right far from the data, as the closed-form fit is
+    theta = np.random.default_rng(2).uniform(-np.pi, np.pi, (200, 3))
+    true_mass = PlanarArm.paper().mass_matrix(theta)
+    mass = model.mass_matrix(theta)
+    bound = 0.05
+    if case == 'unknown':    # only the ratios are identifiable: the best common factor
+        mass = mass * np.sum(mass * true_mass) / np.sum(mass * mass)
+        bound = 0.12         # the closed form alone: 8.6 % on these 12 s of training data
+    assert np.max(np.abs(mass - true_mass)) < bound * np.max(np.abs(true_mass))
+    assert update.validation_nrmse < 0.01
+
+
+def test_network_auto_keeps_the_rbf_network_where_the_arm_is_not_yet_determined(data):
+    rig = Rig(buffer_with(data, 3.0), settings(network={'basis': 'auto'}))
+    rig.run(1)   # 3 s: too little for the linear closed loop, which is not tried
+    assert rig.lines('search started from', 'case unknown')
+    assert not rig.lines('closed-form fit on the trigonometric basis')
+    assert rig.policy._evo.spec.basis == 'rbf'

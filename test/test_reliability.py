@@ -68,7 +68,7 @@ from rkgnn_ros.identification.parameters import IdentifierParameters, make_confi
 from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import Outbox
 from rkgnn_ros.identification.worker import SearchWorker
-from rkgnn_ros.identifier import IdentifierNode
+from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode
 from rkgnn_ros.stream_buffer import StreamBuffer
 from ros_helpers import Rosout, Spinner, wait_for
 from sensor_msgs.msg import JointState
@@ -688,7 +688,8 @@ def test_item_20_parameter_burst_applies_between_generations(data):
         assert wait_for(lambda: max(r.generations()) >= taken, PATIENCE)
         with r.lock:
             later = [m for m in r.evolution if m.data[0] >= taken]
-        assert later and all(int(m.data[-1]) == size for m in later)
+        population = EVOLUTION_LABELS.index('population_size')
+        assert later and all(int(m.data[population]) == size for m in later)
         generations = r.generations()
         assert all(b > a for a, b in zip(generations, generations[1:]))
     finally:

@@ -57,7 +57,7 @@ from typing import Callable, List, Optional, Tuple
 from rkgnn_ros.conversions import MAX_NAME_BYTES
 from rkgnn_ros.core.model.files import remove_stale_temp_files, save_text_atomic
 from rkgnn_ros.core.model.model import RKGNNModel
-from rkgnn_ros.identification.parameters import MAX_GAIN, MAX_JOINTS, network_spec, PARAMETERS
+from rkgnn_ros.identification.parameters import MAX_GAIN, MAX_JOINTS, network_specs, PARAMETERS
 import yaml
 
 __all__ = ['MAX_DEPTH', 'MAX_MODEL_BYTES', 'MAX_NODES', 'LoadWork', 'ModelFileError',
@@ -340,7 +340,8 @@ def load_model_file(path: str, joints, case: str, spec_for: Callable,
     case : str
         The configured case ('auto': a model of any case is taken).
     spec_for : callable
-        ``spec_for(n_joints, case)`` returns the network the parameters describe.
+        ``spec_for(n_joints, case)`` returns the network the parameters describe, or a list
+        of those they allow (``network.basis: auto``: the RBF and the global network).
     model_step : float, optional
         The configured ``model_step`` (s): the model must integrate it in at most 64
         RKG steps.
@@ -373,10 +374,12 @@ def load_model_file(path: str, joints, case: str, spec_for: Callable,
         if case != 'auto' and model.case != case:
             raise ModelFileError(f'the model is for case {model.case!r}, the configured case '
                                  f'is {case!r}')
-        spec = spec_for(model.n_joints, model.case)
-        if model.spec != spec:
+        specs = spec_for(model.n_joints, model.case)
+        specs = specs if isinstance(specs, (list, tuple)) else [specs]
+        if model.spec not in specs:
             raise ModelFileError(f'the network {model.spec.to_dict()} differs from the '
-                                 f'network.* parameters {spec.to_dict()}')
+                                 'network.* parameters '
+                                 f'{" or ".join(str(spec.to_dict()) for spec in specs)}')
         if model_step is not None:
             check_step(model, model_step)
     except ModelFileError as exc:
@@ -406,7 +409,7 @@ def load_at_start(config, ingestion, log: Callable[[str, str], None]) -> Optiona
     text)``; a usable model names the joints when ``ingestion`` does not know them yet.
     """
     model, lines = load_model_file(config['model_file'], ingestion.joints, config.case,
-                                   lambda n, case: network_spec(config.values, n, case),
+                                   lambda n, case: network_specs(config.values, n, case),
                                    config['model_step'])
     for level, text in lines:
         log(level, text)

@@ -38,7 +38,7 @@ from rclpy.parameter import Parameter
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from rkgnn_ros.conversions import MAX_NAME_BYTES
 from rkgnn_ros.core.fitting.identify import normalize_case
-from rkgnn_ros.core.fitting.online import OnlineSettings
+from rkgnn_ros.core.fitting.online import AUTO_BASIS, OnlineSettings
 from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
 from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.identification.ros2_control import declare_controller_gains
@@ -46,7 +46,7 @@ from rkgnn_ros.parameters import Change, ParameterSpec
 
 __all__ = ['PARAMETERS', 'OUTPUTS', 'PARAMETER_CASES', 'Config', 'ConfigurationError',
            'IdentifierParameters', 'auto_case', 'check_parameters', 'make_config',
-           'network_spec', 'optimizer_settings', 'online_settings']
+           'network_spec', 'network_specs', 'optimizer_settings', 'online_settings']
 
 #: What an accepted value may be, beyond the rows' own ranges (README, *Reliability*).
 MAX_JOINTS = 64              # joints (and gains per joint) a parameter may list
@@ -122,12 +122,15 @@ PARAMETERS = (
     ParameterSpec('network.torque_units', _REC.torque_units,
                   "RBF units of each P and D torque sub-network (case 'unknown'). " + _RESTARTS,
                   0, 32, change=_RESTART),
-    ParameterSpec('network.basis', _REC.basis,
-                  "Features of the theta-dependent outputs: 'rbf' (the paper's Gaussian units, "
-                  "local), 'trig' (the Fourier modes of an arm with parallel axes, global), "
-                  "'trig3d' (those of a spatial serial chain), 'poly', or a sum such as "
-                  "'trig+rbf' (rigid-body terms with local corrections). " + _RESTARTS,
-                  change=_RESTART),
+    ParameterSpec('network.basis', AUTO_BASIS,
+                  "Features of the theta-dependent outputs: 'auto' (the global network on "
+                  'the planar trigonometric basis, started from its closed-form fit, where '
+                  "that arm explains held-out data; else 'rbf' with the other network.* "
+                  "settings, which the global network does not use), 'rbf' (the paper's "
+                  "Gaussian units, local), 'trig' (the Fourier modes of an arm with parallel "
+                  "axes, global), 'trig3d' (those of a spatial serial chain), 'poly', or a "
+                  "sum such as 'trig+rbf' (rigid-body terms with local corrections). "
+                  + _RESTARTS, change=_RESTART),
     ParameterSpec('network.inertia', _REC.inertia,
                   "'cholesky' (M = L L^T + eps I, positive definite) or 'penalty' (the "
                   "paper's). " + _RESTARTS, choices=INERTIA_MODES, change=_RESTART),
@@ -301,6 +304,22 @@ def network_spec(values: Mapping, n_joints: int, case: Optional[str] = None) -> 
     settings = online_settings(values)
     case = case or settings.case
     return replace(settings, case='unknown' if case == 'auto' else case).spec(n_joints)
+
+
+def network_specs(values: Mapping, n_joints: int, case: Optional[str] = None) -> list:
+    """
+    Return the networks the parameters allow (a loaded model must be one of them).
+
+    :func:`network_spec`'s, and with ``network.basis: auto`` the global network too (what the
+    search runs where the planar trigonometric arm holds).
+    """
+    settings = online_settings(values)
+    settings = replace(settings, case='unknown' if (case or settings.case) == 'auto'
+                       else (case or settings.case))
+    specs = [settings.spec(n_joints)]
+    if settings.network.get('basis') == AUTO_BASIS:
+        specs.append(settings.spec(n_joints, trig_holds=True))
+    return specs
 
 
 def _case(value) -> str:

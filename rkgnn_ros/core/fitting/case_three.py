@@ -51,6 +51,7 @@ from typing import NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .global_fit import is_global
 from .identify import Evolution
 from .linear import LinearDynamics
 from .online_records import ClosedLoop as PredictionLoop
@@ -160,6 +161,8 @@ def start_genome(evo: Evolution, train: Sequence[Dataset], budget_s: float,
     also when its rollout on ``train`` diverges.
     """
     spec = evo.spec
+    if is_global(spec):  # its own start is the closed-form fit of arm and servo together
+        return None
     gains = fit_gains(train) if spec.case == 'unknown' and spec.torque_linear else None
     if gains is None:
         return None

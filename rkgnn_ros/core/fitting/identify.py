@@ -18,7 +18,9 @@ Identification API: fit an RKGNN (:class:`..model.model.RKGNNModel`) on recorded
 - :class:`Evolution`: one generation per :meth:`Evolution.step`, on data that can be
   replaced between generations (what the identifier node runs in its worker thread).
 - :func:`fit`: the offline loop (generations, evaluations or wall-time budget).
-- :func:`fit_best`: our best pipeline inside a wall-time budget (equation error,
+- :func:`fit_best`: our best pipeline inside a wall-time budget (by default the global
+  network of :mod:`.global_fit`: closed form, Levenberg-Marquardt and CMA-ES over the arm's
+  coefficients, the stage chosen on held-out data; for RBF networks the equation error,
   Levenberg-Marquardt on rollout residuals, CMA-ES on the paper's cost).
 - :func:`precompile`: compile every kernel the online identifier runs, before it spins.
 """
@@ -437,6 +439,7 @@ def precompile(n_joints=3) -> float:
     inertia and velocity modes exercise the same type signatures as real data. Returns the
     seconds it took.
     """
+    from .global_fit import global_spec
     from .refine import refine_equation_error
     from .trig_loop import precompile_trig_loop
     t0 = time.perf_counter()
@@ -448,7 +451,8 @@ def precompile(n_joints=3) -> float:
                    theta_d_dot=theta_dot)
     gains = np.ones(n)
     for case in ('torque', 'pd_gains', 'unknown'):
-        for spec in (NetworkSpec.recommended(n, case), NetworkSpec.paper(n, case)):
+        for spec in (NetworkSpec.recommended(n, case), NetworkSpec.paper(n, case),
+                     global_spec(n, case)):
             scales = Scales.from_datasets([data], case, gains, gains)
             problem = FitnessProblem(spec, data, scales=scales, substeps=2, kp=gains,
                                      kd=gains)

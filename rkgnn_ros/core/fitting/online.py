@@ -67,11 +67,12 @@ from . import case_three
 from .case_one import LawKeeper, search_segments
 from .case_three import ArmKeeper
 from .controller import ControllerLaw
+from .global_fit import is_global
 from .identify import Evolution
 from .memory import MemoryFeed
-from .online_records import (ClosedLoop, GenerationStats, LogLine, LoopUpdate, model_update,
-                             ModelUpdate, Observation, OnlineSettings, Status, StepResult,
-                             StreamCapture)
+from .online_records import (AUTO_BASIS, ClosedLoop, GenerationStats, LogLine, LoopUpdate,
+                             model_update, ModelUpdate, Observation, OnlineSettings, Status,
+                             StepResult, StreamCapture)
 from .search_starts import (hand_over_settings, restart_around, rewarm, warm_start,
                             WARM_START_NFEV, WARM_START_S)
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
@@ -79,9 +80,9 @@ from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..model.model import RKGNNModel
 
-__all__ = ['OnlineIdentification', 'OnlineSettings', 'Observation', 'StreamCapture', 'Status',
-           'ClosedLoop', 'ModelUpdate', 'LoopUpdate', 'GenerationStats', 'LogLine',
-           'StepResult', 'model_update', 'split_validation']
+__all__ = ['AUTO_BASIS', 'OnlineIdentification', 'OnlineSettings', 'Observation',
+           'StreamCapture', 'Status', 'ClosedLoop', 'ModelUpdate', 'LoopUpdate',
+           'GenerationStats', 'LogLine', 'StepResult', 'model_update', 'split_validation']
 
 DATA_REFRESH_S = 1.0        # at most one set_data per second
 WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
@@ -113,6 +114,24 @@ def _with_velocity(segments, estimate: bool) -> List[Dataset]:
             else seg for seg in segments]
 
 
+def _trig_holds(laws: LawKeeper, arm3: ArmKeeper, case: str, start=None) -> bool:
+    """Return whether the arm on the planar trigonometric basis holds (or ``start`` is global)."""
+    return ((laws.trig if case == 'torque' else arm3.loop) is not None
+            or (start is not None and is_global(start.spec)))
+
+
+def _feed(memory: MemoryFeed, settings: OnlineSettings, segments, origin: float
+          ) -> Optional[str]:
+    """Offer the window's training part (never what validates) to ``memory``; say failures."""
+    train = split_validation(segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)[0]
+    try:
+        memory.feed(train, origin, settings.case, settings.kp, settings.kd)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        memory.reset()
+        return f'excitation memory cleared: {exc}'
+    return None
+
+
 def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
     """Return whether a loaded ``model`` can start a search for ``spec`` in ``case``."""
     return (model is not None and model.joint_names == tuple(joints)
@@ -120,15 +139,18 @@ def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
             and (model.case == spec.case or model.case == case))
 
 
-def _search_structure(settings: OnlineSettings, law: Optional[ControllerLaw], joints):
+def _search_structure(settings: OnlineSettings, law: Optional[ControllerLaw], joints,
+                      trig_holds: bool = False):
     """
     Return ``(spec, kp, kd)`` of a new search.
 
     Case 'torque' with a usable fitted law searches in closed loop: a case-2 search with the
-    fitted gains. Case 'pd_gains' takes the known gains, one per joint.
+    fitted gains. Case 'pd_gains' takes the known gains, one per joint. ``trig_holds``: the
+    planar trigonometric arm explains held-out data (``network.basis: auto`` then searches
+    the global network).
     """
     n = len(joints)
-    spec = settings.spec(n)
+    spec = settings.spec(n, trig_holds)
     if spec.case == 'torque' and law is not None:
         return replace(spec, case='pd_gains'), law.kp, law.kd
     if spec.case == 'pd_gains':
@@ -340,6 +362,11 @@ class OnlineIdentification:
                 fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock())
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
             self._reclose(fitted[1], settings.case)
+            if (self._evo is not None and settings.network.get('basis') == AUTO_BASIS
+                    and _trig_holds(self._laws, self._arm3, settings.case)
+                    and not is_global(self._evo.spec)):
+                self._drop_search('the arm holds on the trigonometric basis: the search '
+                                  'goes on with the global network')
         train, validation, seconds = split_validation(
             segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)
         if seconds < settings.min_window or not train:
@@ -365,14 +392,9 @@ class OnlineIdentification:
         return True
 
     def _feed_memory(self, settings: OnlineSettings, segments, origin: float) -> None:
-        """Offer the window's training part (never what validates) to the memory."""
-        train = split_validation(segments, settings.validation_fraction,
-                                 MIN_SEGMENT_SAMPLES)[0]
-        try:
-            self._memory.feed(train, origin, settings.case, settings.kp, settings.kd)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-            self._memory.reset()
-            self._log_throttled('memory', 'warning', f'excitation memory cleared: {exc}')
+        warning = _feed(self._memory, settings, segments, origin)
+        if warning:
+            self._log_throttled('memory', 'warning', warning)
         self._set_status(self._status.state, self._status.detail,
                          condition_number=self._memory.condition_number(),
                          memory_samples=self._memory.size)
@@ -416,7 +438,8 @@ class OnlineIdentification:
 
     def _build_search(self, settings: OnlineSettings, train, joints, seconds: float) -> None:
         law = self._laws.law
-        spec, kp, kd = _search_structure(settings, law, joints)
+        holds = _trig_holds(self._laws, self._arm3, settings.case, self._start_model)
+        spec, kp, kd = _search_structure(settings, law, joints, holds)
         algorithm = settings.optimizer
         x0 = scales = None
         origin = 'the default genome'

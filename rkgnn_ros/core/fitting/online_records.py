@@ -28,6 +28,7 @@ from typing import Dict, List, Mapping, NamedTuple, Optional, Tuple
 import numpy as np
 
 from .controller import ClosedLoop as ControllerLoop
+from .global_fit import global_spec
 from ..data import Dataset
 from ..model.model import RKGNNModel
 from ..model.spec import NetworkSpec
@@ -35,6 +36,9 @@ from ..model.spec import NetworkSpec
 __all__ = ['OnlineSettings', 'Observation', 'StreamCapture', 'Status', 'ClosedLoop',
            'ModelUpdate', 'LoopUpdate', 'GenerationStats', 'LogLine', 'StepResult',
            'model_update']
+
+#: ``network.basis`` that chooses the global network where the planar trigonometric arm holds.
+AUTO_BASIS = 'auto'
 
 
 @dataclass(frozen=True)
@@ -83,9 +87,20 @@ class OnlineSettings:
     max_generations: int = 0
     version: int = 0
 
-    def spec(self, n_joints: int) -> NetworkSpec:
-        """Return the network for ``n_joints`` joints (raises ValueError if invalid)."""
-        return replace(NetworkSpec.recommended(int(n_joints), self.case), **dict(self.network))
+    def spec(self, n_joints: int, trig_holds: bool = False) -> NetworkSpec:
+        """
+        Return the network for ``n_joints`` joints (raises ValueError if invalid).
+
+        ``network['basis'] == 'auto'``: the global network (:func:`.global_fit.global_spec`)
+        where the planar trigonometric arm holds the data (``trig_holds``), else the RBF
+        network with the other ``network`` settings.
+        """
+        network = dict(self.network)
+        if network.get('basis') == AUTO_BASIS:
+            if trig_holds:
+                return global_spec(int(n_joints), self.case)
+            network['basis'] = 'rbf'
+        return replace(NetworkSpec.recommended(int(n_joints), self.case), **network)
 
 
 class StreamCapture:

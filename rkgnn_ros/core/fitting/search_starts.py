@@ -23,7 +23,7 @@ import math
 import time
 from typing import Optional
 
-from . import case_three
+from . import case_three, global_fit
 from .identify import Evolution
 from .online_records import OnlineSettings
 from .optimizers import make_optimizer
@@ -46,6 +46,22 @@ def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: in
     return genome, cost, time.perf_counter() - t0
 
 
+def _closed_form(evo: Evolution, train):
+    """
+    Return ``(genome, cost, seconds)`` of a global network's start.
+
+    The arm's coefficients fitted on the trigonometric basis (case 3: with its PD servo),
+    mapped into the genome: the same model, no search needed, well under a second
+    (:func:`.global_fit.closed_form_start` without its rollout refinement, which costs
+    seconds to tens of seconds: the search refines instead, generation by generation).
+    """
+    t0 = time.perf_counter()
+    genome = global_fit.closed_form_start(
+        evo.spec, list(train), evo.scales, evo.substeps, evo.kp, evo.kd, deadline=t0,
+        torque_interpolation=evo.torque_interpolation, shootings=())[0]
+    return genome, float(evo.problem.cost(genome[None])[0]), time.perf_counter() - t0
+
+
 def warm_start(evo: Evolution, train, kp, kd, budget_s: float, nfev: int) -> Optional[str]:
     """
     Place the start genome by the equation-error fit (the offline pipeline's first stage).
@@ -54,13 +70,19 @@ def warm_start(evo: Evolution, train, kp, kd, budget_s: float, nfev: int) -> Opt
     budget it puts gravity, inertia and friction where the data put them, which a search
     from the default genome takes many generations to find. Kept only when its rollout on
     the training data does not diverge (the optimizer then restarts around it); returns
-    what the search starts from, None if not kept.
+    what the search starts from, None if not kept. A global network starts from its
+    closed-form fit instead (:func:`.global_fit.linear_fit`, mapped into the genome).
     """
-    genome, cost, seconds = _equation_error_fit(evo, train, kp, kd, budget_s, nfev)
+    if global_fit.is_global(evo.spec):
+        genome, cost, seconds = _closed_form(evo, train)
+        what = 'the closed-form fit on the trigonometric basis'
+    else:
+        genome, cost, seconds = _equation_error_fit(evo, train, kp, kd, budget_s, nfev)
+        what = 'the equation-error fit'
     if not math.isfinite(cost):
         return None
     restart_around(evo.optimizer, genome, cost)
-    return f'the equation-error fit ({seconds:.1f} s, J {cost:.4g})'
+    return f'{what} ({seconds:.1f} s, J {cost:.4g})'
 
 
 def rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) -> str:
@@ -72,6 +94,14 @@ def rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) ->
     genome replaces the best (the optimizer restarts around it) only if its cost is lower.
     """
     before = float(evo.optimizer.best_cost)
+    if global_fit.is_global(evo.spec):
+        genome, cost, took = _closed_form(evo, train)
+        kept = math.isfinite(cost) and not cost >= before
+        if kept:
+            restart_around(evo.optimizer, genome, cost)
+        return (f'closed-form fit again on {seconds:.1f} s of data ({took:.1f} s): J '
+                f'{cost:.4g} vs the best {before:.4g}, '
+                + ('restarting around it' if kept else 'kept the best'))
     placed = case_three.start_genome(evo, train, budget_s, nfev)
     if placed is not None and not placed.cost >= before:
         restart_around(evo.optimizer, placed.genome, placed.cost)
