@@ -46,6 +46,9 @@ def test_a_pure_pd_is_learned_without_an_integral_and_a_pid_with_one(pid_data):
     assert 'PID' not in law.describe() and np.all(law.ki == 0.0)
     np.testing.assert_allclose(law.kp, KP, rtol=1e-3)
     assert np.all(np.abs(law.kd - KD) <= 1e-3 * KP)
+    # nor θ-terms: they would fit this torque too, and be wrong at another pose
+    assert law.theta_weights.size == 0
+    assert np.all(np.abs(law.bias) < 1e-3 * KP)
     law = fit_law([pid_data])
     assert law.describe().startswith('PID')
     np.testing.assert_allclose(law.ki, 20.0, rtol=1e-3)
@@ -85,7 +88,7 @@ def test_the_shifted_commands_carry_everything_but_the_pd_part(pid_data):
 def test_the_arm_model_gets_the_servos_gravity_terms_back():
     data = run(Servo(KP, KD, gravity='measured', arm=ARM), 10.0)
     law = fit_law([data])
-    assert law.theta_input == 'measured'
+    assert law.theta_input == 'measured' and law.theta_weights.size > 0   # the compensation
     arm = Evolution(NetworkSpec.recommended(3, 'torque'), [data], seed=0).best_model()
     closed = closed_loop(arm, law, theta_samples=data.theta).model   # G − W φ(θ)
     back = arm_model(closed, law, data.theta)
