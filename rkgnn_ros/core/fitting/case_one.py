@@ -281,6 +281,11 @@ class LawKeeper:
         self._trig_tried = -math.inf             # when it was last fitted (clock s)
         self._trig_failures = 0                  # fits in a row that did not hold
 
+    @property
+    def trig_tried(self) -> bool:
+        """Return whether the trigonometric arm was tried (it holds when :attr:`trig` is set)."""
+        return self._trig_tried > -math.inf
+
     def fit_trig(self, paired: Sequence[Dataset], validation_fraction: float,
                  now: float, prior=None) -> Tuple[bool, Optional[Tuple[str, str]]]:
         """

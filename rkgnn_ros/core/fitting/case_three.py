@@ -212,6 +212,11 @@ class ArmKeeper:
         self._tried = -math.inf
         self._failures = 0  # fits in a row that did not hold
 
+    @property
+    def tried(self) -> bool:
+        """Return whether a fit was tried (it holds when :attr:`loop` is not None)."""
+        return self._tried > -math.inf
+
     def fit(self, segments: Sequence[Dataset], validation_fraction: float, origin: float,
             now: float) -> Tuple[bool, Optional[Tuple[str, str]]]:
         """

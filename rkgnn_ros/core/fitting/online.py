@@ -120,6 +120,21 @@ def _trig_holds(laws: LawKeeper, arm3: ArmKeeper, case: str, start=None) -> bool
             or (start is not None and is_global(start.spec)))
 
 
+def _auto_untried(settings: OnlineSettings, law, laws: LawKeeper, arm3: ArmKeeper) -> bool:
+    """
+    Return whether ``network.basis: auto`` waits for the trigonometric arm's first verdict.
+
+    Its network is chosen when the search is built and kept until the search restarts (a
+    switch would restart it under whoever watches it). Case 1 without a law builds the
+    open-loop search at once: it restarts anyway when the law comes, the arm tried by then.
+    """
+    if settings.network.get('basis') != AUTO_BASIS:
+        return False
+    if settings.case == 'torque':
+        return law is not None and not laws.trig_tried
+    return not arm3.tried
+
+
 def _feed(memory: MemoryFeed, settings: OnlineSettings, segments, origin: float
           ) -> Optional[str]:
     """Offer the window's training part (never what validates) to ``memory``; say failures."""
@@ -362,15 +377,12 @@ class OnlineIdentification:
                 fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock())
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
             self._reclose(fitted[1], settings.case)
-            if (self._evo is not None and settings.network.get('basis') == AUTO_BASIS
-                    and _trig_holds(self._laws, self._arm3, settings.case)
-                    and not is_global(self._evo.spec)):
-                self._drop_search('the arm holds on the trigonometric basis: the search '
-                                  'goes on with the global network')
         train, validation, seconds = split_validation(
             segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)
-        if seconds < settings.min_window or not train:
-            self._set_status('waiting for data',
+        untried = self._evo is None and _auto_untried(settings, law, self._laws, self._arm3)
+        if seconds < settings.min_window or not train or untried:
+            self._set_status('waiting for data', 'the arm on the trigonometric basis is tried '
+                             'first' if untried and train else
                              f'{seconds:.1f} s of {settings.min_window} s buffered')
             return False
         if self._evo is None:
