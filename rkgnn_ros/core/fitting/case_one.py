@@ -283,7 +283,7 @@ class LawKeeper:
 
     @property
     def trig_tried(self) -> bool:
-        """Return whether the trigonometric arm was tried (it holds when :attr:`trig` is set)."""
+        """Return True once the trigonometric arm was fitted; it holds when :attr:`trig` is set."""
         return self._trig_tried > -math.inf
 
     def fit_trig(self, paired: Sequence[Dataset], validation_fraction: float,

@@ -214,7 +214,7 @@ class ArmKeeper:
 
     @property
     def tried(self) -> bool:
-        """Return whether a fit was tried (it holds when :attr:`loop` is not None)."""
+        """Return True once a fit was attempted; it holds when :attr:`loop` is set."""
         return self._tried > -math.inf
 
     def fit(self, segments: Sequence[Dataset], validation_fraction: float, origin: float,
