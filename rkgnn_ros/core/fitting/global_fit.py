@@ -41,7 +41,7 @@ coefficients (what :func:`~.refine.refine_lm` and CMA-ES take).
 from dataclasses import replace
 import math
 import time
-from typing import Callable, List, NamedTuple, Optional, Sequence, Tuple
+from typing import Callable, List, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -54,7 +54,7 @@ from ..model.spec import NetworkSpec
 from ..model.trig import TrigBasis
 from ..model.trig_dynamics import Layout, unpack_mass
 
-__all__ = ['CoefficientMap', 'CoefficientProblem', 'GlobalFit', 'closed_form_start',
+__all__ = ['CoefficientMap', 'CoefficientProblem', 'GlobalFit', 'closed_form_genome',
            'coefficient_map', 'fit_global', 'global_spec', 'is_global', 'linear_fit', 'trig_table',
            'variable_unit']
 
@@ -386,36 +386,15 @@ def fit_global(train: Sequence[Dataset], validation: Sequence[Dataset], spec: Ne
                      optimizer.generation, arm)
 
 
-def closed_form_start(spec: NetworkSpec, train: Sequence[Dataset], scales: Scales,
-                      substeps: int, kp=None, kd=None, *, deadline: float,
-                      torque_interpolation: str = 'linear', shootings: Sequence[int] = (20,),
-                      nfev: int = 30) -> Tuple[np.ndarray, np.ndarray]:
+def closed_form_genome(spec: NetworkSpec, train: Sequence[Dataset], scales: Scales, kp=None,
+                       kd=None) -> np.ndarray:
     """
-    Return the genomes of the closed-form fit and of its rollout refinement, (N,) each.
+    Return the genome of :func:`linear_fit` on ``train`` for ``spec``, shape (N,).
 
-    :func:`linear_fit` on ``train`` mapped into the genome, then Levenberg-Marquardt over the
-    arm's coefficients on multiple-shooting residuals (``shootings``; none: the closed form
-    twice, as the online search's start takes it) until ``deadline``
-    (``time.perf_counter()``), the case-3 result back in units of mean Kp = 1. The caller
-    keeps the one with the lower J.
+    The online search's start (:func:`..search_starts.warm_start`): the closed form, under
+    a second; the rollout refinement over the coefficients (:func:`fit_global`'s) takes tens
+    of seconds, too long to hold a running search.
     """
-    from .refine import refine_lm
     table = trig_table(spec)
     arm = linear_fit(list(train), spec.case, table, kp, kd, spec.coulomb_velocity)
-    cmap = coefficient_map(spec, scales, table, arm.layout_)
-    coef = arm.full_coefficients
-    unit = variable_unit(coef)
-
-    def problem_for(shooting):
-        return CoefficientProblem(
-            FitnessProblem(spec, list(train), scales=scales, substeps=substeps, kp=kp, kd=kd,
-                           shooting=int(shooting), torque_interpolation=torque_interpolation),
-            cmap, unit)
-
-    if not shootings:
-        return cmap.genome(coef), cmap.genome(coef)
-    x, _ = refine_lm(problem_for, coef / unit, shootings, nfev, deadline=deadline)
-    refined = x * unit
-    if cmap.layout.kp is not None:
-        refined = refined / float(np.mean(refined[cmap.layout.kp]))
-    return cmap.genome(coef), cmap.genome(refined)
+    return coefficient_map(spec, scales, table, arm.layout_).genome(arm.full_coefficients)

@@ -71,6 +71,7 @@ from scipy.optimize import nnls
 from .warmstart import estimate_acceleration
 from ..model.trig_certificate import certify_inertia
 from ..model.trig_dynamics import Layout, regressor, TrigDynamics
+from ..scoring import nrmse
 
 CASES = ('torque', 'pd_gains', 'unknown')
 
@@ -594,9 +595,4 @@ class LinearDynamics(TrigDynamics):
 
 def torque_nrmse(predicted, measured) -> float:
     """Return the torque NRMSE: RMSE / std of the measured torque per joint, joint mean."""
-    predicted = np.asarray(predicted, dtype=float)
-    measured = np.asarray(measured, dtype=float)
-    if not np.all(np.isfinite(predicted)):
-        return float('inf')
-    rmse = np.sqrt(np.mean(np.square(predicted - measured), axis=0))
-    return float(np.mean(rmse / np.maximum(np.std(measured, axis=0), 1e-12)))
+    return nrmse(predicted, measured)

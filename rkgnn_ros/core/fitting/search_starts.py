@@ -51,14 +51,11 @@ def _closed_form(evo: Evolution, train):
     Return ``(genome, cost, seconds)`` of a global network's start.
 
     The arm's coefficients fitted on the trigonometric basis (case 3: with its PD servo),
-    mapped into the genome: the same model, no search needed, well under a second
-    (:func:`.global_fit.closed_form_start` without its rollout refinement, which costs
-    seconds to tens of seconds: the search refines instead, generation by generation).
+    mapped into the genome (:func:`.global_fit.closed_form_genome`): the same model, no
+    search needed; the search's CMA-ES refines it generation by generation.
     """
     t0 = time.perf_counter()
-    genome = global_fit.closed_form_start(
-        evo.spec, list(train), evo.scales, evo.substeps, evo.kp, evo.kd, deadline=t0,
-        torque_interpolation=evo.torque_interpolation, shootings=())[0]
+    genome = global_fit.closed_form_genome(evo.spec, list(train), evo.scales, evo.kp, evo.kd)
     return genome, float(evo.problem.cost(genome[None])[0]), time.perf_counter() - t0
 
 
@@ -89,31 +86,28 @@ def rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) ->
     """
     Fit again from the best genome on the grown window; return the line that says so.
 
-    A case-3 search first tries the start from the linearly identified gains
-    (:mod:`.case_three`: they may be determined by now), then the equation-error fit; a
-    genome replaces the best (the optimizer restarts around it) only if its cost is lower.
+    A global network fits its closed form again; an RBF case-3 search first tries the start
+    from the linearly identified gains (:mod:`.case_three`: they may be determined by now),
+    then the equation-error fit; a genome replaces the best (the optimizer restarts around
+    it) only if its cost is lower.
     """
     before = float(evo.optimizer.best_cost)
     if global_fit.is_global(evo.spec):
         genome, cost, took = _closed_form(evo, train)
-        kept = math.isfinite(cost) and not cost >= before
-        if kept:
-            restart_around(evo.optimizer, genome, cost)
-        return (f'closed-form fit again on {seconds:.1f} s of data ({took:.1f} s): J '
-                f'{cost:.4g} vs the best {before:.4g}, '
-                + ('restarting around it' if kept else 'kept the best'))
-    placed = case_three.start_genome(evo, train, budget_s, nfev)
-    if placed is not None and not placed.cost >= before:
-        restart_around(evo.optimizer, placed.genome, placed.cost)
-        return (f'{placed.origin} on {seconds:.1f} s of data: better than the best '
-                f'({before:.4g}), restarting around it')
-    genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd, budget_s, nfev)
+        what = 'closed-form fit'
+    else:
+        placed = case_three.start_genome(evo, train, budget_s, nfev)
+        if placed is not None and not placed.cost >= before:
+            restart_around(evo.optimizer, placed.genome, placed.cost)
+            return (f'{placed.origin} on {seconds:.1f} s of data: better than the best '
+                    f'({before:.4g}), restarting around it')
+        genome, cost, took = _equation_error_fit(evo, train, evo.kp, evo.kd, budget_s, nfev)
+        what = 'equation-error fit'
     kept = math.isfinite(cost) and not cost >= before
     if kept:
         restart_around(evo.optimizer, genome, cost)
-    return (f'equation-error fit again on {seconds:.1f} s of data ({took:.1f} s): J '
-            f'{cost:.4g} vs the best {before:.4g}, '
-            + ('restarting around it' if kept else 'kept the best'))
+    return (f'{what} again on {seconds:.1f} s of data ({took:.1f} s): J {cost:.4g} vs the '
+            f'best {before:.4g}, ' + ('restarting around it' if kept else 'kept the best'))
 
 
 def restart_around(optimizer, genome, cost: float) -> None:
