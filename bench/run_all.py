@@ -16,10 +16,13 @@
 Run every benchmark in bench/ (``make bench``); each writes its JSON to bench/results/.
 
 Benchmarks measure speed as ratios within one run and accuracy on fixed seeds; none is a
-test. Pass names to run a subset: ``python bench/run_all.py fitness_speed``.
+test. Pass names to run a subset: ``python bench/run_all.py fitness_speed``. A run of them
+all writes ``bench/results/bench_times.json`` (seconds per script, and in all).
 """
 
+import datetime
 import glob
+import json
 import os
 import subprocess
 import sys
@@ -42,14 +45,24 @@ def main(argv=None):
     failed = []
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [os.path.dirname(HERE)] + [p for p in [os.environ.get('PYTHONPATH')] if p]))
+    start = time.perf_counter()
+    times = {}
     for path in scripts:
         name = os.path.basename(path)
         print(f'== {name}', flush=True)
         t0 = time.perf_counter()
         code = subprocess.call([sys.executable, path], env=env)
+        times[name] = {'seconds': round(time.perf_counter() - t0, 1), 'exit': code}
         print(f'== {name}: exit {code} after {time.perf_counter() - t0:.0f} s', flush=True)
         if code != 0:
             failed.append(name)
+    if not argv:  # the whole of make bench: how long it took, script by script
+        with open(os.path.join(HERE, 'results', 'bench_times.json'), 'w',
+                  encoding='utf-8') as f:
+            json.dump({'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
+                       'load_end': os.getloadavg(),
+                       'total_s': round(time.perf_counter() - start, 1), 'scripts': times},
+                      f, indent=2)
     subprocess.call([sys.executable, os.path.join(HERE, 'summary.py')], env=env,
                     stdout=subprocess.DEVNULL)  # bench/results/README.md from the JSON
     if failed:
