@@ -425,7 +425,9 @@ def test_item_14_missing_or_stale_commands_pause_then_resume(data):
             T0 + data.t[k], JOINTS, data.theta[k], data.theta_dot[k], data.tau[k])))
     s.worker.step()
     assert s.status.state == 'waiting for data' and 'joint_commands' in s.status.detail
-    s.feed(data, 150, 400)  # commands arrive: the search starts by itself
+    # commands arrive: the search starts by itself (once the linear closed loop of
+    # network.basis 'auto' has its 200 training samples, 3 s of commands here)
+    s.feed(data, 150, 450)
     generation = s.status.generation
     assert s.status.state == 'evolving' and generation > 0, s.status
     for _ in range(10):  # the streams stop: stale after stale_timeout, no generation
@@ -435,7 +437,7 @@ def test_item_14_missing_or_stale_commands_pause_then_resume(data):
     assert s.status.generation <= generation + 3  # the last ones before it turned stale
     assert len(s.log_lines('no data for', 'the search pauses')) == 1
     stale_at = s.status.generation
-    s.feed(data, 400, 500)  # data returns: the search resumes by itself
+    s.feed(data, 450, 550)  # data returns: the search resumes by itself
     assert s.status.state == 'evolving' and s.status.generation > stale_at
     assert s.log_lines('data is flowing again')
 
