@@ -67,12 +67,12 @@ from . import case_three
 from .case_one import LawKeeper, search_segments
 from .case_three import ArmKeeper
 from .controller import ControllerLaw
-from .global_fit import is_global
 from .identify import Evolution
 from .memory import MemoryFeed
 from .online_records import (AUTO_BASIS, ClosedLoop, GenerationStats, LogLine, LoopUpdate,
                              model_update, ModelUpdate, Observation, OnlineSettings, Status,
                              StepResult, StreamCapture)
+from .online_rules import auto_untried, feed_memory, stale_stream, Staleness, trig_holds
 from .search_starts import (hand_over_settings, restart_around, rewarm, warm_start,
                             WARM_START_NFEV, WARM_START_S)
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
@@ -96,55 +96,10 @@ LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
 _CLOSED_FIT_CASES = ('unknown', 'pd_gains')
 
 
-def _stale_stream(obs: Observation, now: float) -> Optional[Tuple[str, Optional[float]]]:
-    """Return ``(stream, age)`` of the first stream not fresh (age None: never), else None."""
-    streams = ['state'] if obs.settings.case == 'torque' else ['state', 'command']
-    for key in streams:
-        last = obs.received.get(key)
-        if last is None:
-            return key, None
-        if now - last > obs.settings.stale_timeout:
-            return key, now - last
-    return None
-
-
 def _with_velocity(segments, estimate: bool) -> List[Dataset]:
     """Return ``segments``, θ̇ recomputed from θ by the centred derivative if ``estimate``."""
     return [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt)) if estimate
             else seg for seg in segments]
-
-
-def _trig_holds(laws: LawKeeper, arm3: ArmKeeper, case: str, start=None) -> bool:
-    """Return whether the arm on the planar trigonometric basis holds (or ``start`` is global)."""
-    return ((laws.trig if case == 'torque' else arm3.loop) is not None
-            or (start is not None and is_global(start.spec)))
-
-
-def _auto_untried(settings: OnlineSettings, law, laws: LawKeeper, arm3: ArmKeeper) -> bool:
-    """
-    Return whether ``network.basis: auto`` waits for the trigonometric arm's first verdict.
-
-    Its network is chosen when the search is built and kept until the search restarts (a
-    switch would restart it under whoever watches it). Case 1 without a law builds the
-    open-loop search at once: it restarts anyway when the law comes, the arm tried by then.
-    """
-    if settings.network.get('basis') != AUTO_BASIS:
-        return False
-    if settings.case == 'torque':
-        return law is not None and not laws.trig_tried
-    return not arm3.tried
-
-
-def _feed(memory: MemoryFeed, settings: OnlineSettings, segments, origin: float
-          ) -> Optional[str]:
-    """Offer the window's training part (never what validates) to ``memory``; say failures."""
-    train = split_validation(segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)[0]
-    try:
-        memory.feed(train, origin, settings.case, settings.kp, settings.kd)
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-        memory.reset()
-        return f'excitation memory cleared: {exc}'
-    return None
 
 
 def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
@@ -175,33 +130,6 @@ def _search_structure(settings: OnlineSettings, law: Optional[ControllerLaw], jo
                              f'the {n} joints {list(joints)}')
         return spec, kp, kd
     return spec, None, None
-
-
-class _Staleness:
-    """Whether the streams the case needs are fresh; says when they stop and return."""
-
-    def __init__(self):
-        self.warned = False
-
-    def fresh(self, obs: Observation, now: float, log, set_status) -> bool:
-        """Return True if fresh; else set the status (and warn once) and return False."""
-        stale = _stale_stream(obs, now)
-        if stale is None:
-            if self.warned:
-                self.warned = False
-                log('info', 'data is flowing again: the search resumes')
-            return True
-        key, age = stale
-        topic = 'joint_states' if key == 'state' else 'joint_commands'
-        if age is None:
-            set_status('waiting for data', f'no {topic} accepted yet')
-            return False
-        if not self.warned:
-            self.warned = True
-            log('warning', f'{topic}: no data for {age:.1f} s: the search pauses until data '
-                           'returns')
-        set_status('stale', f'{topic} silent for {age:.1f} s')
-        return False
 
 
 class OnlineIdentification:
@@ -261,7 +189,7 @@ class OnlineIdentification:
         self._val_key = None
         self._last_val_generation = -VALIDATION_EVERY
         self._last_stats = -math.inf
-        self._staleness = _Staleness()
+        self._staleness = Staleness()
         self._memory = MemoryFeed()  # samples that keep the linear fit's regressor rich
         self._had_finite = False
         self._failures = None  # (optimizer, its numerical failures) last seen
@@ -277,7 +205,7 @@ class OnlineIdentification:
         if obs.paused or obs.joints is None or self._finished(obs.settings, searching):
             return False
         now = self._clock()
-        if _stale_stream(obs, now) is not None:
+        if stale_stream(obs, now) is not None:
             return False
         since = now - self._last_refresh if searching or self._evo is None else math.inf
         return since >= DATA_REFRESH_S or (not searching and since >= WAITING_REFRESH_S)
@@ -379,7 +307,7 @@ class OnlineIdentification:
             self._reclose(fitted[1], settings.case)
         train, validation, seconds = split_validation(
             segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)
-        untried = self._evo is None and _auto_untried(settings, law, self._laws, self._arm3)
+        untried = self._evo is None and auto_untried(settings, law, self._laws, self._arm3)
         if seconds < settings.min_window or not train or untried:
             self._set_status('waiting for data', 'the arm on the trigonometric basis is tried '
                              'first' if untried and train else
@@ -404,7 +332,7 @@ class OnlineIdentification:
         return True
 
     def _feed_memory(self, settings: OnlineSettings, segments, origin: float) -> None:
-        warning = _feed(self._memory, settings, segments, origin)
+        warning = feed_memory(self._memory, settings, segments, origin)
         if warning:
             self._log_throttled('memory', 'warning', warning)
         self._set_status(self._status.state, self._status.detail,
@@ -450,7 +378,7 @@ class OnlineIdentification:
 
     def _build_search(self, settings: OnlineSettings, train, joints, seconds: float) -> None:
         law = self._laws.law
-        holds = _trig_holds(self._laws, self._arm3, settings.case, self._start_model)
+        holds = trig_holds(self._laws, self._arm3, settings.case, self._start_model)
         spec, kp, kd = _search_structure(settings, law, joints, holds)
         algorithm = settings.optimizer
         x0 = scales = None
