@@ -139,7 +139,7 @@ def test_the_feed_offers_each_sample_once_away_from_the_ends():
     offered = [k for k in range(edge, 501 - edge) if k % 5 == 0]
     assert np.isin(kept[:, 0], data.theta[offered, 0]).all()
     assert feed.condition_number() >= 1.0
-    # another case (or other gains) starts over
+    # another kind of regressor (the arm's, then the closed loop's) starts over
     assert feed.feed([data.slice(0, 301)], 50.0, 'unknown') == first
     assert feed.size == first
     feed.reset()

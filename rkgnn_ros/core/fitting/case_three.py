@@ -218,7 +218,7 @@ class ArmKeeper:
         return self._tried > -math.inf
 
     def fit(self, segments: Sequence[Dataset], validation_fraction: float, origin: float,
-            now: float) -> Tuple[bool, Optional[Tuple[str, str]]]:
+            now: float, prior=None) -> Tuple[bool, Optional[Tuple[str, str]]]:
         """
         Fit on ``segments`` (``origin``: the stamp of their t = 0) if due at clock ``now``.
 
@@ -227,7 +227,8 @@ class ArmKeeper:
         and at every call while the data are too few to try. Between
         fits the law's integral term is moved on to the data's end. Returns whether the loop
         changed (fitted or moved on), and the (level, text) to log when whether it predicts
-        changed.
+        changed. ``prior``: the excitation memory's samples of the closed loop, fitted beside
+        the window (:func:`~rkgnn_ros.core.fitting.trig_loop.fit_closed_trig_loop`).
         """
         segments = [seg for seg in segments if seg.theta_d is not None]
         if not segments:
@@ -241,7 +242,7 @@ class ArmKeeper:
             return False, None
         self._tried = now
         before = self.loop is not None
-        loop = fit_closed_trig_loop(segments, validation_fraction, MIN_LOOP_SAMPLES)
+        loop = fit_closed_trig_loop(segments, validation_fraction, MIN_LOOP_SAMPLES, prior)
         why = 'too few samples or a failed fit'
         if loop is not None and not loop.torque_error <= MAX_LOOP_ERROR:
             why = f'held-out equation error {loop.torque_error:.1%}'

@@ -242,10 +242,10 @@ class MemoryFeed:
     (by its stamp, so a sample is never offered twice however the windows overlap), away
     from a segment's ends by half the Savitzky-Golay window (there θ̈ is extrapolated: such
     samples look the most exciting and are the least true). The regressor is the planar
-    trigonometric arm's: the arm's in cases 'torque' (measured torque) and 'pd_gains' (the
-    known PD's torque), the closed loop's in case 'unknown' (with the servo's gain
-    columns). A new case, joint count or gains starts the memory over, as does
-    :meth:`reset`.
+    trigonometric arm's: the arm's in case 'torque' (measured torque), the closed loop's in
+    cases 'pd_gains' and 'unknown' (with the servo's gain columns: what the linear closed
+    loop of :class:`~rkgnn_ros.core.fitting.case_three.ArmKeeper` fits in both). A new case
+    or joint count starts the memory over, as does :meth:`reset`.
     """
 
     def __init__(self, capacity: int = MEMORY_CAPACITY, every: int = OFFER_EVERY):
@@ -273,7 +273,7 @@ class MemoryFeed:
         """Return the kept regressor's condition number (NaN while the memory is empty)."""
         return np.nan if self.size == 0 else self.memory.condition_number()
 
-    def feed(self, segments, origin: float, case: str, kp=None, kd=None) -> int:
+    def feed(self, segments, origin: float, case: str) -> int:
         """
         Offer the samples of ``segments`` not considered yet; return how many were kept.
 
@@ -285,20 +285,17 @@ class MemoryFeed:
         origin : float
             Stamp time (s) of the segments' t = 0.
         case : str
-            'torque', 'pd_gains' (``kp``, ``kd`` known) or 'unknown'.
-        kp, kd : array_like, shape (n,), optional
-            The known PD gains (case 'pd_gains': its torque is theirs).
+            'torque', 'pd_gains' or 'unknown'.
 
         """
         segments = [seg for seg in segments if seg.n_samples > 0]
         if not segments:
             return 0
         n = segments[0].n_joints
-        gains = tuple(np.ravel(kp).tolist() + np.ravel(kd).tolist()) if case == 'pd_gains' \
-            else ()
-        if (case, n, gains) != self._key:
+        kind = 'torque' if case == 'torque' else 'unknown'   # the arm's or the closed loop's
+        if (kind, n) != self._key:
             self.reset()
-            self._key = (case, n, gains)
+            self._key = (kind, n)
         parts, until = [], self._fed_until
         for seg in segments:
             window = default_window(seg.dt)
@@ -311,7 +308,7 @@ class MemoryFeed:
             index = index[(stamps[index] > self._fed_until) & (tick % self.every == 0)]
             until = max(until, float(stamps[seg.n_samples - edge - 1]))
             if index.size:
-                parts.append(samples_from_datasets([seg], case, kp, kd, window).take(index))
+                parts.append(samples_from_datasets([seg], kind, window=window).take(index))
         self._fed_until = until
         if not parts:
             return 0

@@ -299,10 +299,12 @@ class OnlineIdentification:
         else:
             segments = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, False),
                                       estimate_velocity)
-            if settings.case != 'torque':
-                self._feed_memory(settings, segments, capture.time_origin)
+            if settings.case != 'torque':   # the closed loop's samples, θ̇ from θ as it fits
+                self._feed_memory(settings, _with_velocity(segments, True),
+                                  capture.time_origin)
             if settings.case in _CLOSED_FIT_CASES:
-                fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock())
+                fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock(),
+                                        self._memory.samples)
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
             self._reclose(fitted[1], settings.case)
         train, validation, seconds = split_validation(

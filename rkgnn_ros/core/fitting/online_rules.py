@@ -100,7 +100,7 @@ def feed_memory(memory: MemoryFeed, settings: OnlineSettings, segments, origin: 
     """Offer the window's training part (never what validates) to ``memory``; say failures."""
     train = split_validation(segments, settings.validation_fraction, MIN_SEGMENT_SAMPLES)[0]
     try:
-        memory.feed(train, origin, settings.case, settings.kp, settings.kd)
+        memory.feed(train, origin, settings.case)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         memory.reset()
         return f'excitation memory cleared: {exc}'

@@ -386,7 +386,8 @@ def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
 
 
 def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float,
-                         min_samples: int = 200) -> Optional[TrigLoop]:
+                         min_samples: int = 200,
+                         prior: Optional[Samples] = None) -> Optional[TrigLoop]:
     """
     Return case 3's arm and servo fitted together on ``segments`` (module docstring).
 
@@ -400,15 +401,18 @@ def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float
     :data:`INTEGRAL_MIN_ERROR`): over a limited range of motion c trades with the slow
     gravity terms, which would leave the closed loop right and the arm's torque wrong. The
     law's integral term holds at the end of ``segments``; ∫e runs on from one segment to the
-    next (a gap adds nothing to it). None with fewer than ``min_samples`` training samples
-    or when both fits fail or give a Kp <= 0.
+    next (a gap adds nothing to it). ``prior``: older samples of the closed loop (the
+    excitation memory's, with θ̇ the centred derivative and the tracking errors) fitted
+    beside the PD form's training data; the PID form, whose ∫e they lack, fits without.
+    None with fewer than ``min_samples`` training samples or when both fits fail or give a
+    Kp <= 0.
     """
     segments = [_centred_velocity(seg) for seg in segments
                 if seg.theta_d is not None and seg.theta_d_dot is not None and seg.n_samples >= 5]
     train, validation, _ = split_validation(segments, validation_fraction, MIN_SEGMENT_SAMPLES)
     if sum(seg.n_samples for seg in train) < min_samples:
         return None
-    pd = _closed_form(train, validation, integral=False)
+    pd = _closed_form(train, validation, integral=False, prior=prior)
     if pd is not None and not pd.torque_error > INTEGRAL_MIN_ERROR:
         return pd
     pid = _closed_form(train, validation, integral=True)
@@ -417,12 +421,13 @@ def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float
     return pd
 
 
-def _closed_form(train, validation, integral: bool) -> Optional[TrigLoop]:
+def _closed_form(train, validation, integral: bool, prior=None) -> Optional[TrigLoop]:
     """Return the PD (or PID: ``integral``) closed loop fitted on ``train``, scored after."""
     n, n_train = train[0].n_joints, sum(seg.n_samples for seg in train)
     basis = TrigBasis(n, planar=True, tied=True)
     try:
-        arm = LinearDynamics(basis, certify=False, integral=integral).fit(train, 'unknown')
+        arm = LinearDynamics(basis, certify=False, integral=integral).fit(
+            train, 'unknown', prior=None if integral else prior)
         every = samples_from_datasets(train + validation, 'unknown', window=arm.window_,
                                       integral=integral)
     except (ValueError, np.linalg.LinAlgError):
