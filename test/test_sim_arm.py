@@ -442,6 +442,11 @@ def test_shutdown_while_publishing_exits_0():
                 executor.spin_until_future_complete(node.finished)
             except ExternalShutdownException:
                 pass
+            except rclpy._rclpy_pybind11.RCLError:
+                # the shutdown can land while the spin builds its wait set ('the given
+                # context is not valid'): the end this test asks for, not a failure
+                if context.ok():
+                    raise
 
         thread = threading.Thread(target=spin, daemon=True)
         thread.start()
