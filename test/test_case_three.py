@@ -21,7 +21,7 @@ from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.scoring import range_normalised_rmse
-from rkgnn_ros.core.sim.plant import PlanarArm
+from rkgnn_ros.core.sim.plant import ArmParameters, PDController, PlanarArm
 from rkgnn_ros.core.sim.sensors import SensorModel
 from rkgnn_ros.core.sim.servo import Servo
 from rkgnn_ros.core.sim.simulate import simulate
@@ -63,3 +63,18 @@ def test_gains_the_data_do_not_determine_are_not_given():
                      noise=SensorModel.differenced(1e-4), rng=3)
     assert fit_gains([noisy]) is None
     assert fit_gains([noisy.slice(0, 40)]) is None   # too short to fit at all
+
+
+def test_the_gains_of_a_six_joint_servo():
+    # the general trigonometric basis has 3,611 features at 6 joints (its fit held a UR5's
+    # search for minutes); the gains come from the tied planar one there
+    n = 6
+    kp, kd = np.linspace(30.0, 50.0, n), np.linspace(6.0, 3.0, n)
+    arm = PlanarArm(ArmParameters(masses=np.linspace(6.0, 2.0, n),
+                                  lengths=np.linspace(0.3, 0.1, n),
+                                  viscous=np.full(n, 0.3), coulomb=np.full(n, 0.1)))
+    data = simulate(arm, PDController(kp, kd), paper_reference(n), 12.0, rate=100.0)
+    fitted_kp, fitted_kd = fit_gains([data])
+    scale = fitted_kp.mean()
+    np.testing.assert_allclose(fitted_kp / scale, kp / kp.mean(), rtol=0.05)
+    np.testing.assert_allclose(fitted_kd / scale, kd / kp.mean(), rtol=0.1)

@@ -59,6 +59,7 @@ from .refine import refine_equation_error
 from .trig_loop import fit_closed_trig_loop, TrigLoop
 from ..data import Dataset
 from ..differentiate import centred_derivative
+from ..model.trig import TrigBasis
 
 __all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_LOOP_SAMPLES', 'REFIT_S',
            'RETRY_MAX_S', 'RETRY_S', 'Start', 'fit_gains', 'start_genome']
@@ -86,6 +87,17 @@ RETRY_MAX_S = 30.0
 #: Training samples before the linear closed loop is tried.
 MIN_LOOP_SAMPLES = 200
 
+#: The gains' fit uses the general trigonometric basis up to this many features (43 at 3
+#: joints, 179 at 4) and the tied planar one beyond: the general basis has 3,611 at 6
+#: joints, whose normal equations held a UR5's case-3 search for over a minute.
+MAX_GAIN_FEATURES = 200
+
+
+def _gain_basis(n_joints: int) -> TrigBasis:
+    basis = TrigBasis(n_joints)
+    return basis if basis.n_features <= MAX_GAIN_FEATURES else TrigBasis(
+        n_joints, planar=True, tied=True)
+
 
 def _linear_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     """Return the gains (mean Kp 1) of the linear closed-loop fit, or None if it fails."""
@@ -93,7 +105,7 @@ def _linear_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.
     # reach θ̈ amplified, and the fit with it
     smooth = [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt)) for seg in segments]
     try:
-        fit = LinearDynamics(segments[0].n_joints, certify=False, windows=(0.14,),
+        fit = LinearDynamics(_gain_basis(segments[0].n_joints), certify=False, windows=(0.14,),
                              ridges=(1e-8, 1e-6, 1e-4)).fit(smooth, case='unknown')
     except (ValueError, np.linalg.LinAlgError):
         return None
