@@ -301,9 +301,14 @@ def network_spec(values: Mapping, n_joints: int, case: Optional[str] = None) -> 
     chose, or any case to check the other settings). Settings without a parameter (e.g.
     the inertia floor) keep their values of ``NetworkSpec.recommended``.
     """
+    return _settings_for(values, case).spec(n_joints)
+
+
+def _settings_for(values: Mapping, case: Optional[str]) -> OnlineSettings:
+    """Return the online settings with ``case`` (or the parameter's) resolved ('auto': 3)."""
     settings = online_settings(values)
     case = case or settings.case
-    return replace(settings, case='unknown' if case == 'auto' else case).spec(n_joints)
+    return replace(settings, case='unknown' if case == 'auto' else case)
 
 
 def network_specs(values: Mapping, n_joints: int, case: Optional[str] = None) -> list:
@@ -313,9 +318,7 @@ def network_specs(values: Mapping, n_joints: int, case: Optional[str] = None) ->
     :func:`network_spec`'s, and with ``network.basis: auto`` the global network too (what the
     search runs where the planar trigonometric arm holds).
     """
-    settings = online_settings(values)
-    settings = replace(settings, case='unknown' if (case or settings.case) == 'auto'
-                       else (case or settings.case))
+    settings = _settings_for(values, case)
     specs = [settings.spec(n_joints)]
     if settings.network.get('basis') == AUTO_BASIS:
         specs.append(settings.spec(n_joints, trig_holds=True))

@@ -228,7 +228,7 @@ def arm_model(closed: RKGNNModel, law: ControllerLaw, theta_samples=None,
         theta = np.asarray(theta_samples, dtype=float).reshape(-1, closed.n_joints)
         # the model's own θ-features: its RBF units, or any other basis's (e.g. 'trig')
         units = (RBFFeatures.from_model(closed) if closed.spec.basis == 'rbf'
-                 else closed._net.features)
+                 else closed.theta_features)
         target = law._theta_terms(theta, None)                           # (S, n)
         basis = np.column_stack([units(theta), np.ones(theta.shape[0])])
         coef, _, _, _ = np.linalg.lstsq(basis, target, rcond=1e-10)

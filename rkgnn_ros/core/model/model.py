@@ -117,6 +117,10 @@ class RKGNNModel:
         """Return the identification case: 'torque', 'pd_gains' or 'unknown'."""
         return self.spec.case
 
+    def theta_features(self, theta) -> np.ndarray:
+        """Return the network's θ-features φ(θ) (any basis): ``theta`` (S, n) -> (S, F)."""
+        return self._net.features(np.atleast_2d(np.asarray(theta, dtype=float)))
+
     # ----- the identified terms (numpy; any leading batch of states)
     def _states(self, theta, theta_dot=None):
         theta = np.atleast_2d(np.asarray(theta, dtype=float))
