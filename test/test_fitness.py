@@ -21,11 +21,14 @@ is known (about zero) and populations drawn around it have well-conditioned roll
 which the compiled kernel and the numpy reference must agree to rounding.
 """
 
+import threading
+
 from model_helpers import block, KD, KP, N, REFERENCE, SCALES
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.core.fitting.fitness import FitnessProblem
+from rkgnn_ros.core.fitting import fitness
+from rkgnn_ros.core.fitting.fitness import FitnessProblem, interrupt_on, Interrupted
 from rkgnn_ros.core.model.scales import Scales
 from rkgnn_ros.core.model.spec import NetworkSpec
 
@@ -146,6 +149,69 @@ def test_kernel_cost_equals_numpy_cost(generated, case, inertia, shooting, segme
     assert_costs_agree(fast, reference, rtol=1e-10)
     assert np.sum(np.isfinite(fast)) >= 8  # the comparison is not vacuous
     assert np.all(np.isinf(fast[-3:]))
+
+
+def _in_thread(function):
+    """Run ``function()`` in a fresh thread (interrupts are per thread); return or raise."""
+    out = {}
+
+    def body():
+        try:
+            out['value'] = function()
+        except BaseException as exc:  # noqa: B902 - handed to the caller
+            out['error'] = exc
+    thread = threading.Thread(target=body)
+    thread.start()
+    thread.join()
+    if 'error' in out:
+        raise out['error']
+    return out['value']
+
+
+@pytest.mark.parametrize('chunk_s', [0.25, 0.0])
+def test_a_thread_with_an_interrupt_gets_the_same_costs_in_chunks(generated, monkeypatch,
+                                                                  chunk_s):
+    # chunk_s 0: every candidate its own kernel call (the finest chunking there is)
+    monkeypatch.setattr(fitness, 'CHUNK_S', chunk_s)
+    spec, g, data = generated('pd_gains', 'cholesky')
+    problem = FitnessProblem(spec, [data], scales=SCALES, kp=KP, kd=KD, substeps=2)
+    population = np.vstack([g + 0.05 * np.random.default_rng(3).standard_normal(
+        (7, spec.genome_size)), bad_genomes(spec)])
+    whole = problem.cost(population)
+
+    def chunked():
+        interrupt_on(threading.Event())
+        return problem.cost(population)
+    np.testing.assert_array_equal(_in_thread(chunked), whole)
+
+
+def test_a_set_interrupt_stops_the_evaluation_between_chunks(generated, monkeypatch):
+    from rkgnn_ros.core.model import kernels
+    monkeypatch.setattr(fitness, 'CHUNK_S', 0.0)  # one candidate per kernel call
+    spec, g, data = generated('pd_gains', 'cholesky')
+    problem = FitnessProblem(spec, [data], scales=SCALES, kp=KP, kd=KD, substeps=2)
+    population = np.tile(g, (6, 1))
+    event = threading.Event()
+    calls = []
+    real = kernels.population_cost
+
+    def counting(*args):
+        calls.append(args[2].weights.shape[0])
+        if len(calls) == 2:
+            event.set()  # stop is asked while the second chunk runs
+        return real(*args)
+    monkeypatch.setattr(kernels, 'population_cost', counting)
+
+    def evaluate():
+        interrupt_on(event)
+        return problem.cost(population)
+    with pytest.raises(Interrupted):
+        _in_thread(evaluate)
+    assert calls == [1, 1]  # the chunk in progress finished, no other began
+    # a thread that registered no interrupt evaluates the whole population in one call
+    calls.clear()
+    assert np.all(np.isfinite(problem.cost(population)))
+    assert calls == [6]
 
 
 @pytest.mark.parametrize('inertia', INERTIA)

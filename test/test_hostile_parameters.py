@@ -163,6 +163,10 @@ class LiveNode:
     def close(self):
         self.spinner.stop()
         self.node.stop()
+        # the fuzz accepts generations that take minutes (10,000 candidates): stop() still
+        # ends the worker within a chunk of one, never leaving it running past the node
+        assert not any(t.name == 'rkgnn_identifier' and t.is_alive()
+                       for t in threading.enumerate())
         self.node.destroy_node()
         self.client.destroy_node()
         rclpy.try_shutdown(context=self.context)

@@ -36,6 +36,7 @@ import threading
 import traceback
 from typing import Callable, Optional
 
+from rkgnn_ros.core.fitting.fitness import interrupt_on
 from rkgnn_ros.core.fitting.online import ModelUpdate, Observation, OnlineIdentification, Status
 from rkgnn_ros.identification.publishing import ModelMessage
 
@@ -123,6 +124,9 @@ class SearchWorker:
     def _run(self) -> None:
         """One policy step per iteration until the stop event."""
         yield_to_callbacks()
+        # stop() interrupts a generation between chunks (a big one takes minutes), so the
+        # thread never outlives the node that owns it
+        interrupt_on(self._stop)
         if self._published is not None:
             self._predictor.warm_up(self._published)
         backoff = BACKOFF_MIN_S
