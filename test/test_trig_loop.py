@@ -27,7 +27,8 @@ import pytest
 from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_FIRST_RETRY_S,
                                              TRIG_MAX_TORQUE_ERROR, TRIG_MIN_SAMPLES,
                                              TRIG_RETRY_S)
-from rkgnn_ros.core.fitting.case_three import ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S
+from rkgnn_ros.core.fitting.case_three import (ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S,
+                                               YOUNG_DATA_S)
 from rkgnn_ros.core.fitting.trig_loop import fit_closed_trig_loop, fit_trig_loop
 from rkgnn_ros.core.fitting.validation import split_validation
 from rkgnn_ros.core.integration.inputs import stage_inputs
@@ -232,6 +233,23 @@ def test_case_threes_keeper_predicts_only_while_the_loop_explains_held_out_data(
     later = REFIT_S + RETRY_S + 2.0 * RETRY_S
     assert keeper.fit(good, 0.2, 50.0, later - 0.1) == (False, None)
     assert keeper.fit(good, 0.2, 50.0, later)[0] and keeper.loop is not None
+
+
+def test_case_threes_keeper_retries_every_second_while_the_data_are_young(pd_data):
+    # the first seconds of motion: a fit that does not hold is retried every RETRY_S, not
+    # after a doubling wait, since each second more of data is what makes it hold
+    young = [replace(pd_data.slice(0, 800), tau=None)]
+    assert young[0].t[-1] - young[0].t[0] < YOUNG_DATA_S
+    rng = np.random.default_rng(1)
+    wrong = [replace(seg, theta_d=seg.theta_d + rng.normal(0.0, 0.5, seg.theta_d.shape))
+             for seg in young]
+    keeper = ArmKeeper()
+    for k in range(4):
+        assert keeper.fit(wrong, 0.2, 0.0, k * RETRY_S - 0.01 if k else 0.0)[0] == (k == 0)
+        if k:
+            assert keeper.fit(wrong, 0.2, 0.0, k * RETRY_S) == (True, None)
+        assert keeper.loop is None
+    assert keeper.fit(young, 0.2, 0.0, 4 * RETRY_S)[0] and keeper.loop is not None
 
 
 def test_case_threes_keeper_moves_the_integral_on_between_fits():

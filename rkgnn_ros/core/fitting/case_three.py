@@ -84,6 +84,12 @@ RETRY_S = 1.0
 #: The longest wait between fits that do not hold (s).
 RETRY_MAX_S = 30.0
 
+#: While the data span less than this (s), a fit that did not hold is retried every
+#: :data:`RETRY_S`, without doubling: the first seconds of motion seldom excite the closed
+#: loop enough, and each second more is what makes it hold (the doubling had delayed the
+#: first model prediction on the paper's arm by 2-4 s).
+YOUNG_DATA_S = 15.0
+
 #: Training samples before the linear closed loop is tried.
 MIN_LOOP_SAMPLES = 200
 
@@ -235,8 +241,9 @@ class ArmKeeper:
         Fit on ``segments`` (``origin``: the stamp of their t = 0) if due at clock ``now``.
 
         Due :data:`REFIT_S` after the last fit while the loop holds, :data:`RETRY_S` after a
-        fit that did not hold (doubling with each further one, at most :data:`RETRY_MAX_S`),
-        and at every call while the data are too few to try. Between
+        fit that did not hold (once the data span :data:`YOUNG_DATA_S`, doubling with each
+        further one, at most :data:`RETRY_MAX_S`), and at every call while the data are too
+        few to try. Between
         fits the law's integral term is moved on to the data's end. Returns whether the loop
         changed (fitted or moved on), and the (level, text) to log when whether it predicts
         changed. ``prior``: the excitation memory's samples of the closed loop, fitted beside
@@ -245,7 +252,8 @@ class ArmKeeper:
         segments = [seg for seg in segments if seg.theta_d is not None]
         if not segments:
             return False, None
-        wait = REFIT_S if self.loop is not None else min(
+        span = sum(float(seg.t[-1] - seg.t[0]) for seg in segments)
+        wait = REFIT_S if self.loop is not None else RETRY_S if span < YOUNG_DATA_S else min(
             RETRY_MAX_S, RETRY_S * 2.0 ** max(0, self._failures - 1))
         if now - self._tried < wait:
             return self._advance(segments, origin), None
