@@ -29,7 +29,8 @@ from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_FIRST_RETR
                                              TRIG_RETRY_S)
 from rkgnn_ros.core.fitting.case_three import (ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S,
                                                YOUNG_DATA_S)
-from rkgnn_ros.core.fitting.trig_loop import fit_closed_trig_loop, fit_trig_loop
+from rkgnn_ros.core.fitting.trig_loop import (closed_loop_error, fit_closed_trig_loop,
+                                              fit_trig_loop, trig_torque_error)
 from rkgnn_ros.core.fitting.validation import split_validation
 from rkgnn_ros.core.integration.inputs import stage_inputs
 from rkgnn_ros.core.sim.plant import PlanarArm
@@ -178,6 +179,26 @@ def test_the_keeper_predicts_with_it_only_where_the_basis_holds_the_arm(pd_data)
     assert wait == TRIG_RETRY_S
 
 
+def test_the_keeper_keeps_the_arm_in_use_while_it_explains_the_newest_data(pd_data):
+    keeper = LawKeeper()
+    keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
+    fraction = 300 / 1800
+    assert keeper.fit_trig([pd_data.slice(0, 1800)], fraction, 0.0)[0]
+    in_use = keeper.trig
+    # a refit whose training torque is spoiled fails on the clean newest samples, which
+    # the arm in use still explains: it stays, and nothing is logged
+    rng = np.random.default_rng(2)
+    older = pd_data.slice(0, 1500)
+    spoiled = replace(older, tau=older.tau + rng.normal(0.0, 3.0 * older.tau.std(axis=0),
+                                                        older.tau.shape))
+    data = [spoiled, pd_data.slice(1500, 1800)]
+    assert fit_trig_loop(*split_validation(data, fraction, 5)[:2], keeper.law).torque_error \
+        > TRIG_MAX_TORQUE_ERROR  # the refit alone would not hold
+    assert trig_torque_error(in_use, [pd_data.slice(1500, 1800)]) <= TRIG_MAX_TORQUE_ERROR
+    assert keeper.fit_trig(data, fraction, 10.0) == (True, None)
+    assert keeper.trig is in_use
+
+
 def test_the_keeper_waits_for_enough_samples_without_starting_its_retry_clock(pd_data):
     keeper = LawKeeper()
     keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
@@ -250,6 +271,30 @@ def test_case_threes_keeper_retries_every_second_while_the_data_are_young(pd_dat
             assert keeper.fit(wrong, 0.2, 0.0, k * RETRY_S) == (True, None)
         assert keeper.loop is None
     assert keeper.fit(young, 0.2, 0.0, 4 * RETRY_S)[0] and keeper.loop is not None
+
+
+def test_case_threes_keeper_keeps_the_loop_in_use_while_it_explains_the_newest_data(
+        pd_data):
+    keeper = ArmKeeper()
+    good = [replace(pd_data.slice(0, 1800), tau=None)]
+    assert keeper.fit(good, 0.2, 50.0, 0.0)[0] and keeper.loop is not None
+    in_use = keeper.loop
+    # a refit whose older commands are spoiled fails on the clean newest samples, which
+    # the loop in use still explains: it stays (its integral moved on), nothing is logged
+    rng = np.random.default_rng(4)
+    older = replace(pd_data.slice(0, 1440), tau=None)
+    spoiled = replace(older, theta_d=older.theta_d + rng.normal(0.0, 0.5, older.theta_d.shape))
+    data = [spoiled, replace(pd_data.slice(1440, 1800), tau=None)]
+    assert fit_closed_trig_loop(data, 0.2).torque_error > MAX_LOOP_ERROR  # alone: no
+    assert closed_loop_error(in_use, data, 0.2) <= MAX_LOOP_ERROR
+    assert keeper.fit(data, 0.2, 50.0, REFIT_S)[1] is None
+    assert keeper.loop is in_use
+    # newest samples it does not explain either: it goes
+    wrong = [replace(seg, theta_d=seg.theta_d + rng.normal(0.0, 0.5, seg.theta_d.shape))
+             for seg in good]
+    assert closed_loop_error(in_use, wrong, 0.2) > MAX_LOOP_ERROR
+    ran, line = keeper.fit(wrong, 0.2, 50.0, 2.0 * REFIT_S)
+    assert ran and keeper.loop is None and 'loop in use' in line[1]
 
 
 def test_case_threes_keeper_moves_the_integral_on_between_fits():

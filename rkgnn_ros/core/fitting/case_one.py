@@ -47,7 +47,7 @@ import numpy as np
 from .controller import closed_loop, ClosedLoop, fit_controller, open_loop_model
 from .controller_laws import ControllerLaw, RBFFeatures, TrigFeatures
 from .online_records import ClosedLoop as PredictionLoop
-from .trig_loop import fit_trig_loop, TrigLoop
+from .trig_loop import fit_trig_loop, trig_torque_error, TrigLoop
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..data import Dataset
 from ..model.model import RKGNNModel
@@ -319,6 +319,14 @@ class LawKeeper:
             loop = None
         else:
             why = 'no law or too few samples'
+        if loop is None and before:
+            # the arm in use stays while it explains the newest data as well as a new fit
+            # must: a refit on a short, weakly exciting stretch can miss what it still holds
+            error = trig_torque_error(self.trig, validation)
+            if error <= TRIG_MAX_TORQUE_ERROR:
+                self._trig_failures = 0
+                return True, None
+            why += f'; the arm in use {error:.1%}'
         self.trig = loop
         self._trig_failures = 0 if loop is not None else self._trig_failures + 1
         if loop is not None and not before:

@@ -56,7 +56,7 @@ from .identify import Evolution
 from .linear import LinearDynamics
 from .online_records import ClosedLoop as PredictionLoop
 from .refine import refine_equation_error
-from .trig_loop import fit_closed_trig_loop, TrigLoop
+from .trig_loop import closed_loop_error, fit_closed_trig_loop, TrigLoop
 from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..model.trig import TrigBasis
@@ -267,6 +267,14 @@ class ArmKeeper:
         if loop is not None and not loop.torque_error <= MAX_LOOP_ERROR:
             why = f'held-out equation error {loop.torque_error:.1%}'
             loop = None
+        if loop is None and before:
+            # the loop in use stays while it explains the newest data as well as a new fit
+            # must: a refit on a short, weakly exciting stretch can miss what it still holds
+            error = closed_loop_error(self.loop, segments, validation_fraction)
+            if error <= MAX_LOOP_ERROR:
+                self._failures = 0
+                return self._advance(segments, origin), None
+            why += f'; the loop in use {error:.1%}'
         self.loop = loop
         self._failures = 0 if loop is not None else self._failures + 1
         if loop is not None:

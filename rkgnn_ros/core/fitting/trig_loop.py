@@ -63,7 +63,8 @@ from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
 
 __all__ = ['INTEGRAL_GAIN', 'INTEGRAL_MIN_ERROR', 'KI_ZERO', 'MAX_SUBSTEPS', 'PASSES',
-           'TrigLoop', 'fit_closed_trig_loop', 'fit_trig_loop', 'precompile_trig_loop']
+           'TrigLoop', 'closed_loop_error', 'fit_closed_trig_loop', 'fit_trig_loop',
+           'precompile_trig_loop', 'trig_torque_error']
 
 #: Rollouts of :meth:`TrigLoop.simulate` when the law has an integral or θ-terms on θ.
 PASSES = 3
@@ -385,6 +386,23 @@ def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
     return loop
 
 
+def trig_torque_error(loop: TrigLoop, validation: Sequence[Dataset]) -> float:
+    """
+    Return ``loop``'s arm's torque error on ``validation`` (worst joint; inf: no samples).
+
+    The figure :func:`fit_trig_loop` keeps in :attr:`TrigLoop.torque_error`, on other data.
+    """
+    try:
+        predicted, reference = paired_torques(loop.arm, [seg for seg in validation
+                                                         if seg.tau is not None])
+    except (ValueError, np.linalg.LinAlgError):
+        return math.inf
+    if not predicted.shape[0]:
+        return math.inf
+    error = float(np.max(torque_error(predicted, reference)))
+    return error if math.isfinite(error) else math.inf
+
+
 def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float,
                          min_samples: int = 200,
                          prior: Optional[Samples] = None) -> Optional[TrigLoop]:
@@ -446,17 +464,45 @@ def _closed_form(train, validation, integral: bool, prior=None) -> Optional[Trig
         theta_weights=np.zeros((n, 0)), theta_input='desired', features=None,
         fit_ratio=np.zeros(n), samples=n_train)
     loop = TrigLoop(arm, law)
-    held = every.take(slice(n_train, None))
-    if held.n_samples:
-        residual = regressor(basis, held.theta, held.theta_dot, held.theta_ddot,
-                             arm.coulomb_velocity, held.error, held.error_rate,
-                             held.error_integral) @ arm._full_coef
-        servo = kp * held.error + kd * held.error_rate
-        if integral:
-            servo = servo + ki * held.error_integral + bias
-        spread = np.maximum(servo.std(axis=0), 1e-12)
-        loop.torque_error = float(np.max(np.sqrt(np.mean(residual ** 2, axis=0)) / spread))
+    loop.torque_error = _equation_error(arm, every.take(slice(n_train, None)), integral)
     return loop
+
+
+def _equation_error(arm: LinearDynamics, held: Samples, integral: bool) -> float:
+    """Return the closed loop's equation error on ``held`` (worst joint; inf: no samples)."""
+    if not held.n_samples:
+        return math.inf
+    residual = regressor(arm.basis, held.theta, held.theta_dot, held.theta_ddot,
+                         arm.coulomb_velocity, held.error, held.error_rate,
+                         held.error_integral) @ arm._full_coef
+    servo = arm.kp_ * held.error + arm.kd_ * held.error_rate
+    if integral:
+        servo = servo + arm.ki_ * held.error_integral + arm.bias_
+    spread = np.maximum(servo.std(axis=0), 1e-12)
+    error = float(np.max(np.sqrt(np.mean(residual ** 2, axis=0)) / spread))
+    return error if math.isfinite(error) else math.inf
+
+
+def closed_loop_error(loop: TrigLoop, segments: Sequence[Dataset],
+                      validation_fraction: float) -> float:
+    """
+    Return case 3's ``loop`` scored on the newest part of ``segments`` (inf: none there).
+
+    The figure :func:`fit_closed_trig_loop` keeps in :attr:`TrigLoop.torque_error`, for a
+    loop fitted on other data: ``segments`` are split as there, and the newest part scored.
+    """
+    segments = [_centred_velocity(seg) for seg in segments
+                if seg.theta_d is not None and seg.theta_d_dot is not None and seg.n_samples >= 5]
+    train, validation, _ = split_validation(segments, validation_fraction, MIN_SEGMENT_SAMPLES)
+    arm = loop.arm
+    integral = arm.integral
+    try:
+        every = samples_from_datasets(train + validation, 'unknown', window=arm.window_,
+                                      integral=integral)
+    except (ValueError, np.linalg.LinAlgError):
+        return math.inf
+    n_train = sum(seg.n_samples for seg in train)
+    return _equation_error(arm, every.take(slice(n_train, None)), integral)
 
 
 def _centred_velocity(seg: Dataset) -> Dataset:
