@@ -44,6 +44,7 @@ from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
+from rkgnn_ros.identification import prediction as prediction_module
 from rkgnn_ros.identification.ingest import Ingestion, PolledGroup
 from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierParameters,
                                                  make_config, PARAMETERS)
@@ -354,6 +355,23 @@ def test_latency_counts_the_first_prediction_from_each_state(data, unknown_model
     assert len(published) == 2 and predictor.latencies().size == 1
     _feed(ingestion, data, 100, 101)
     assert predictor.predict() and predictor.latencies().size == 2
+
+
+def test_predictions_closer_than_score_every_s_are_published_not_scored(data, unknown_model,
+                                                                        monkeypatch):
+    # at 1 kHz with prediction.on_state, scoring every prediction held up the next one
+    monkeypatch.setattr(prediction_module, 'SCORE_EVERY_S', 0.025)
+    config = make_config(case='unknown', joints=list(JOINTS))
+    ingestion, predictor, published = _predictor(config, unknown_model)
+    _feed(ingestion, data, 0, 100)
+    _plan(ingestion, data, 99, 3.0)
+    for k in range(100, 110):  # states 10 ms apart, a prediction from each
+        _feed(ingestion, data, k, k + 1)
+        assert predictor.predict()
+    assert len(published) == 10 and predictor.latencies().size == 10
+    # the self-check recorded those 25 ms apart: from the states 0, 30, 60 and 90 ms on
+    recorded = predictor._check._predictions.t - T0  # noqa: SLF001 - what it scores
+    np.testing.assert_allclose(recorded, data.t[[100, 103, 106, 109]], atol=1e-9)
 
 
 def _times(msg):

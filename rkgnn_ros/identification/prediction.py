@@ -76,6 +76,12 @@ JOIN_TIMEOUT_S = 10.0
 DECIDE_EVERY_S = 0.1   # the publish decision is taken again at most this often (stamp time)
 RESCORE_EVERY_S = 0.1  # the self-check's scores are computed again at most this often
 CANDIDATE_EVERY_S = 0.1   # a candidate model predicts beside the model at most this often
+#: Predictions closer than this (stamp time, s) to the last scored one are published but not
+#: scored: at 1 kHz with prediction.on_state the scoring after each prediction took 40 % of
+#: the prediction thread, and a new state waited for it (bench/latency.py's p99). The
+#: self-check still gets 50 scored predictions a second; at prediction.rate 10 Hz it gets
+#: every one.
+SCORE_EVERY_S = 0.02
 REPORT_EVERY_S = 1.0   # scores handed to the executor this often (stamp time)
 CLOCK_JUMP_S = 1.0     # a state this much older than the last restarts the self-check
 MIN_GAP_S = 0.25       # states further apart: the predictions over them are not scored
@@ -195,6 +201,7 @@ class Predictor:
         self._sigma = None  # (source, K, last offset, the uncertainty (K, n)) in use
         self._reported_at = -math.inf
         self._candidate_at = -math.inf  # stamp time of the candidate's last rollout
+        self._scored_at = -math.inf  # stamp time of the last prediction scored
         self._ready = threading.Event()  # the rollout kernels ran once (compiled)
         self._wanted = threading.Event()
         self._stop = threading.Event()
@@ -318,8 +325,13 @@ class Predictor:
                          cfg['prediction.lookahead'], frame)))
         self.inputs = horizon.what
         # -- after the prediction is out: its scoring and what the next ones use
+        candidate_due = candidate is not None and not (
+            0.0 <= latest.t - self._candidate_at < CANDIDATE_EVERY_S)
+        if not candidate_due and 0.0 <= latest.t - self._scored_at < SCORE_EVERY_S:
+            return True
+        self._scored_at = latest.t
         theirs = None
-        if not 0.0 <= latest.t - self._candidate_at < CANDIDATE_EVERY_S:
+        if candidate_due:
             # at most every CANDIDATE_EVERY_S: its trial compares it with the model on the
             # same targets, and at 1 kHz with prediction.on_state a second rollout per
             # prediction took half of the prediction thread
