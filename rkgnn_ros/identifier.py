@@ -98,7 +98,7 @@ from rkgnn_ros.identification.feedforward import FeedforwardSender
 from rkgnn_ros.identification.ingest import Ingestion
 from rkgnn_ros.identification.model_file import load_at_start, save_model_file
 from rkgnn_ros.identification.parameters import ConfigurationError, IdentifierParameters
-from rkgnn_ros.identification.prediction import Predictor
+from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import (create_publishers, EVOLUTION_LABELS, Outbox,
                                                  Publishing, SCORE_LABELS)
 from rkgnn_ros.identification.subscriptions import quiet_events, subscribe_streams
@@ -147,7 +147,7 @@ class IdentifierNode(Node):
         clock = NodeSeconds(lambda: self.get_clock().now().nanoseconds)
         self._ingestion = Ingestion(config, self._outbox.log, alive=self.context.ok,
                                     on_state=lambda: self._predictor.request(), clock=clock)
-        self._predictor = Predictor(self._ingestion, self._outbox.put,
+        self._predictor = Predictor(self._ingestion, self._from_predictor,
                                     lambda: self._params.config)
         model = load_at_start(config, self._ingestion, self._outbox.log)
         self._worker = SearchWorker(self._ingestion, self._predictor, self._outbox,
@@ -185,6 +185,17 @@ class IdentifierNode(Node):
         # the GIL for tens of milliseconds and stalled the 1 kHz streams
         gc.collect()
         gc.freeze()
+
+    def _from_predictor(self, item) -> None:
+        """Publish a prediction at once, in the prediction thread; queue anything else."""
+        if not isinstance(item, Prediction):
+            self._outbox.put(item)
+        elif self.context.ok():
+            try:
+                self._publishing.publish_prediction(item)
+            except Exception:  # noqa: B902 - shutting down: the context went meanwhile
+                if self.context.ok():
+                    raise
 
     def _after_set_parameters(self, params) -> None:
         """Hand accepted parameters to the parts that depend on them."""

@@ -172,14 +172,23 @@ class Publishing:
             except Exception:  # noqa: B902 - a callback must never raise
                 self._ingestion.internal_error('publishing')
 
+    def publish_prediction(self, item: Prediction) -> None:
+        """
+        Publish a prediction, its uncertainty and the state ahead; record its latency.
+
+        Called from the prediction thread itself (rclpy publishers are thread-safe): handed
+        to the executor instead, a prediction waited for the executor's next wake-up.
+        """
+        self._publishers['prediction'].publish(item.data)
+        self._predictor.published(item)
+        if item.uncertainty is not None:
+            self._publishers['prediction_uncertainty'].publish(item.uncertainty)
+        if item.state is not None and 'predicted_state' in self._publishers:
+            self._publishers['predicted_state'].publish(item.state)
+
     def _handle(self, item) -> None:
         if isinstance(item, Prediction):
-            self._publishers['prediction'].publish(item.data)
-            self._predictor.published(item)
-            if item.uncertainty is not None:
-                self._publishers['prediction_uncertainty'].publish(item.uncertainty)
-            if item.state is not None and 'predicted_state' in self._publishers:
-                self._publishers['predicted_state'].publish(item.state)
+            self.publish_prediction(item)
         elif isinstance(item, ScoreReport):
             self._publishers['prediction_scores'].publish(
                 make_float64_multiarray(item.table, SCORE_LABELS))
