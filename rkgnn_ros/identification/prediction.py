@@ -75,7 +75,10 @@ MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's 
 JOIN_TIMEOUT_S = 10.0
 DECIDE_EVERY_S = 0.1   # the publish decision is taken again at most this often (stamp time)
 RESCORE_EVERY_S = 0.1  # the self-check's scores are computed again at most this often
-CANDIDATE_EVERY_S = 0.1   # a candidate model predicts beside the model at most this often
+#: A candidate model predicts beside the model at most this often (stamp time, s): its
+#: trial compares the two on the same targets, and at 1 kHz with prediction.on_state a
+#: second rollout per prediction took half of the prediction thread.
+CANDIDATE_EVERY_S = 0.1
 #: Predictions closer than this (stamp time, s) to the last scored one are published but not
 #: scored: at 1 kHz with prediction.on_state the scoring after each prediction took 40 % of
 #: the prediction thread, and a new state waited for it (bench/latency.py's p99). The
@@ -88,6 +91,11 @@ MIN_GAP_S = 0.25       # states further apart: the predictions over them are not
 
 #: Columns of ``~/prediction_scores`` (one row per scored horizon).
 SCORE_LABELS = ('horizon_s', 'model', 'follow_reference', 'hold_last', 'published', 'count')
+
+
+def _due(now: float, last: float, every: float) -> bool:
+    """Return whether ``every`` s passed since ``last`` (or the clock went back)."""
+    return not 0.0 <= now - last < every
 
 
 class _FromReference:
@@ -325,16 +333,13 @@ class Predictor:
                          cfg['prediction.lookahead'], frame)))
         self.inputs = horizon.what
         # -- after the prediction is out: its scoring and what the next ones use
-        candidate_due = candidate is not None and not (
-            0.0 <= latest.t - self._candidate_at < CANDIDATE_EVERY_S)
-        if not candidate_due and 0.0 <= latest.t - self._scored_at < SCORE_EVERY_S:
+        candidate_due = candidate is not None and _due(latest.t, self._candidate_at,
+                                                       CANDIDATE_EVERY_S)
+        if not candidate_due and not _due(latest.t, self._scored_at, SCORE_EVERY_S):
             return True
         self._scored_at = latest.t
         theirs = None
         if candidate_due:
-            # at most every CANDIDATE_EVERY_S: its trial compares it with the model on the
-            # same targets, and at 1 kHz with prediction.on_state a second rollout per
-            # prediction took half of the prediction thread
             theirs = self._rollout(candidate, joints, x0, horizon, latest.t, check)
             self._candidate_at = latest.t if theirs is not None else -math.inf
         check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
@@ -490,8 +495,7 @@ class Predictor:
     def _decide(self, check: SelfCheck, now: float, publishable):
         """Return the publish decision (taken again at most every DECIDE_EVERY_S)."""
         decision = self._decision
-        if decision is None or now - self._decided_at >= DECIDE_EVERY_S or \
-                not now >= self._decided_at:
+        if decision is None or _due(now, self._decided_at, DECIDE_EVERY_S):
             decision = check.decide(publishable)
             self._decided_at = now
             previous, self._decision = self._decision, decision
@@ -530,8 +534,7 @@ class Predictor:
 
     def _report(self, check: SelfCheck, now: float) -> None:
         """Hand the scores to the executor every REPORT_EVERY_S."""
-        if self._decision is None or (now - self._reported_at < REPORT_EVERY_S
-                                      and now >= self._reported_at):
+        if self._decision is None or not _due(now, self._reported_at, REPORT_EVERY_S):
             return
         self._reported_at = now
         scores = self._decision.scores
