@@ -380,9 +380,10 @@ def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
     """
     Return the trigonometric arm fitted on ``train`` (case 1) closed with ``law``.
 
-    The arm's held-out torque error (:func:`~rkgnn_ros.core.control.gate.torque_error` of
-    its inverse dynamics on ``validation``, worst joint) is kept in
-    :attr:`TrigLoop.torque_error` (inf without validation samples): the caller decides
+    The arm's held-out torque error (:func:`trig_torque_error`: the
+    :func:`~rkgnn_ros.core.control.gate.torque_error` of its inverse dynamics on
+    ``validation``, worst joint; inf without validation samples, or when it cannot be
+    computed) is kept in :attr:`TrigLoop.torque_error`: the caller decides
     whether the basis holds this arm (it is a planar arm's). ``prior``: samples fitted
     beside ``train`` (the excitation memory's). None when ``train`` holds fewer than
     ``min_samples`` samples or the fit fails.
@@ -395,13 +396,10 @@ def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
     basis = TrigBasis(train[0].n_joints, planar=True, tied=True)
     try:
         arm = LinearDynamics(basis, certify=False).fit(train, 'torque', prior=prior)
-        predicted, reference = paired_torques(arm, [seg for seg in validation
-                                                    if seg.tau is not None])
     except (ValueError, np.linalg.LinAlgError):
         return None
     loop = TrigLoop(arm, law)
-    if predicted.shape[0]:
-        loop.torque_error = float(np.max(torque_error(predicted, reference)))
+    loop.torque_error = trig_torque_error(loop, validation)
     return loop
 
 
@@ -409,7 +407,9 @@ def trig_torque_error(loop: TrigLoop, validation: Sequence[Dataset]) -> float:
     """
     Return ``loop``'s arm's torque error on ``validation`` (worst joint; inf: no samples).
 
-    The figure :func:`fit_trig_loop` keeps in :attr:`TrigLoop.torque_error`, on other data.
+    The figure :func:`fit_trig_loop` keeps in :attr:`TrigLoop.torque_error`; the keepers
+    score a loop in use on newer data with it. Inf too when it cannot be computed or is not
+    finite.
     """
     try:
         predicted, reference = paired_torques(loop.arm, [seg for seg in validation
