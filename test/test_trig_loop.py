@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_FIRST_RETRY_S,
                                              TRIG_MAX_TORQUE_ERROR, TRIG_MIN_SAMPLES,
-                                             TRIG_RETRY_S)
+                                             TRIG_RETRY_S, TRIG_YOUNG_DATA_S)
 from rkgnn_ros.core.fitting.case_three import (ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S,
                                                YOUNG_DATA_S)
 from rkgnn_ros.core.fitting.trig_loop import (closed_loop_error, fit_closed_trig_loop,
@@ -177,6 +177,26 @@ def test_the_keeper_predicts_with_it_only_where_the_basis_holds_the_arm(pd_data)
         assert keeper.fit_trig(train + [wrong], fraction, tried)[0] and keeper.trig is None
         wait = min(TRIG_RETRY_S, 2.0 * wait)
     assert wait == TRIG_RETRY_S
+
+
+def test_the_keeper_retries_every_second_while_the_data_are_young(pd_data):
+    # the first seconds of motion: a fit that does not hold is retried every
+    # TRIG_FIRST_RETRY_S, not after a doubling wait, since each second of data helps it hold
+    keeper = LawKeeper()
+    keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
+    young = pd_data.slice(0, 800)
+    assert young.t[-1] - young.t[0] < TRIG_YOUNG_DATA_S
+    rng = np.random.default_rng(1)
+    wrong = [replace(young, tau=young.tau + rng.normal(0.0, 3.0 * young.tau.std(axis=0),
+                                                       young.tau.shape))]
+    fraction = 0.2
+    for k in range(5):
+        now = k * TRIG_FIRST_RETRY_S
+        if k:
+            assert keeper.fit_trig(wrong, fraction, now - 0.01) == (False, None)
+        assert keeper.fit_trig(wrong, fraction, now)[0] and keeper.trig is None
+    ran, line = keeper.fit_trig([young], fraction, 5 * TRIG_FIRST_RETRY_S)
+    assert ran and keeper.trig is not None and 'trigonometric' in line[1]
 
 
 def test_the_keeper_keeps_the_arm_in_use_while_it_explains_the_newest_data(pd_data):
