@@ -41,7 +41,6 @@ import math
 from typing import Tuple
 
 import numpy as np
-from scipy.signal import savgol_coeffs, savgol_filter
 
 #: Default window (samples) and polynomial order of the centred derivative: flat gain
 #: (within 1 %) up to 2 Hz at 100 Hz, noise 9 × θ's.
@@ -92,6 +91,7 @@ def centred_derivative(x, dt: float, window: int = CENTRED_WINDOW,
     if not (math.isfinite(dt) and dt > 0.0):
         raise ValueError(f'dt must be positive, got {dt}')
     window = _window(window, order, x.shape[0])
+    from scipy.signal import savgol_filter  # at first use: scipy.signal imports in 0.8 s
     return savgol_filter(x, window, order, deriv=1, delta=dt, axis=0, mode='interp')
 
 
@@ -104,6 +104,7 @@ def causal_coefficients(dt: float, window: int = CAUSAL_WINDOW,
     ``order`` fitted to the last ``window`` samples.
     """
     window = _window(window, order, int(window))
+    from scipy.signal import savgol_coeffs  # at first use: scipy.signal imports in 0.8 s
     return savgol_coeffs(window, order, deriv=1, delta=dt, pos=window - 1, use='dot')
 
 

@@ -38,6 +38,7 @@ from typing import Callable, Optional
 
 from rkgnn_ros.core.fitting.fitness import interrupt_on
 from rkgnn_ros.core.fitting.online import ModelUpdate, Observation, OnlineIdentification, Status
+from rkgnn_ros.core.fitting.optimizers.cmaes import load_pycma
 from rkgnn_ros.identification.publishing import ModelMessage
 
 __all__ = ['SearchWorker', 'single_threaded_blas']
@@ -124,6 +125,7 @@ class SearchWorker:
     def _run(self) -> None:
         """One policy step per iteration until the stop event."""
         yield_to_callbacks()
+        _late_imports()
         # stop() interrupts a generation between chunks (a big one takes minutes), so the
         # thread never outlives the node that owns it
         interrupt_on(self._stop)
@@ -174,6 +176,18 @@ class SearchWorker:
                 self._predictor.warm_up(event.model)
                 event = ModelMessage(event, event.model.to_yaml())
             self._outbox.put(event)
+
+
+def _late_imports() -> None:
+    """
+    Import what the node's modules import at first use, here at low priority.
+
+    pycma (1.5 s: it brings scipy.stats and matplotlib.pyplot) and scipy.signal (0.8 s) were
+    most of the identifier's start-up before it could take its first joint_states; the
+    worker loads them while the first data are buffered.
+    """
+    import scipy.signal  # noqa: F401
+    load_pycma()
 
 
 def yield_to_callbacks() -> None:

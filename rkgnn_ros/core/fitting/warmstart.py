@@ -36,7 +36,6 @@ from typing import Optional, Sequence
 
 import numpy as np
 from scipy.optimize import lsq_linear
-from scipy.signal import savgol_filter
 
 from ..model.network import BatchedNetwork, features
 from ..model.scales import Scales
@@ -70,6 +69,7 @@ def estimate_acceleration(theta_dot, dt, window=7, polyorder=3):
     window = min(window, n_samples if n_samples % 2 else n_samples - 1)
     if window <= polyorder:
         return np.gradient(theta_dot, dt, axis=0)
+    from scipy.signal import savgol_filter  # at first use: scipy.signal imports in 0.8 s
     return savgol_filter(theta_dot, window, polyorder, deriv=1, delta=dt, axis=0,
                          mode='interp')
 

@@ -23,13 +23,29 @@ ending the search (:attr:`.Optimizer.failures` counts them).
 """
 
 import math
+from typing import TYPE_CHECKING
 
-import cma
 import numpy as np
 
 from .base import _check_int, _check_real, finite_costs, Optimizer
 
-__all__ = ['CMAES', 'SEPARABLE_ABOVE']
+if TYPE_CHECKING:  # pragma: no cover - for the annotations only
+    import cma
+
+__all__ = ['CMAES', 'SEPARABLE_ABOVE', 'load_pycma']
+
+
+def load_pycma():
+    """
+    Return pycma, imported at the first call.
+
+    Its import takes about 1.5 s (it brings scipy.stats and matplotlib.pyplot): imported with
+    this module, it was 60 % of the identifier's start-up, before the node could take its
+    first joint_states. The identifier's worker thread loads it while data are buffered.
+    """
+    import cma
+    return cma
+
 
 #: What pycma raises when its state stops being numbers (checked finite by assertions).
 _NUMERIC_FAILURES = (AssertionError, ArithmeticError, ValueError, np.linalg.LinAlgError)
@@ -126,7 +142,7 @@ class CMAES(Optimizer):
         return self.dim > SEPARABLE_ABOVE if sep is None else sep
 
     @property
-    def es(self) -> cma.CMAEvolutionStrategy:
+    def es(self) -> 'cma.CMAEvolutionStrategy':
         """Strategy object of pycma in use (read it, do not drive it)."""
         return self._es
 
@@ -251,7 +267,7 @@ class CMAES(Optimizer):
         sigma = request['sigma'] if request['sigma'] is not None else self._es.sigma
         self._es = self._new_es(centre, sigma, evaluate_centre=not resize)
 
-    def _new_es(self, centre, sigma, evaluate_centre=False) -> cma.CMAEvolutionStrategy:
+    def _new_es(self, centre, sigma, evaluate_centre=False) -> 'cma.CMAEvolutionStrategy':
         """
         Return a new strategy at ``centre``; with ``evaluate_centre`` its first generation.
 
@@ -271,7 +287,8 @@ class CMAES(Optimizer):
         }
         if self._settings['population_size'] is not None:
             opts['popsize'] = self._settings['population_size']
-        es = cma.CMAEvolutionStrategy(np.array(centre, dtype=float), float(sigma), opts)
+        es = load_pycma().CMAEvolutionStrategy(np.array(centre, dtype=float), float(sigma),
+                                               opts)
         if evaluate_centre:
             es.inject([np.array(centre, dtype=float)], force=True)
         return es
