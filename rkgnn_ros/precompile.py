@@ -24,8 +24,8 @@ seconds of the simulated paper arm, in the three cases (the equation-error start
 rollouts, the refinement, the validation), with the default network and with the
 trigonometric basis, and the prediction of the published models; every kernel then sits in
 the cache, with those of :func:`.core.fitting.identify.precompile`, which the node runs
-before it spins, and sim_arm's simulation kernels. ``make build`` runs it (``python -m rkgnn_ros.precompile``); a second run
-finds everything cached and takes seconds.
+before it spins, and sim_arm's simulation kernels. ``make build`` runs it
+(``python -m rkgnn_ros.precompile``); a second run finds everything cached and takes seconds.
 """
 
 import sys
