@@ -90,10 +90,23 @@ VALIDATION_EVERY = 5        # generations between two validations of a changed b
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
 REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
 MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search restarts
+#: While the data span less than YOUNG_DATA_S (s), one equation-error fit (the search's
+#: warm start, or a re-warm) takes at most YOUNG_WARM_START_S real seconds. It runs in the
+#: worker thread between the fits on the trigonometric basis, which then wait: in a run of
+#: bench/online.py (case 2, the arm starting from rest) two 5 s fits, at 5 and at 10 s of
+#: data, held the closed loop back until 15 s and the first prediction of a model until
+#: 17.7 s after the first joint_states. The data double soon after, and a full fit follows.
+YOUNG_DATA_S = 15.0
+YOUNG_WARM_START_S = 1.0
 LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
 #: Cases whose predictions use the linear closed-loop fit on the trigonometric basis
 #: (:class:`.case_three.ArmKeeper`): it needs neither torque nor the gains.
 _CLOSED_FIT_CASES = ('unknown', 'pd_gains')
+
+
+def _warm_budget(budget: float, seconds: float) -> float:
+    """Return the real seconds one equation-error fit on ``seconds`` of data may take."""
+    return min(budget, YOUNG_WARM_START_S) if seconds < YOUNG_DATA_S else budget
 
 
 def _with_velocity(segments, estimate: bool) -> List[Dataset]:
@@ -147,7 +160,8 @@ class OnlineIdentification:
     on_status : callable, optional
         Called with each new :class:`Status`.
     warm_start_seconds, warm_start_nfev : float, int
-        Budget of one equation-error fit (real seconds, function evaluations).
+        Budget of one equation-error fit (real seconds, function evaluations); at most
+        :data:`YOUNG_WARM_START_S` seconds while the data span less than :data:`YOUNG_DATA_S`.
 
     """
 
@@ -322,8 +336,8 @@ class OnlineIdentification:
             self._evo.set_data(train)
             if seconds >= REWARM_GROWTH * self._warm_seconds:
                 self._warm_seconds = seconds
-                self._log('info', rewarm(self._evo, train, seconds, self._warm_start_seconds,
-                                         self._warm_start_nfev))
+                self._log('info', rewarm(self._evo, train, seconds, _warm_budget(
+                    self._warm_start_seconds, seconds), self._warm_start_nfev))
             if self._had_finite and not math.isfinite(self._evo.optimizer.best_cost):
                 self._log_throttled(
                     'diverges', 'warning',
@@ -399,13 +413,13 @@ class OnlineIdentification:
                               x0=x0)
         if x0 is None:
             self._set_status('evolving', 'warm start: equation-error fit')
-            placed = case_three.start_genome(self._evo, train, self._warm_start_seconds,
-                                             self._warm_start_nfev)
+            budget = _warm_budget(self._warm_start_seconds, seconds)
+            placed = case_three.start_genome(self._evo, train, budget, self._warm_start_nfev)
             if placed is not None:
                 restart_around(self._evo.optimizer, placed.genome, placed.cost)
             origin = (placed.origin if placed is not None else
-                      warm_start(self._evo, train, kp, kd, self._warm_start_seconds,
-                                 self._warm_start_nfev) or origin)
+                      warm_start(self._evo, train, kp, kd, budget, self._warm_start_nfev)
+                      or origin)
         elif origin.startswith('the best genome'):
             optimizer = self._evo.optimizer
             restart_around(optimizer, x0, float(self._evo.problem.cost(x0[None])[0]))
