@@ -73,7 +73,10 @@ def run_case(case, duration, horizon, domain, log_dir, switch_at=0.0):
     meas_t, meas_theta, t0s, offs, thetas, evolution, labels = snap
     order = np.argsort(meas_t)
     meas_t, meas_theta = meas_t[order], meas_theta[order]
-    start = meas_t[0]
+    # the first joint_states: the earliest stamp seen, here or as a prediction's start (a
+    # prediction is stamped with its state's; the identifier may hear the arm before this
+    # node's subscription is matched, 1.4 s earlier in one run)
+    start = min([meas_t[0]] + list(t0s))
     pt0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, horizon)
     theta_range = np.ptp(meas_theta, axis=0)
     curve = []
