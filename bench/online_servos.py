@@ -162,7 +162,9 @@ def score(snapshot, commands, horizon, duration, sources=None):
             return None
         return float(np.mean(np.sqrt(np.mean(e ** 2, axis=0)) / theta_range))
 
-    start = meas_t[0]
+    # the first joint_states: the earliest stamp seen, here or as a prediction's start (the
+    # identifier may hear the arm before this node's subscription is matched)
+    start = min([meas_t[0]] + list(t0s))
     curve = []
     for end in np.arange(BIN, duration + 1e-9, BIN):
         sel = (pt0 - start > end - BIN) & (pt0 - start <= end)
@@ -252,7 +254,8 @@ def run_cell(servo, sensors, case, duration, horizon, domain, log_dir, extra=())
     cell['load_average'] = [round(load, 2), round(os.getloadavg()[0], 2)]
     cell['published_sources'] = dict(commands.sources)
     if commands.first is not None:
-        cell['first_prediction_s'] = float(commands.first[0] - np.min(snap[0]))
+        cell['first_prediction_s'] = float(commands.first[0] - min(np.min(snap[0]),
+                                                                    commands.first[0]))
         cell['first_prediction'] = commands.first[1]
     return cell
 
