@@ -254,8 +254,8 @@ def run_cell(servo, sensors, case, duration, horizon, domain, log_dir, extra=())
     cell['load_average'] = [round(load, 2), round(os.getloadavg()[0], 2)]
     cell['published_sources'] = dict(commands.sources)
     if commands.first is not None:
-        cell['first_prediction_s'] = float(commands.first[0] - min(np.min(snap[0]),
-                                                                    commands.first[0]))
+        earliest = min(np.min(snap[0]), commands.first[0])
+        cell['first_prediction_s'] = float(commands.first[0] - earliest)
         cell['first_prediction'] = commands.first[1]
     return cell
 
