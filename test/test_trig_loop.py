@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_FIRST_RETRY_S,
                                              TRIG_MAX_TORQUE_ERROR, TRIG_MIN_SAMPLES,
-                                             TRIG_RETRY_S, TRIG_YOUNG_DATA_S)
+                                             TRIG_RETRY_S)
 from rkgnn_ros.core.fitting.case_three import (ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S,
                                                YOUNG_DATA_S)
 from rkgnn_ros.core.fitting.trig_loop import (closed_loop_error, fit_closed_trig_loop,
@@ -185,7 +185,7 @@ def test_the_keeper_retries_every_second_while_the_data_are_young(pd_data):
     keeper = LawKeeper()
     keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
     young = pd_data.slice(0, 800)
-    assert young.t[-1] - young.t[0] < TRIG_YOUNG_DATA_S
+    assert young.t[-1] - young.t[0] < YOUNG_DATA_S
     rng = np.random.default_rng(1)
     wrong = [replace(young, tau=young.tau + rng.normal(0.0, 3.0 * young.tau.std(axis=0),
                                                        young.tau.shape))]

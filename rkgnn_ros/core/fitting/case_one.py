@@ -47,7 +47,7 @@ import numpy as np
 from .controller import closed_loop, ClosedLoop, fit_controller, open_loop_model
 from .controller_laws import ControllerLaw, RBFFeatures, TrigFeatures
 from .online_records import ClosedLoop as PredictionLoop
-from .trig_loop import fit_trig_loop, trig_torque_error, TrigLoop
+from .trig_loop import data_span, fit_trig_loop, trig_torque_error, TrigLoop, YOUNG_DATA_S
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..data import Dataset
 from ..model.model import RKGNNModel
@@ -78,12 +78,6 @@ TRIG_MAX_TORQUE_ERROR = 0.1
 #: first try (the window grows fast then), doubling with each further one up to 10 s.
 TRIG_RETRY_S = 10.0
 TRIG_FIRST_RETRY_S = 1.0
-#: While the data span less than this (s), a fit that did not hold is retried every
-#: :data:`TRIG_FIRST_RETRY_S`, without doubling (as case 3's arm): on the paper's arm the fit
-#: holds from about 5 s of motion on, and with the doubling waits (1, 2, 4 s, behind the
-#: search's warm starts in the same thread) the first prediction of the arm came 19 s after
-#: the first joint_states in one run of bench/online.py.
-TRIG_YOUNG_DATA_S = 15.0
 TRIG_MIN_SAMPLES = 200      # training samples (with torque) needed to try the fit
 
 
@@ -301,16 +295,18 @@ class LawKeeper:
         while its torque error there is at most :data:`TRIG_MAX_TORQUE_ERROR`. Until
         :data:`TRIG_MIN_SAMPLES` training samples are buffered it is not tried. Where it did
         not hold, it is fitted again :data:`TRIG_FIRST_RETRY_S` after the try (clock ``now``,
-        s); once the data span :data:`TRIG_YOUNG_DATA_S`, that wait doubles with each further
-        failure up to :data:`TRIG_RETRY_S`: an arm the planar basis does not hold (a spatial
-        one) would pay the fit at every refresh for nothing.
+        s); once the data span :data:`~.trig_loop.YOUNG_DATA_S` (on the paper's arm the fit
+        holds from about 5 s of motion; with doubling waits behind the search's warm starts
+        its first prediction had come 19 s after the first joint_states in one run of
+        bench/online.py), that wait doubles with each further failure up to
+        :data:`TRIG_RETRY_S`: an arm the planar basis does not hold (a spatial one) would
+        pay the fit at every refresh for nothing.
         ``prior`` (:class:`~.linear.Samples`, the excitation memory's) joins the training
         samples, so the arm keeps what it learned where the window no longer goes.
         Returns whether it was fitted, and the (level, text) to log when whether it predicts
         changed.
         """
-        span = sum(float(seg.t[-1] - seg.t[0]) for seg in paired if seg.n_samples)
-        wait = TRIG_FIRST_RETRY_S if span < TRIG_YOUNG_DATA_S else min(
+        wait = TRIG_FIRST_RETRY_S if data_span(paired) < YOUNG_DATA_S else min(
             TRIG_RETRY_S, TRIG_FIRST_RETRY_S * 2.0 ** max(0, self._trig_failures - 1))
         if self.trig is None and now - self._trig_tried < wait:
             return False, None

@@ -56,7 +56,8 @@ from .identify import Evolution
 from .linear import LinearDynamics
 from .online_records import ClosedLoop as PredictionLoop
 from .refine import refine_equation_error
-from .trig_loop import closed_loop_error, fit_closed_trig_loop, TrigLoop
+from .trig_loop import (closed_loop_error, data_span, fit_closed_trig_loop, TrigLoop,
+                        YOUNG_DATA_S)
 from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..model.trig import TrigBasis
@@ -83,12 +84,6 @@ RETRY_S = 1.0
 
 #: The longest wait between fits that do not hold (s).
 RETRY_MAX_S = 30.0
-
-#: While the data span less than this (s), a fit that did not hold is retried every
-#: :data:`RETRY_S`, without doubling: the first seconds of motion seldom excite the closed
-#: loop enough, and each second more is what makes it hold (the doubling had delayed the
-#: first model prediction on the paper's arm by 2-4 s).
-YOUNG_DATA_S = 15.0
 
 #: Training samples before the linear closed loop is tried.
 MIN_LOOP_SAMPLES = 200
@@ -252,8 +247,8 @@ class ArmKeeper:
         segments = [seg for seg in segments if seg.theta_d is not None]
         if not segments:
             return False, None
-        span = sum(float(seg.t[-1] - seg.t[0]) for seg in segments)
-        wait = REFIT_S if self.loop is not None else RETRY_S if span < YOUNG_DATA_S else min(
+        young = data_span(segments) < YOUNG_DATA_S
+        wait = REFIT_S if self.loop is not None else RETRY_S if young else min(
             RETRY_MAX_S, RETRY_S * 2.0 ** max(0, self._failures - 1))
         if now - self._tried < wait:
             return self._advance(segments, origin), None

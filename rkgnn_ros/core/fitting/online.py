@@ -75,6 +75,7 @@ from .online_records import (AUTO_BASIS, ClosedLoop, GenerationStats, LogLine, L
 from .online_rules import auto_untried, feed_memory, stale_stream, Staleness, trig_holds
 from .search_starts import (hand_over_settings, restart_around, rewarm, warm_start,
                             WARM_START_NFEV, WARM_START_S)
+from .trig_loop import YOUNG_DATA_S
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
 from ..data import Dataset
 from ..differentiate import centred_derivative
@@ -90,13 +91,12 @@ VALIDATION_EVERY = 5        # generations between two validations of a changed b
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
 REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
 MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search restarts
-#: While the data span less than YOUNG_DATA_S (s), one equation-error fit (the search's
-#: warm start, or a re-warm) takes at most YOUNG_WARM_START_S real seconds. It runs in the
+#: While the data span less than :data:`.trig_loop.YOUNG_DATA_S`, one equation-error fit
+#: (the search's warm start, or a re-warm) takes at most this (real s). It runs in the
 #: worker thread between the fits on the trigonometric basis, which then wait: in a run of
 #: bench/online.py (case 2, the arm starting from rest) two 5 s fits, at 5 and at 10 s of
 #: data, held the closed loop back until 15 s and the first prediction of a model until
 #: 17.7 s after the first joint_states. The data double soon after, and a full fit follows.
-YOUNG_DATA_S = 15.0
 YOUNG_WARM_START_S = 1.0
 LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
 #: Cases whose predictions use the linear closed-loop fit on the trigonometric basis

@@ -63,8 +63,8 @@ from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
 
 __all__ = ['INTEGRAL_GAIN', 'INTEGRAL_MIN_ERROR', 'KI_ZERO', 'MAX_SUBSTEPS', 'PASSES',
-           'TrigLoop', 'closed_loop_error', 'fit_closed_trig_loop', 'fit_trig_loop',
-           'precompile_trig_loop', 'trig_torque_error']
+           'YOUNG_DATA_S', 'TrigLoop', 'closed_loop_error', 'data_span',
+           'fit_closed_trig_loop', 'fit_trig_loop', 'precompile_trig_loop', 'trig_torque_error']
 
 #: Rollouts of :meth:`TrigLoop.simulate` when the law has an integral or θ-terms on θ.
 PASSES = 3
@@ -96,6 +96,13 @@ INTEGRAL_GAIN = 2.0
 
 #: ... and the PD form's is above this (a PD servo's data: 0.8-4.4 % on the paper's arm).
 INTEGRAL_MIN_ERROR = 0.01
+
+#: While the data span less than this (s) they are young: the fits on this basis that do
+#: not hold are retried every second, without doubling waits (cases 1 and 3: the first
+#: seconds of motion seldom excite the arm enough, and each second more is what makes the
+#: fit hold), and the search's equation-error fits are kept short so that those retries
+#: are not held back (:mod:`.online`).
+YOUNG_DATA_S = 15.0
 
 
 @njit(cache=True, nogil=True)
@@ -522,6 +529,11 @@ def closed_loop_error(loop: TrigLoop, segments: Sequence[Dataset],
         return math.inf
     n_train = sum(seg.n_samples for seg in train)
     return _equation_error(arm, every.take(slice(n_train, None)), integral)
+
+
+def data_span(segments: Sequence[Dataset]) -> float:
+    """Return the seconds the segments cover together (their gaps left out)."""
+    return sum(float(seg.t[-1] - seg.t[0]) for seg in segments if seg.n_samples)
 
 
 def _centred_velocity(seg: Dataset) -> Dataset:
