@@ -22,6 +22,8 @@ is <= J* or the cap (2x the EA's 20 000 evaluations) is reached: CMA-ES (pycma) 
 default genome, and CMA-ES started from the equation-error fit (our pipeline's first
 stage; its residual evaluations are counted too). Writes
 ``bench/results/evals_to_paper_cost.json``; ``null`` means not reached within the cap.
+The EA's run is :func:`_shared.paper_ea`, which ``bench/peers.py`` reuses in the same
+``make bench`` (``paper_ea_s`` is the time of the run that computed it).
 """
 
 import argparse
@@ -37,6 +39,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
+from _shared import paper_ea  # noqa: E402
 from rkgnn_ros.core.fitting.identify import Evolution  # noqa: E402
 from rkgnn_ros.core.fitting.refine import refine_equation_error  # noqa: E402
 from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
@@ -78,16 +81,13 @@ def main(argv=None):
               'load_start': os.getloadavg(), 'generations': args.generations}
     for case in args.cases.split(','):
         kp, kd = (np.diag(pd.kp), np.diag(pd.kd)) if case == '2' else (None, None)
-        t0 = time.perf_counter()
-        paper = evolution(case, data, kp, kd, 'paper', {'population_size': 100}, args.seed)
-        for _ in range(args.generations):
-            paper.step()
+        paper, record = paper_ea(case, data, kp, kd, args.generations, args.seed)
         target = float(paper.optimizer.best_cost)
         budget = 100 * args.generations
         cap = 2 * budget
         entry = {'paper_ea_final_cost': target if math.isfinite(target) else None,
                  'paper_ea_evaluations': budget,
-                 'paper_ea_s': round(time.perf_counter() - t0, 1)}
+                 'paper_ea_s': record['seconds']}
         if math.isfinite(target):
             t0 = time.perf_counter()
             cma = evolution(case, data, kp, kd, 'cmaes', {}, args.seed)

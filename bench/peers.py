@@ -80,11 +80,11 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
+from _shared import paper_ea  # noqa: E402
 from rkgnn_ros.core.fitting.controller_laws import ControllerLaw  # noqa: E402
-from rkgnn_ros.core.fitting.identify import Evolution, fit_best, nrmse  # noqa: E402
+from rkgnn_ros.core.fitting.identify import fit_best, nrmse  # noqa: E402
 from rkgnn_ros.core.fitting.linear import LinearDynamics  # noqa: E402
 from rkgnn_ros.core.fitting.trig_loop import fit_closed_trig_loop, TrigLoop  # noqa: E402
-from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
 from rkgnn_ros.core.model.trig import TrigBasis  # noqa: E402
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.simulate import NoiseModel, simulate, simulate_open_loop  # noqa: E402
@@ -212,19 +212,21 @@ def rkgnn_predictor(model, case, refs):
 
 
 def rkgnn_paper_ea(case, fit, kp, kd, generations, seed):
-    """Fit the paper's structure with its EA (the start genome in the first generation)."""
-    spec = NetworkSpec.paper(N, CASES[case])
-    evo = Evolution(spec, fit, 'paper', {'population_size': 100}, seed, kp, kd,
-                    torque_interpolation='hold')
-    start_cost = float(evo.problem.cost(evo.optimizer.x0[None])[0])
-    for _ in range(generations):
-        evo.step()
+    """
+    Fit the paper's structure with its EA (the start genome in the first generation).
+
+    Return (model, evaluations, costs, seconds): run by :func:`_shared.paper_ea`, which
+    reuses the run ``bench/evals_to_paper_cost.py`` made on the same data in this
+    ``make bench`` (``seconds`` is then that run's time).
+    """
+    evo, record = paper_ea(case, fit, kp, kd, generations, seed)
     # a start whose rollout diverges costs +inf (JSON Infinity), not null: the EA's final J
     # is then below it, as at any other start
-    costs = {'start_cost': start_cost if math.isfinite(start_cost) else math.inf,
-             'final_cost': (float(evo.optimizer.best_cost)
-                            if math.isfinite(evo.optimizer.best_cost) else None)}
-    return evo.best_model(fit.joint_names), evo.optimizer.evaluations, costs
+    final = record['final_cost']
+    costs = {'start_cost': record['start_cost'],
+             'final_cost': final if math.isfinite(final) else None}
+    return (evo.best_model(fit.joint_names), record['evaluations'], costs,
+            record['seconds'])
 
 
 def rkgnn_best(case, fit, kp, kd, seed, **budget):
@@ -543,11 +545,10 @@ def run(noisy, args, log, table, on_case=None):
         elif noisy:
             record('rkgnn_paper_ea', None, skipped='noiseless only (time)')
         else:
-            t0 = time.perf_counter()
-            model, evals, costs = rkgnn_paper_ea(case, fit, *gains, args.generations,
-                                                 args.seed)
-            record('rkgnn_paper_ea', rkgnn_predictor(model, case, refs),
-                   time.perf_counter() - t0, evaluations=evals, **costs)
+            model, evals, costs, seconds = rkgnn_paper_ea(case, fit, *gains, args.generations,
+                                                          args.seed)
+            record('rkgnn_paper_ea', rkgnn_predictor(model, case, refs), seconds,
+                   evaluations=evals, **costs)
         # the default pipeline under each budget; one run serves both rows when it stopped
         # (CMA-ES stalled) before either limit, as it then would have under each alone
         shared = None

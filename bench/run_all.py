@@ -35,8 +35,9 @@ LONG = {'soak', 'killtest'}  # 30 min and ~5 min: run by name only
 def main(argv=None):
     """Run the selected benchmarks in turn; return non-zero if any failed."""
     argv = sys.argv[1:] if argv is None else argv
-    scripts = sorted(p for p in glob.glob(os.path.join(HERE, '*.py'))
-                     if os.path.basename(p) not in ('run_all.py', 'summary.py'))
+    scripts = sorted(p for p in glob.glob(os.path.join(HERE, '*.py'))  # _*.py: shared code
+                     if os.path.basename(p) not in ('run_all.py', 'summary.py')
+                     and not os.path.basename(p).startswith('_'))
     name = lambda p: os.path.splitext(os.path.basename(p))[0]  # noqa: E731
     if argv:
         scripts = [p for p in scripts if name(p) in argv]
