@@ -82,7 +82,7 @@ def _array_digest(*arrays):
 
 
 def paper_evolution(case, data, kp, kd, seed):
-    """The paper's EA on the paper's structure, as ``make paper`` starts it."""
+    """Return the paper's EA on the paper's structure, started as ``make paper`` starts it."""
     spec = NetworkSpec.paper(data.n_joints, CASES[case])
     return Evolution(spec, data, 'paper', {'population_size': 100}, seed, kp, kd,
                      torque_interpolation='hold')

@@ -34,12 +34,12 @@ import os
 import sys
 import time
 
+from _shared import paper_ea  # bench/_shared.py (puts the checkout on sys.path)
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from _shared import paper_ea  # noqa: E402
 from rkgnn_ros.core.fitting.identify import Evolution  # noqa: E402
 from rkgnn_ros.core.fitting.refine import refine_equation_error  # noqa: E402
 from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402

@@ -75,12 +75,12 @@ import sys
 import time
 import warnings
 
+from _shared import paper_ea  # bench/_shared.py (puts the checkout on sys.path)
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from _shared import paper_ea  # noqa: E402
 from rkgnn_ros.core.fitting.controller_laws import ControllerLaw  # noqa: E402
 from rkgnn_ros.core.fitting.identify import fit_best, nrmse  # noqa: E402
 from rkgnn_ros.core.fitting.linear import LinearDynamics  # noqa: E402
