@@ -15,6 +15,7 @@
 """The arm controller's law fitted from measured torque, to predict case 1 in closed loop."""
 
 from dataclasses import replace
+import math
 
 import numpy as np
 import pytest
@@ -384,3 +385,20 @@ def test_data_sampled_coarser_than_the_filter_are_filtered_at_one_sample():
     # exact data at 10 Hz: the kernel's accuracy at that sampling, 0.1 % (seen: 0.06 %)
     np.testing.assert_allclose(law.kp, KP, rtol=1e-3)
     np.testing.assert_allclose(law.kd, KD, rtol=1e-3, atol=1e-3)
+
+
+@pytest.mark.parametrize('n, max_factors', [(1, 1), (3, 3), (6, 3), (7, 2)])
+def test_trig_features_are_the_products_of_cosines_and_sines(n, max_factors):
+    features = TrigFeatures(n, max_factors)
+    # every product of at most max_factors factors, one cos or sin per joint, no constant
+    count = sum(math.comb(n, k) * 2 ** k for k in range(1, min(n, max_factors) + 1))
+    assert features.size == count
+    theta = np.random.default_rng(n).normal(scale=3.0, size=(4, 5, n))
+    phi = features(theta)
+    assert phi.shape == (4, 5, count)
+    for f, term in enumerate(features.terms):
+        expected = np.ones((4, 5))
+        for joint, kind in term:
+            expected = expected * (np.sin if kind else np.cos)(theta[..., joint])
+        assert np.array_equal(phi[..., f], expected)
+    assert np.array_equal(features(theta[1, 2]), phi[1, 2])  # one configuration alike

@@ -181,6 +181,13 @@ class TrigFeatures:
                              for kind in (0, 1)]
         #: each feature: tuple of (joint, 0 = cos | 1 = sin)
         self.terms = [t for t in terms if t]
+        # the features as one gather and product: column 2 k + kind of [cos θ_0, sin θ_0,
+        # cos θ_1, ..., 1], the last (1) padding the shorter products
+        width = max((len(t) for t in self.terms), default=1)
+        self._index = np.full((len(self.terms), width), 2 * self.n_joints, dtype=np.intp)
+        for f, term in enumerate(self.terms):
+            for j, (joint, kind) in enumerate(term):
+                self._index[f, j] = 2 * joint + kind
 
     @property
     def size(self) -> int:
@@ -192,12 +199,11 @@ class TrigFeatures:
         theta = np.asarray(theta, dtype=float)
         if theta.shape[-1] != self.n_joints:
             raise ValueError(f'theta must have {self.n_joints} columns, got {theta.shape}')
-        trig = np.stack([np.cos(theta), np.sin(theta)], axis=-1)          # (..., n, 2)
-        out = np.ones(theta.shape[:-1] + (self.size,))
-        for f, term in enumerate(self.terms):
-            for joint, kind in term:
-                out[..., f] *= trig[..., joint, kind]
-        return out
+        trig = np.empty(theta.shape[:-1] + (2 * self.n_joints + 1,))
+        trig[..., 0:-1:2] = np.cos(theta)
+        trig[..., 1:-1:2] = np.sin(theta)
+        trig[..., -1] = 1.0
+        return trig[..., self._index].prod(axis=-1)
 
 
 @dataclass(frozen=True)
