@@ -81,11 +81,16 @@ def _array_digest(*arrays):
     return h.hexdigest()
 
 
+def structure_evolution(case, data, kp, kd, optimizer, settings, seed):
+    """Return a search of ``optimizer`` on the paper's structure, cost and torque hold."""
+    spec = NetworkSpec.paper(data.n_joints, CASES[case])
+    return Evolution(spec, data, optimizer, settings, seed, kp, kd,
+                     torque_interpolation='hold')
+
+
 def paper_evolution(case, data, kp, kd, seed):
     """Return the paper's EA on the paper's structure, started as ``make paper`` starts it."""
-    spec = NetworkSpec.paper(data.n_joints, CASES[case])
-    return Evolution(spec, data, 'paper', {'population_size': 100}, seed, kp, kd,
-                     torque_interpolation='hold')
+    return structure_evolution(case, data, kp, kd, 'paper', {'population_size': 100}, seed)
 
 
 def paper_ea(case, data, kp, kd, generations, seed):

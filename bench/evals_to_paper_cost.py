@@ -34,26 +34,17 @@ import os
 import sys
 import time
 
-from _shared import paper_ea  # bench/_shared.py (puts the checkout on sys.path)
+# bench/_shared.py (it puts the checkout on sys.path)
+from _shared import paper_ea, structure_evolution
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.core.fitting.identify import Evolution  # noqa: E402
 from rkgnn_ros.core.fitting.refine import refine_equation_error  # noqa: E402
-from rkgnn_ros.core.model.spec import NetworkSpec  # noqa: E402
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import paper_reference  # noqa: E402
-
-CASES = {'1': 'torque', '2': 'pd_gains', '3': 'unknown'}
-
-
-def evolution(case, data, kp, kd, optimizer, settings, seed):
-    spec = NetworkSpec.paper(3, CASES[case])
-    return Evolution(spec, data, optimizer, settings, seed, kp, kd,
-                     torque_interpolation='hold')
 
 
 def run_until(evo, target, cap, used=0):
@@ -90,11 +81,12 @@ def main(argv=None):
                  'paper_ea_s': record['seconds']}
         if math.isfinite(target):
             t0 = time.perf_counter()
-            cma = evolution(case, data, kp, kd, 'cmaes', {}, args.seed)
+            cma = structure_evolution(case, data, kp, kd, 'cmaes', {}, args.seed)
             entry['cmaes'] = run_until(cma, target, cap)
             entry['cmaes_s'] = round(time.perf_counter() - t0, 1)
             t0 = time.perf_counter()
-            warm = evolution(case, data, kp, kd, 'cmaes', {'sigma': 0.05}, args.seed)
+            warm = structure_evolution(case, data, kp, kd, 'cmaes', {'sigma': 0.05},
+                                       args.seed)
             nfev = 500
             genome, _ = refine_equation_error(warm.spec, [data], warm.scales,
                                               warm.optimizer.best_x, kp, kd, max_nfev=nfev)
