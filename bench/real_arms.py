@@ -123,14 +123,14 @@ def follow_reference_errors(t0s, horizon, meas_t, meas_theta, cmd_t, cmd_theta):
     return np.asarray(out_t), np.asarray(out_e)
 
 
-def run_urdf_case(case, duration, horizon, domain, log_dir):
-    """Run sim_arm (UR5) + identifier for one case; return the figures."""
+def run_urdf_case(case, duration, horizon, domain, log_dir, extra=()):
+    """Run sim_arm (UR5) + identifier (``extra``: its parameters) for one case."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rkgnn_ros.monitor import config
     sim_args = ['--params-file', config(UR5_CONFIG)]
     nodes = NodeProcesses([('sim_arm', sim_args),
-                           ('identifier', identifier_arguments(case, horizon))],
+                           ('identifier', identifier_arguments(case, horizon, extra))],
                           domain, log_dir, prefix=f'real_arms_case{case}_')
     try:
         ctx = rclpy.Context()
@@ -179,12 +179,14 @@ def part_urdf(args, log_dir):
                     'duration_s': args.duration, 'horizon_s': args.horizon,
                     'metric': '2 s-ahead θ RMSE over predictions started in the 5 s bin '
                               'ending at t, divided by the θ range, mean over joints; '
-                              'follow_reference: θd instead of the prediction, same targets'}}
+                              'follow_reference: θd instead of the prediction, same targets',
+                    'identifier_params': list(args.identifier_param)}}
     for i, case in enumerate(args.cases.split(',')):
         domain = args.domain + i
         print(f'== urdf_6dof case {case}: {args.duration:.0f} s on ROS_DOMAIN_ID={domain}',
               flush=True)
-        result = run_urdf_case(case, args.duration, args.horizon, domain, log_dir)
+        extra = [a for p in args.identifier_param for a in ('-p', p)]
+        result = run_urdf_case(case, args.duration, args.horizon, domain, log_dir, extra)
         for t, model, follow in result['curve_t_model_follow']:
             print(f'  t = {t:4.0f} s  model {model:8.2%}  follow reference '
                   f'{follow if follow is None else f"{follow:8.2%}"}', flush=True)
@@ -525,6 +527,9 @@ def main(argv=None):
     parser.add_argument('--part', choices=('urdf', 'bag', 'namespaces', 'peer'),
                         default='urdf')
     parser.add_argument('--cases', default='1,3')
+    parser.add_argument('--identifier-param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='--part urdf: an identifier parameter for every case (repeatable); '
+                        'recorded in meta.identifier_params')
     parser.add_argument('--duration', type=float, default=65.0)
     parser.add_argument('--horizon', type=float, default=2.0)
     parser.add_argument('--record', type=float, default=60.0,

@@ -78,3 +78,33 @@ def test_the_gains_of_a_six_joint_servo():
     scale = fitted_kp.mean()
     np.testing.assert_allclose(fitted_kp / scale, kp / kp.mean(), rtol=0.05)
     np.testing.assert_allclose(fitted_kd / scale, kd / kp.mean(), rtol=0.1)
+
+
+def test_the_search_gains_place_the_arm_where_the_linear_gains_are_not_found(monkeypatch):
+    # a spatial arm's closed loop is not the trigonometric fit's; the search's own linear
+    # PD then takes the gains' place: the arm is fitted again under them
+    from rkgnn_ros.core.fitting import case_three, search_starts
+    servo = Servo(KP, KD, gravity='measured', arm=ARM)
+    train = simulate(ARM, servo, paper_reference(3), 12.0, rate=100.0)
+    evo = Evolution(NetworkSpec.recommended(3, 'unknown'), [train], seed=0)
+    case_two = Evolution(NetworkSpec.recommended(3, 'pd_gains'), [train], seed=0, kp=KP, kd=KD)
+    assert case_three.search_gains(case_two) is None  # the gains are known there
+    scale = np.sqrt(np.mean((KP * (train.theta_d - train.theta)) ** 2))
+    placed = start_genome(evo, [train], budget_s=600.0, nfev=60, gains=(KP / scale, KD / scale))
+    assert placed is not None and "the search's gains" in placed.origin
+    evo.optimizer.seed_best(placed.genome, placed.cost)
+    kp, kd = case_three.search_gains(evo)
+    np.testing.assert_allclose(kp, KP / scale, rtol=1e-9)
+    np.testing.assert_allclose(kd, KD / scale, rtol=1e-9)
+    monkeypatch.setattr(case_three, 'fit_gains', lambda segments: None)
+    given, place = [], case_three.start_genome
+
+    def spy(evo, train, budget_s, nfev, gains=None):
+        given.append(gains)
+        return place(evo, train, budget_s, nfev, gains)
+    monkeypatch.setattr(case_three, 'start_genome', spy)
+    before = float(evo.optimizer.best_cost)
+    line = search_starts.rewarm(evo, [train], 12.0, budget_s=600.0, nfev=60)
+    assert given[0] is None and len(given) == 2, given  # the linear gains, then the search's
+    np.testing.assert_allclose(given[1][0], KP / scale, rtol=1e-9)
+    assert float(evo.optimizer.best_cost) <= before, line

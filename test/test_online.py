@@ -395,7 +395,9 @@ def test_the_equation_error_fit_runs_again_when_the_window_grew(data):
     assert rig.lines('search started from the equation-error fit')
     rig.buffer = buffer_with(data, 4.0)  # 1.5 x the data of the first fit
     rig.run(1, dt=1.0)
-    assert rig.lines('equation-error fit again on 4.0 s of data')
+    # the arm fitted again under the search's gains, or the whole network's fit again
+    assert rig.lines("the search's gains and the equation-error fit", 'on 4.0 s of data') or \
+        rig.lines('equation-error fit again on 4.0 s of data')
 
 
 def test_validation_scores_a_model_on_the_held_out_segments(data):

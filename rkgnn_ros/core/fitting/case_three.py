@@ -34,7 +34,10 @@ them: the newest half of the data must give the same ratios within
 :data:`AGREEMENT_RTOL` (the half's estimate is the noisier: with 1e-4 rad of encoder noise,
 16 s on the paper's arm gave the ratios to 1.5 % and its newest half to 11 %). A PID servo's
 data do not fit this PD closed loop; the two halves then disagree and the search keeps its
-old start.
+old start. When the window has grown, :func:`start_genome` is tried again, and where the
+gains are still not determined (a spatial arm such as the UR5, whose closed loop the
+trigonometric fit does not hold), with the search's own linear PD gains
+(:func:`search_gains`): the arm fitted again under them, kept if its rollout cost is lower.
 
 :class:`ArmKeeper` keeps that linear fit (with an integral term, on the trigonometric basis:
 :func:`~rkgnn_ros.core.fitting.trig_loop.fit_closed_trig_loop`) as the predictor while it
@@ -63,7 +66,7 @@ from ..differentiate import centred_derivative
 from ..model.trig import TrigBasis
 
 __all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_LOOP_SAMPLES', 'REFIT_S',
-           'RETRY_MAX_S', 'RETRY_S', 'Start', 'fit_gains', 'start_genome']
+           'RETRY_MAX_S', 'RETRY_S', 'Start', 'fit_gains', 'search_gains', 'start_genome']
 
 #: The gains fitted on the whole data and on its newest half must agree this well.
 AGREEMENT_RTOL = 0.15
@@ -163,20 +166,40 @@ class Start(NamedTuple):
     origin: str
 
 
+def search_gains(evo: Evolution) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """
+    Return the linear PD gains ``(kp, kd)`` of the best genome of a case-3 search, or None.
+
+    None when the search has no linear torque network or a Kp is not positive and finite.
+    """
+    spec = evo.spec
+    if spec.case != 'unknown' or not spec.torque_linear:
+        return None
+    block = {b.name: b for b in spec.blocks()}['pd_linear']
+    linear = np.asarray(evo.optimizer.best_x[block.start:block.stop], dtype=float).reshape(2, -1)
+    s = evo.scales
+    kp, kd = s.torque / s.error * linear[0], s.torque / s.error_rate * linear[1]
+    if not (np.all(np.isfinite(kp)) and np.all(np.isfinite(kd)) and np.all(kp > 0.0)):
+        return None
+    return kp, np.maximum(kd, 0.0)
+
+
 def start_genome(evo: Evolution, train: Sequence[Dataset], budget_s: float,
-                 nfev: int) -> Optional[Start]:
+                 nfev: int, gains=None) -> Optional[Start]:
     """
     Return a case-3 start genome for ``evo`` (a case-3 search), or None.
 
-    The gains of :func:`fit_gains`, the arm's blocks by the equation-error fit of the
-    case-2 network with them (within ``budget_s`` real seconds and ``nfev`` evaluations),
-    the torque network's linear gains set to them and its RBF units to zero weight. None
-    also when its rollout on ``train`` diverges.
+    ``gains`` ``(kp, kd)`` (default: those of :func:`fit_gains`), the arm's blocks by the
+    equation-error fit of the case-2 network with them (within ``budget_s`` real seconds
+    and ``nfev`` evaluations), the torque network's linear gains set to them and its RBF
+    units to zero weight. None also when its rollout on ``train`` diverges.
     """
     spec = evo.spec
     if is_global(spec):  # its own start is the closed-form fit of arm and servo together
         return None
-    gains = fit_gains(train) if spec.case == 'unknown' and spec.torque_linear else None
+    what = 'the linearly identified gains' if gains is None else "the search's gains"
+    if gains is None:
+        gains = fit_gains(train) if spec.case == 'unknown' and spec.torque_linear else None
     if gains is None:
         return None
     kp, kd = gains
@@ -204,7 +227,7 @@ def start_genome(evo: Evolution, train: Sequence[Dataset], budget_s: float,
     cost = float(evo.problem.cost(genome[None])[0])
     if not np.isfinite(cost):
         return None
-    return Start(genome, cost, f'the linearly identified gains and the equation-error fit '
+    return Start(genome, cost, f'{what} and the equation-error fit '
                                f'({time.perf_counter() - t0:.1f} s, J {cost:.4g}; Kp ratios '
                                f'{np.round(kp / kp.mean(), 3).tolist()})')
 

@@ -88,8 +88,11 @@ def rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) ->
 
     A global network fits its closed form again; an RBF case-3 search first tries the start
     from the linearly identified gains (:mod:`.case_three`: they may be determined by now),
-    then the equation-error fit; a genome replaces the best (the optimizer restarts around
-    it) only if its cost is lower.
+    else the arm fitted again under the search's own linear PD gains (a case-2 fit: on a
+    spatial arm, whose closed loop the trigonometric fit does not hold, the whole network's
+    equation-error fit rarely improved the best once the search had begun), then the
+    equation-error fit; a genome replaces the best (the optimizer restarts around it) only
+    if its cost is lower.
     """
     before = float(evo.optimizer.best_cost)
     if global_fit.is_global(evo.spec):
@@ -97,6 +100,9 @@ def rewarm(evo: Evolution, train, seconds: float, budget_s: float, nfev: int) ->
         what = 'closed-form fit'
     else:
         placed = case_three.start_genome(evo, train, budget_s, nfev)
+        gains = case_three.search_gains(evo) if placed is None else None
+        if gains is not None:  # the arm fitted anew under the search's own gains
+            placed = case_three.start_genome(evo, train, budget_s, nfev, gains)
         if placed is not None and not placed.cost >= before:
             restart_around(evo.optimizer, placed.genome, placed.cost)
             return (f'{placed.origin} on {seconds:.1f} s of data: better than the best '
