@@ -31,7 +31,7 @@ from rkgnn_ros.core.fitting.global_fit import is_global
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Observation, OnlineIdentification, OnlineSettings,
-                                           split_validation)
+                                           REWARM_PERIOD_S, split_validation)
 from rkgnn_ros.core.fitting.trig_loop import TrigLoop
 from rkgnn_ros.core.fitting.validation import validation_nrmse
 from rkgnn_ros.core.model.spec import NetworkSpec
@@ -398,6 +398,18 @@ def test_the_equation_error_fit_runs_again_when_the_window_grew(data):
     # the arm fitted again under the search's gains, or the whole network's fit again
     assert rig.lines("the search's gains and the equation-error fit", 'on 4.0 s of data') or \
         rig.lines('equation-error fit again on 4.0 s of data')
+
+
+def test_the_equation_error_fit_runs_again_on_a_full_window_after_a_while(data):
+    # the window stops growing once full; the fit still runs again every REWARM_PERIOD_S
+    rig = Rig(buffer_with(data, 4.0), settings(min_window=1.5, validation_fraction=0.0))
+    rig.run(1)
+    assert rig.lines('search started from the equation-error fit')
+    again = lambda: rig.lines('on 4.0 s of data')  # noqa: E731
+    rig.run(1, dt=0.4 * REWARM_PERIOD_S)
+    assert not again()
+    rig.run(1, dt=0.7 * REWARM_PERIOD_S)
+    assert len(again()) == 1, rig.lines('')
 
 
 def test_validation_scores_a_model_on_the_held_out_segments(data):
