@@ -31,7 +31,8 @@ from rkgnn_ros.core.fitting.global_fit import is_global
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Observation, OnlineIdentification, OnlineSettings,
-                                           REWARM_PERIOD_S, split_validation)
+                                           split_validation)
+from rkgnn_ros.core.fitting.search_starts import REWARM_PERIOD_S
 from rkgnn_ros.core.fitting.trig_loop import TrigLoop
 from rkgnn_ros.core.fitting.validation import validation_nrmse
 from rkgnn_ros.core.model.spec import NetworkSpec
@@ -566,3 +567,25 @@ def test_network_auto_keeps_the_rbf_network_where_the_arm_is_not_yet_determined(
     assert rig.lines('search started from', 'case unknown')
     assert not rig.lines('closed-form fit on the trigonometric basis')
     assert rig.policy._evo.spec.basis == 'rbf'
+
+
+def test_only_an_rbf_case_three_search_is_fitted_again_on_a_full_window():
+    # at 1 kHz a case-1 search's fit of the full window took 5 s and the latency p99 rose
+    # to 104 ms: the periodic fit is the RBF case-3 search's alone
+    from types import SimpleNamespace
+    from rkgnn_ros.core.fitting.global_fit import global_spec
+    from rkgnn_ros.core.fitting.search_starts import RewarmSchedule
+    schedule = RewarmSchedule()
+    schedule.placed(16.0, now=100.0)
+    searches = {'rbf unknown': NetworkSpec.recommended(3, 'unknown'),
+                'rbf torque': NetworkSpec.recommended(3, 'torque'),
+                'rbf pd_gains': NetworkSpec.recommended(3, 'pd_gains'),
+                'global unknown': global_spec(3, 'unknown')}
+    due = {name: schedule.due(SimpleNamespace(spec=spec), 16.0, 100.0 + REWARM_PERIOD_S)
+           for name, spec in searches.items()}
+    assert due == {'rbf unknown': True, 'rbf torque': False, 'rbf pd_gains': False,
+                   'global unknown': False}
+    soon = SimpleNamespace(spec=searches['rbf unknown'])
+    assert not schedule.due(soon, 16.0, 100.0 + 0.5 * REWARM_PERIOD_S)
+    assert all(schedule.due(SimpleNamespace(spec=spec), 24.0, 100.5)  # grown 1.5 x
+               for spec in searches.values())

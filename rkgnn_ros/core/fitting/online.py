@@ -30,9 +30,9 @@ The rules (the node's documentation states them for users):
   seconds; case 3 first tries the servo's gains from a linear fit of the closed loop,
   :mod:`.case_three`); a start whose rollout diverges is not taken.
 - The data are refreshed at most every :data:`DATA_REFRESH_S` (``Evolution.set_data``: the
-  optimizer is kept); when the window has grown by :data:`REWARM_GROWTH` since the last
-  equation-error fit, or :data:`REWARM_PERIOD_S` have passed (the full window slides on),
-  the fit runs again and replaces the best genome only if it is better.
+  optimizer is kept); when the window has grown 1.5x since the last equation-error fit (an
+  RBF case-3 search: or 10 s have passed; :class:`.search_starts.RewarmSchedule`), the fit
+  runs again and replaces the best genome only if it is better.
 - The newest ``validation_fraction`` of the data is held out (:func:`split_validation`);
   a changed best is validated every :data:`VALIDATION_EVERY` generations and before every
   publication (θ-NRMSE of the open-loop prediction from each segment's first state).
@@ -74,8 +74,8 @@ from .online_records import (AUTO_BASIS, ClosedLoop, GenerationStats, LogLine, L
                              model_update, ModelUpdate, Observation, OnlineSettings, Status,
                              StepResult, StreamCapture)
 from .online_rules import auto_untried, feed_memory, stale_stream, Staleness, trig_holds
-from .search_starts import (hand_over_settings, restart_around, rewarm, warm_start,
-                            WARM_START_NFEV, WARM_START_S)
+from .search_starts import (hand_over_settings, restart_around, rewarm, RewarmSchedule,
+                            warm_start, WARM_START_NFEV, WARM_START_S)
 from .trig_loop import YOUNG_DATA_S
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
 from ..data import Dataset
@@ -84,15 +84,12 @@ from ..model.model import RKGNNModel
 
 __all__ = ['AUTO_BASIS', 'OnlineIdentification', 'OnlineSettings', 'Observation',
            'StreamCapture', 'Status', 'ClosedLoop', 'ModelUpdate', 'LoopUpdate',
-           'GenerationStats', 'LogLine', 'StepResult', 'model_update', 'split_validation',
-           'REWARM_GROWTH', 'REWARM_PERIOD_S']
+           'GenerationStats', 'LogLine', 'StepResult', 'model_update', 'split_validation']
 
 DATA_REFRESH_S = 1.0        # at most one set_data per second
 WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
 VALIDATION_EVERY = 5        # generations between two validations of a changed best
 EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
-REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
-REWARM_PERIOD_S = 10.0      # or when this long (s) passed since it last ran
 MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search restarts
 #: While the data span less than :data:`.trig_loop.YOUNG_DATA_S`, one equation-error fit
 #: (the search's warm start, or a re-warm) takes at most this (real s). It runs in the
@@ -194,8 +191,7 @@ class OnlineIdentification:
         self._evo_version = -1
         self._evo_case = ''
         self._evo_law: Optional[ControllerLaw] = None  # the law a closed-loop search runs with
-        self._warm_seconds = math.inf  # seconds of data at the last equation-error fit
-        self._warm_time = -math.inf    # clock at the last equation-error fit
+        self._rewarm = RewarmSchedule()  # when the equation-error fit runs again
         self._algorithm = ''
         self._generation = 0
         self._evaluations = 0
@@ -335,12 +331,11 @@ class OnlineIdentification:
             return False
         if self._evo is None:
             self._build_search(settings, train, joints, seconds)
-            self._warm_seconds, self._warm_time = seconds, self._clock()
+            self._rewarm.placed(seconds, self._clock())
         else:
             self._evo.set_data(train)
-            if (seconds >= REWARM_GROWTH * self._warm_seconds
-                    or self._clock() - self._warm_time >= REWARM_PERIOD_S):
-                self._warm_seconds, self._warm_time = seconds, self._clock()
+            if self._rewarm.due(self._evo, seconds, self._clock()):
+                self._rewarm.placed(seconds, self._clock())
                 self._log('info', rewarm(self._evo, train, seconds, _warm_budget(
                     self._warm_start_seconds, seconds), self._warm_start_nfev))
             if self._had_finite and not math.isfinite(self._evo.optimizer.best_cost):
