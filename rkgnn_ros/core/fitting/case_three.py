@@ -63,6 +63,7 @@ from .trig_loop import (closed_loop_error, data_span, fit_closed_trig_loop, Trig
                         YOUNG_DATA_S)
 from ..data import Dataset
 from ..differentiate import centred_derivative
+from ..model.params import decode
 from ..model.trig import TrigBasis
 
 __all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_LOOP_SAMPLES', 'REFIT_S',
@@ -175,10 +176,8 @@ def search_gains(evo: Evolution) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     spec = evo.spec
     if spec.case != 'unknown' or not spec.torque_linear:
         return None
-    block = {b.name: b for b in spec.blocks()}['pd_linear']
-    linear = np.asarray(evo.optimizer.best_x[block.start:block.stop], dtype=float).reshape(2, -1)
-    s = evo.scales
-    kp, kd = s.torque / s.error * linear[0], s.torque / s.error_rate * linear[1]
+    params = decode(spec, np.asarray(evo.optimizer.best_x, dtype=float)[None], evo.scales)
+    kp, kd = params.kp[0], params.kd[0]
     if not (np.all(np.isfinite(kp)) and np.all(np.isfinite(kd)) and np.all(kp > 0.0)):
         return None
     return kp, np.maximum(kd, 0.0)
