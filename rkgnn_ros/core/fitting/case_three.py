@@ -104,6 +104,13 @@ def _gain_basis(n_joints: int) -> TrigBasis:
         n_joints, planar=True, tied=True)
 
 
+def _usable(kp: np.ndarray, kd: np.ndarray) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """Return ``(kp, max(kd, 0))`` if both are finite and every Kp positive, else None."""
+    if not (np.all(np.isfinite(kp)) and np.all(np.isfinite(kd)) and np.all(kp > 0.0)):
+        return None
+    return kp, np.maximum(kd, 0.0)
+
+
 def _linear_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     """Return the gains (mean Kp 1) of the linear closed-loop fit, or None if it fails."""
     # θ̇ from θ (the lag-free centred derivative): a differenced velocity's noise would
@@ -115,9 +122,7 @@ def _linear_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.
     except (ValueError, np.linalg.LinAlgError):
         return None
     kp, kd = np.asarray(fit.kp_, dtype=float), np.asarray(fit.kd_, dtype=float)
-    if not (np.all(np.isfinite(kp)) and np.all(np.isfinite(kd)) and np.all(kp > 0.0)):
-        return None
-    return kp, np.maximum(kd, 0.0)
+    return _usable(kp, kd)
 
 
 def _newest_half(segments: Sequence[Dataset]):
@@ -178,9 +183,7 @@ def search_gains(evo: Evolution) -> Optional[Tuple[np.ndarray, np.ndarray]]:
         return None
     params = decode(spec, np.asarray(evo.optimizer.best_x, dtype=float)[None], evo.scales)
     kp, kd = params.kp[0], params.kd[0]
-    if not (np.all(np.isfinite(kp)) and np.all(np.isfinite(kd)) and np.all(kp > 0.0)):
-        return None
-    return kp, np.maximum(kd, 0.0)
+    return _usable(kp, kd)
 
 
 def start_genome(evo: Evolution, train: Sequence[Dataset], budget_s: float,
