@@ -46,12 +46,20 @@ from rkgnn_ros.evaluation import ahead_errors  # noqa: E402
 from rkgnn_ros.monitor import identifier_arguments, Monitor, NodeProcesses  # noqa: E402
 
 
-def run_case(case, duration, horizon, domain, log_dir, switch_at=0.0):
-    """Run the pair for one case; return (curve [(t_end, nrmse)], nrmse_60s, details)."""
+def run_case(case, duration, horizon, domain, log_dir, switch_at=0.0, identifier_params=(),
+             sim_params=()):
+    """
+    Run the pair for one case; return (curve [(t_end, nrmse)], nrmse_60s, details).
+
+    ``identifier_params``, ``sim_params``: extra ``NAME:=VALUE`` parameters of each node.
+    """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     arm = ['-p', f'reference.switch_at:={float(switch_at)}'] if switch_at else []
-    nodes = NodeProcesses([('sim_arm', arm), ('identifier', identifier_arguments(case, horizon))],
+    arm += [a for p in sim_params for a in ('-p', p)]
+    extra = [a for p in identifier_params for a in ('-p', p)]
+    nodes = NodeProcesses([('sim_arm', arm),
+                           ('identifier', identifier_arguments(case, horizon, extra))],
                           domain, log_dir, prefix=f'online_case{case}_')
     try:
         ctx = rclpy.Context()
@@ -124,6 +132,11 @@ def main(argv=None):
     parser.add_argument('--horizon', type=float, default=2.0)
     parser.add_argument('--domain', type=int, default=None,
                         help='ROS_DOMAIN_ID of the first case (next cases: +1, ...)')
+    parser.add_argument('--identifier-param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='an identifier parameter for every case (repeatable); recorded '
+                        'in meta.identifier_params')
+    parser.add_argument('--sim-param', action='append', default=[], metavar='NAME:=VALUE',
+                        help="a sim_arm parameter (repeatable); recorded in meta.sim_params")
     parser.add_argument('--out', default=os.path.join(HERE, 'results', 'online.json'))
     args = parser.parse_args(argv)
     if args.duration is None:
@@ -133,13 +146,15 @@ def main(argv=None):
                         'duration_s': args.duration, 'horizon_s': args.horizon,
                         'switch_at_s': args.switch_at,
                         'metric': '2 s-ahead θ RMSE over predictions started in the 5 s '
-                                  'bin ending at t, divided by the θ range, mean over joints'}}
+                                  'bin ending at t, divided by the θ range, mean over joints',
+                        'identifier_params': list(args.identifier_param),
+                        'sim_params': list(args.sim_param)}}
     for i, case in enumerate(c.strip() for c in args.cases.split(',')):
         domain = (20 + (os.getpid() + 37 * i) % 200 if args.domain is None
                   else args.domain + i)
         print(f'== case {case}: {args.duration:.0f} s on ROS_DOMAIN_ID={domain}', flush=True)
         curve, at60, details = run_case(case, args.duration, args.horizon, domain, log_dir,
-                                        args.switch_at)
+                                        args.switch_at, args.identifier_param, args.sim_param)
         for t, v in curve:
             print(f'  t = {t:4.0f} s  2 s-ahead θ RMSE {v:8.2%} of range', flush=True)
         results[case] = {'prediction_nrmse_60s': at60, 'curve': curve, **details}
