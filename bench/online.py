@@ -136,7 +136,7 @@ def main(argv=None):
                         help='an identifier parameter for every case (repeatable); recorded '
                         'in meta.identifier_params')
     parser.add_argument('--sim-param', action='append', default=[], metavar='NAME:=VALUE',
-                        help="a sim_arm parameter (repeatable); recorded in meta.sim_params")
+                        help='a sim_arm parameter (repeatable); recorded in meta.sim_params')
     parser.add_argument('--out', default=os.path.join(HERE, 'results', 'online.json'))
     args = parser.parse_args(argv)
     if args.duration is None:

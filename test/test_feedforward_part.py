@@ -37,7 +37,7 @@ from rkgnn_ros.core.control.feedforward import plan_feedforward
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.identification.feedforward import FeedforwardSender
+from rkgnn_ros.identification.feedforward import FeedforwardSender, RAMP_S
 from rkgnn_ros.identification.parameters import ConfigurationError, make_config
 from rkgnn_ros.stream_capture import PlannedReference
 from trajectory_msgs.msg import JointTrajectory
@@ -169,7 +169,16 @@ def test_the_true_model_is_sent_clipped_with_a_ramp(rig):
     limit = np.array([30.0, 20.0, 5.0])
     assert np.all(np.abs(effort) <= limit)
     assert np.all(effort[0] == 0.0)  # the ramp starts from zero at the switch-on
-    full = times >= 2.1  # past the 2 s ramp (the plan began just before the switch-on)
+    # a plan made after the switch-on (the last pass's) is past the ramp from RAMP_S on
+    last = with_points[-1]
+    assert last is not first
+    effort = np.array([p.effort for p in last.points])
+    times = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
+                      for p in last.points])
+    plan = plan_feedforward(ARM, times, [p.positions for p in last.points],
+                            [p.velocities for p in last.points])
+    full = times >= RAMP_S
+    assert np.any(full) and np.all(np.abs(effort) <= limit)
     np.testing.assert_allclose(effort[full], np.clip(plan.effort[full], -limit, limit),
                                rtol=1e-12, atol=1e-9)
     assert sender.diagnostics().status[0].message == 'on'
