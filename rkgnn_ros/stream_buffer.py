@@ -23,11 +23,17 @@ per reason (:data:`DROP_REASONS`). Nothing raises on bad sample content.
 Policies
 --------
 Time base
-    Samples are stored relative to ``time_origin`` (the whole second at or below the first
-    sample after construction or a clear), and the snapshot's ``Dataset.t`` uses that base:
-    wall-clock stamps (~1.7e9 s) resolve only 0.24 µs in float64, too coarse for the
-    uniform-grid check of ``Dataset``. The grid is ``k * model_step`` in that base, so the
-    grids of successive snapshots line up.
+    Samples are stored relative to ``time_origin`` (the stamp of the first sample after
+    construction or a clear), and the snapshot's ``Dataset.t`` uses that base: wall-clock
+    stamps (~1.7e9 s) resolve only 0.24 µs in float64, too coarse for the uniform-grid check
+    of ``Dataset``. The grid is ``k * model_step`` in that base, so the grids of successive
+    snapshots line up, and a driver that stamps at a steady rate (a multiple of
+    1 / model_step) has its samples on the grid itself. With the whole second below the
+    first sample as the origin (before), the grid fell between samples wherever the driver
+    started within its period, and every resampled θ, θ̇ and τ was interpolated linearly,
+    off by up to h²/8 times its second derivative and not consistent with the others (the
+    case-1 search on the paper's arm started from a closed-form fit of rollout cost J 0.0019
+    in one run of ``bench/online.py``, 0.00076 with the samples themselves).
 Validation
     A sample with a shape other than (n,) is ``'bad_shape'``; a non-finite stamp
     ``'bad_stamp'``; NaN/inf in a value ``'non_finite'``; a value beyond
@@ -333,7 +339,7 @@ class StreamBuffer:
     def _insert_locked(self, stream: str, t_abs: float, row: np.ndarray) -> AddResult:
         series = self._series[stream]
         if self._origin is None:
-            self._origin = float(math.floor(t_abs))
+            self._origin = float(t_abs)
         rel = t_abs - self._origin
         newest, newest_any = series.last_t(), self._newest_locked()
         if (newest is not None and rel < newest - self.clock_jump_threshold) or \
@@ -375,7 +381,7 @@ class StreamBuffer:
         """Clear everything and start the time base at ``t_abs``; count ``reason``."""
         self._clear_locked()
         self._drops[stream][reason] += 1
-        self._origin = float(math.floor(t_abs))
+        self._origin = float(t_abs)
 
     def _place_locked(self, stream: str, t_abs: float, row: np.ndarray,
                       jump: bool = False) -> AddResult:

@@ -523,3 +523,20 @@ def test_staleness_of_an_unknown_stream_is_a_clear_error():
     with pytest.raises(ValueError, match="'state' or 'command'"):
         buf.staleness(1.0, 'reference')
     assert buf.staleness(1.0, 'state') is None
+
+
+@pytest.mark.parametrize('phase', [0.0, 0.0037, 0.0061])
+def test_a_steady_stream_is_resampled_on_its_own_samples(phase):
+    # a driver stamping at 100 Hz from any point within a second: the grid of the snapshot
+    # goes through the samples, so the data are the samples themselves; with the whole
+    # second below the first stamp as the time base, θ was interpolated linearly between
+    # samples (off by up to h²/8 θ̈ = 5e-5 rad here where the phase is not 0)
+    buffer = make_buffer()
+    times = grid(phase, phase + 2.0, 0.01)
+    feed_states(buffer, times)
+    (segment,) = buffer.snapshot()
+    assert segment.n_samples == times.size
+    theta, theta_dot = theta_of(segment.t + buffer.time_origin)
+    np.testing.assert_allclose(segment.theta, theta.T, rtol=0.0, atol=1e-9)
+    np.testing.assert_allclose(segment.theta_dot, theta_dot.T, rtol=0.0, atol=1e-9)
+    np.testing.assert_allclose(segment.t + buffer.time_origin, times, rtol=0.0, atol=1e-9)
