@@ -184,6 +184,25 @@ def test_the_true_model_is_sent_clipped_with_a_ramp(rig):
     assert sender.diagnostics().status[0].message == 'on'
 
 
+@pytest.mark.parametrize('quick_fit_s, passes_to_on', [(60.0, 1), (0.0, 2)])
+def test_a_quick_fit_is_judged_in_its_own_pass_a_slow_one_in_the_next(
+        rig, monkeypatch, quick_fit_s, passes_to_on):
+    # every fit is quick with a 60 s bound, and slow with 0: after a slow fit the ingest
+    # thread must catch up before the data's freshness is judged, a pass later
+    from rkgnn_ros.identification import feedforward
+    monkeypatch.setattr(feedforward, 'QUICK_FIT_S', quick_fit_s)
+    make, ingestion, received, spin, node = rig
+    sender = make(ArmModel())
+    states = []
+    for _ in range(2):
+        ingestion.new_plan(node.get_clock().now().nanoseconds * 1e-9)
+        sender.step()
+        spin()
+        states.append(sender.diagnostics().status[0].message)
+    assert states.index('on') == passes_to_on - 1, states
+    assert any(m.points for m in received)
+
+
 @pytest.mark.parametrize('model, reason', [
     (ArmModel(nan_on_data=True), 'non-finite torque on the validation samples'),
     (ArmModel(diverges=True), 'diverges on the validation samples'),

@@ -54,11 +54,17 @@ is off.
 The model is fitted and judged every :data:`REFIT_PERIOD_S` (a failing verdict switches
 the feed-forward off at once; it comes back at the next passing one), in a thread of its
 own: a fit takes 0.1-2 s, too long for the executor, and while it runs the node's other
-threads get less of the interpreter, so the data's freshness is judged in the pass after a
-fit. The thread keeps the node's priority: a thread that holds the interpreter lock and is
-not scheduled (a lowered priority on a loaded machine) stalls every other thread of the
-node. Publishing and logging happen in the executor thread, woken by a guard condition,
-like the rest of the node's outputs.
+threads get less of the interpreter, so after a fit longer than :data:`QUICK_FIT_S` the
+data's freshness and the model are judged in the next pass; a quicker fit cannot have made
+data that arrive within ``stale_timeout`` look stale and is judged at once. Until the
+first verdict passes after ``feedforward.enabled`` is set the arm tracks with the PD's
+error alone, at its largest 0.1-0.2 rad on the paper's arm; with a pass every 0.1 s and the
+verdict a pass after the fit, sim_arm applied the first feed-forward 0.27-0.58 s after the
+set (14 runs of ``bench/control_online.py``), with a pass every 0.05 s and a quick fit
+judged at once 0.23-0.45 s (3 runs). The thread keeps the node's priority: a
+thread that holds the interpreter lock and is not scheduled (a lowered priority on a loaded
+machine) stalls every other thread of the node. Publishing and logging happen in the
+executor thread, woken by a guard condition, like the rest of the node's outputs.
 """
 
 from collections import deque
@@ -78,10 +84,11 @@ from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['FeedforwardSender', 'PERIOD_S', 'REFIT_PERIOD_S']
 
-PERIOD_S = 0.1         # the thread's pass: a switch-off (stale data) takes at most this long
+PERIOD_S = 0.05        # the thread's pass: a switch-off (stale data) takes at most this long
 REFIT_PERIOD_S = 5.0   # s between two fits of the feed-forward's model
 ROLLOUT_S = 1.0        # s of the newest validation samples the model is rolled out over
 RAMP_S = 0.5           # s over which the efforts rise from 0 after each switch-on
+QUICK_FIT_S = 0.25     # a fit at most this long is judged in its own pass (see the module)
 JOIN_TIMEOUT_S = 10.0
 
 
@@ -199,17 +206,16 @@ class FeedforwardSender:
             self._model, self._fitted_at = None, -math.inf  # fit as soon as it is solved
             self._transition(False, problem)
             return
-        if self._candidate is not None:  # fitted in the previous pass: judge it now
-            model, validation, rollout = self._candidate
-            self._candidate = None
-            self._model = model if gate.assess(model, validation, rollout_nrmse=rollout).passed \
-                else None
+        self._judge(gate)  # a model fitted in the previous pass
         now = self._now()
         frozen = self._on and cfg.case == 'pd_gains'
         if not frozen and now - self._fitted_at >= REFIT_PERIOD_S:
             self._fitted_at = now
             self._refit(cfg, gate)
-            return  # the status next pass, once the ingest thread has caught up after the fit
+            if self._now() - now > QUICK_FIT_S:
+                return  # the status next pass, once the ingest thread has caught up
+            self._note_data(gate)
+            self._judge(gate)
         on, reason = gate.status()
         if on and not self._on:
             self._on_since = self._now()
@@ -217,6 +223,14 @@ class FeedforwardSender:
             self._send(gate)
             on, reason = gate.status()  # a non-finite plan switches it off
         self._transition(on, reason)
+
+    def _judge(self, gate) -> None:
+        """Assess the fitted candidate, if any: it becomes the model when it passes."""
+        if self._candidate is not None:
+            model, validation, rollout = self._candidate
+            self._candidate = None
+            self._model = model if gate.assess(model, validation, rollout_nrmse=rollout).passed \
+                else None
 
     def _gate_for(self, cfg):
         """Return (gate, None) for the current settings, or (gate or None, why it is off)."""
@@ -270,8 +284,9 @@ class FeedforwardSender:
             gate.switch_off(f'the model could not be fitted: {exc}')
             self._model = None
             return
-        # judged in the next pass: the ingest thread, slowed down by the fit, catches up
-        # in between, so the gate sees how fresh the data is, not how long the fit took
+        # after a long fit judged in the next pass: the ingest thread, slowed down by the fit,
+        # catches up in between, so the gate sees how fresh the data is, not how long the
+        # fit took
         self._candidate = (model, validation, rollout)
 
     def _send(self, gate) -> None:
