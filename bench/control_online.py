@@ -98,6 +98,12 @@ class Recorder:
         return float(np.mean(np.sqrt(np.mean(np.square(error), axis=0)))), len(stamps)
 
 
+def log_times(lines, text):
+    """Return the clock times (s) of the ROS log lines that contain ``text``."""
+    return [float(line.split('[')[2].split(']')[0]) for line in lines
+            if text in line and line.count('[') >= 3]
+
+
 def set_enabled(node, executor, value=True, timeout=30.0):
     """Set the identifier's ``feedforward.enabled`` through its service; return the reason."""
     from rcl_interfaces.srv import SetParameters
@@ -186,11 +192,9 @@ def main(argv=None):
     with open(os.path.join(args.log_dir, 'control_online_sim_arm.log'), encoding='utf-8') as f:
         lines = f.readlines()
     skips = sum('fell behind' in line for line in lines)
-    applied = [float(line.split('[')[2].split(']')[0]) for line in lines
-               if 'feed-forward applied' in line and line.count('[') >= 3]
-    applied = next((round(t - set_wall, 2) for t in applied if t >= set_wall), None)
-    started = [float(line.split('[')[2].split(']')[0]) for line in lines
-               if 'simulation started' in line and line.count('[') >= 3]
+    applied = next((round(t - set_wall, 2) for t in log_times(lines, 'feed-forward applied')
+                    if t >= set_wall), None)
+    started = log_times(lines, 'simulation started')
     online = {
         'before_rmse': before, 'after_rmse': after,
         'ratio': None if not (before and after) else before / after,
