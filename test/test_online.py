@@ -572,7 +572,6 @@ def test_network_auto_keeps_the_rbf_network_where_the_arm_is_not_yet_determined(
 def test_only_an_rbf_case_three_search_is_fitted_again_on_a_full_window():
     # at 1 kHz a case-1 search's fit of the full window took 5 s and the latency p99 rose
     # to 104 ms: the periodic fit is the RBF case-3 search's alone
-    from types import SimpleNamespace
     from rkgnn_ros.core.fitting.global_fit import global_spec
     from rkgnn_ros.core.fitting.search_starts import RewarmSchedule
     schedule = RewarmSchedule()
@@ -581,11 +580,10 @@ def test_only_an_rbf_case_three_search_is_fitted_again_on_a_full_window():
                 'rbf torque': NetworkSpec.recommended(3, 'torque'),
                 'rbf pd_gains': NetworkSpec.recommended(3, 'pd_gains'),
                 'global unknown': global_spec(3, 'unknown')}
-    due = {name: schedule.due(SimpleNamespace(spec=spec), 16.0, 100.0 + REWARM_PERIOD_S)
+    due = {name: schedule.due(spec, 16.0, 100.0 + REWARM_PERIOD_S)
            for name, spec in searches.items()}
     assert due == {'rbf unknown': True, 'rbf torque': False, 'rbf pd_gains': False,
                    'global unknown': False}
-    soon = SimpleNamespace(spec=searches['rbf unknown'])
-    assert not schedule.due(soon, 16.0, 100.0 + 0.5 * REWARM_PERIOD_S)
-    assert all(schedule.due(SimpleNamespace(spec=spec), 24.0, 100.5)  # grown 1.5 x
+    assert not schedule.due(searches['rbf unknown'], 16.0, 100.0 + 0.5 * REWARM_PERIOD_S)
+    assert all(schedule.due(spec, 24.0, 100.5)  # grown 1.5 x
                for spec in searches.values())

@@ -182,8 +182,7 @@ def search_gains(evo: Evolution) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     if spec.case != 'unknown' or not spec.torque_linear:
         return None
     params = decode(spec, np.asarray(evo.optimizer.best_x, dtype=float)[None], evo.scales)
-    kp, kd = params.kp[0], params.kd[0]
-    return _usable(kp, kd)
+    return _usable(params.kp[0], params.kd[0])
 
 
 def start_genome(evo: Evolution, train: Sequence[Dataset], budget_s: float,

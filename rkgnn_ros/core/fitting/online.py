@@ -334,7 +334,7 @@ class OnlineIdentification:
             self._rewarm.placed(seconds, self._clock())
         else:
             self._evo.set_data(train)
-            if self._rewarm.due(self._evo, seconds, self._clock()):
+            if self._rewarm.due(self._evo.spec, seconds, self._clock()):
                 self._rewarm.placed(seconds, self._clock())
                 self._log('info', rewarm(self._evo, train, seconds, _warm_budget(
                     self._warm_start_seconds, seconds), self._warm_start_nfev))

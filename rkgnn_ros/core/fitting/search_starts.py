@@ -58,11 +58,11 @@ class RewarmSchedule:
         """Record a fit on ``seconds`` of data at clock ``now``."""
         self.seconds, self.time = seconds, now
 
-    def due(self, evo: Evolution, seconds: float, now: float) -> bool:
-        """Return whether ``evo``'s fit runs again on ``seconds`` of data at clock ``now``."""
+    def due(self, spec, seconds: float, now: float) -> bool:
+        """Return whether the fit of a search of ``spec`` runs again on ``seconds`` at ``now``."""
         if seconds >= REWARM_GROWTH * self.seconds:
             return True
-        slides = evo.spec.case == 'unknown' and not global_fit.is_global(evo.spec)
+        slides = spec.case == 'unknown' and not global_fit.is_global(spec)
         return slides and now - self.time >= REWARM_PERIOD_S
 
 
