@@ -229,7 +229,8 @@ class ControllerLaw:
         Whether φ is evaluated at θ or at θd.
     features : callable or None
         The θ-basis, ``features(θ) -> (..., F)`` (:class:`TrigFeatures`,
-        :class:`RBFFeatures`).
+        :class:`RBFFeatures`), or ``(..., n, F)``, a row per joint, when it has
+        ``per_joint`` set (:class:`~.rigid_law.GravityFeatures`).
     fit_ratio : ndarray, shape (n,)
         RMS residual / RMS torque per joint, on the filtered data.
     samples : int
@@ -278,6 +279,8 @@ class ControllerLaw:
         at = np.asarray(theta if self.theta_input == 'measured' else theta_d, dtype=float)
         if not self.theta_weights.size:
             return np.zeros(at.shape)
+        if getattr(self.features, 'per_joint', False):   # φ (..., n, F): a row per joint
+            return np.einsum('...if,if->...i', self.features(at), self.theta_weights)
         return np.einsum('...f,if->...i', self.features(at), self.theta_weights)
 
     def torque(self, theta, theta_dot, theta_d, theta_d_dot, integral_term=None) -> np.ndarray:
