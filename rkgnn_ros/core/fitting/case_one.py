@@ -47,6 +47,7 @@ import numpy as np
 from .controller import closed_loop, ClosedLoop, fit_controller, open_loop_model
 from .controller_laws import ControllerLaw, RBFFeatures, TrigFeatures
 from .online_records import ClosedLoop as PredictionLoop
+from .rigid_law import fit_gravity_law
 from .trig_loop import data_span, fit_trig_loop, trig_torque_error, TrigLoop, YOUNG_DATA_S
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..data import Dataset
@@ -82,7 +83,7 @@ TRIG_MIN_SAMPLES = 200      # training samples (with torque) needed to try the f
 
 
 def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples: int = 50,
-            max_fit_ratio: float = 0.1) -> Optional[ControllerLaw]:
+            max_fit_ratio: float = 0.1, features=None) -> Optional[ControllerLaw]:
     """
     Return the servo law fitted on ``segments`` (with ``tau``, ``theta_d``, ``theta_d_dot``).
 
@@ -100,35 +101,45 @@ def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples:
     of noise, 3 s gave Kp1 off by a factor 5, 8 s by 1 %), and the residual alone does not
     show it. A law that does not explain the torque is returned as it is (not usable).
     None: too few samples, an error that never varied, or gains not determined yet.
+    ``features``: the θ-basis of the law's terms (default :class:`TrigFeatures`; a robot
+    description's :class:`~.rigid_law.GravityFeatures`, whose weights all joints share).
     """
-    law = _fit(segments, theta_input, min_samples, None)
+    law = _fit(segments, theta_input, min_samples, None, features)
     if law is None or not law.usable(max_fit_ratio):
         return law
     half = _fit(_newest_half(segments), law.theta_input, min_samples,
-                bool(np.any(law.ki != 0.0)))
+                bool(np.any(law.ki != 0.0)), features)
     if half is None or not law.close_to(half, AGREEMENT_RTOL):
         return None
     return law
 
 
-def _fit(segments, theta_input: str, min_samples: int,
-         integral: Optional[bool]) -> Optional[ControllerLaw]:
+def _with_terms(segments, features, theta_input: str, integral: bool, min_samples: int):
+    """Return the law with θ-terms on ``features`` (tied weights where they are per joint)."""
+    if getattr(features, 'per_joint', False):
+        return fit_gravity_law(segments, features, theta_input=theta_input, integral=integral,
+                               min_samples=min_samples)
+    return fit_controller(segments, features=features, theta_input=theta_input,
+                          integral=integral, min_samples=min_samples)
+
+
+def _fit(segments, theta_input: str, min_samples: int, integral: Optional[bool],
+         features=None) -> Optional[ControllerLaw]:
     """Return the law of ``segments`` (``integral`` None: chosen by the data)."""
     segments = [seg for seg in segments if seg.tau is not None and seg.theta_d is not None]
     if not segments:
         return None
-    features = TrigFeatures(segments[0].n_joints)
+    if features is None:
+        features = TrigFeatures(segments[0].n_joints)
     plain = None
     if not integral:
-        plain = fit_controller(segments, features=features, theta_input=theta_input,
-                               min_samples=min_samples)
+        plain = _with_terms(segments, features, theta_input, False, min_samples)
         bare = fit_controller(segments, theta_input=theta_input, min_samples=min_samples)
         if _simpler_holds(bare, plain):
             plain = bare
         if plain is None or integral is False:
             return plain
-    law = fit_controller(segments, features=features, theta_input=theta_input,
-                         integral=True, min_samples=min_samples)
+    law = _with_terms(segments, features, theta_input, True, min_samples)
     if law is None or (plain is not None and not _needs_integral(plain, law)):
         return plain
     negligible = np.abs(law.ki) < KI_ZERO * np.abs(law.kp)

@@ -60,7 +60,7 @@ from collections import deque
 from dataclasses import replace
 import math
 import time
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Callable, List, Optional, Tuple
 
 import numpy as np
 
@@ -73,7 +73,9 @@ from .memory import MemoryFeed
 from .online_records import (AUTO_BASIS, ClosedLoop, GenerationStats, LogLine, LoopUpdate,
                              model_update, ModelUpdate, Observation, OnlineSettings, Status,
                              StepResult, StreamCapture)
-from .online_rules import auto_untried, feed_memory, stale_stream, Staleness, trig_holds
+from .online_rules import (auto_untried, EventLog, feed_memory, stale_stream, Staleness,
+                           trig_holds)
+from .rigid_online import RigidPolicy
 from .search_starts import (hand_over_settings, restart_around, rewarm, RewarmSchedule,
                             warm_start, WARM_START_NFEV, WARM_START_S)
 from .trig_loop import YOUNG_DATA_S
@@ -120,6 +122,12 @@ def _fits(model: Optional[RKGNNModel], joints, spec, case: str) -> bool:
     return (model is not None and model.joint_names == tuple(joints)
             and replace(model.spec, case=spec.case) == spec
             and (model.case == spec.case or model.case == case))
+
+
+def _finished(settings: OnlineSettings, searching: bool, generation: int) -> bool:
+    """Return whether a running search has reached ``es.max_generations``."""
+    limit = settings.max_generations
+    return bool(searching and limit and generation >= limit)
 
 
 def _search_structure(settings: OnlineSettings, law: Optional[ControllerLaw], joints,
@@ -175,8 +183,7 @@ class OnlineIdentification:
         self._warm_start_seconds = float(warm_start_seconds)
         self._warm_start_nfev = int(warm_start_nfev)
         self._status = Status()
-        self._events: List[object] = []
-        self._log_times: Dict[str, float] = {}
+        self._out = EventLog(clock, LOG_THROTTLE_S)  # the events of the current step
         # what is published
         self._model = published
         self._published_genome = None if published is None else published.genome.copy()
@@ -204,6 +211,7 @@ class OnlineIdentification:
         self._last_val_generation = -VALIDATION_EVERY
         self._last_stats = -math.inf
         self._staleness = Staleness()
+        self._rigid = RigidPolicy(clock, self._out.append, self._set_status, self._staleness)
         self._memory = MemoryFeed()  # samples that keep the linear fit's regressor rich
         self._had_finite = False
         self._failures = None  # (optimizer, its numerical failures) last seen
@@ -216,9 +224,12 @@ class OnlineIdentification:
     def data_due(self, obs: Observation) -> bool:
         """Return whether the next :meth:`step` with ``obs`` refreshes the data (wants it)."""
         searching = self._searching(obs)
-        if obs.paused or obs.joints is None or self._finished(obs.settings, searching):
+        if (obs.paused or obs.joints is None
+                or _finished(obs.settings, searching, self._generation)):
             return False
         now = self._clock()
+        if obs.structure is not None:   # the rigid body is refitted instead of searched
+            return self._rigid.data_due(obs, now)
         if stale_stream(obs, now) is not None:
             return False
         since = now - self._last_refresh if searching or self._evo is None else math.inf
@@ -230,10 +241,11 @@ class OnlineIdentification:
 
         Before the generation the search is restarted (reset, restarting settings),
         paused (pause, stale streams), built or given new data (refresh due and
-        ``obs.data`` given), and handed new optimizer settings.
+        ``obs.data`` given), and handed new optimizer settings. With a robot description
+        (``obs.structure``) no search runs: :class:`.rigid_online.RigidPolicy` refits.
         """
         ran = self._step(obs)
-        return StepResult(ran, self._take_events())
+        return StepResult(ran, self._out.take())
 
     def report_error(self, error: BaseException, in_a_row: int) -> List[object]:
         """
@@ -245,10 +257,14 @@ class OnlineIdentification:
         if in_a_row >= MAX_CONSECUTIVE_ERRORS:
             self._drop_search(f'{in_a_row} errors in a row')
         self._set_status('error', f'{type(error).__name__}: {error}')
-        return self._take_events()
+        return self._out.take()
 
     def _step(self, obs: Observation) -> bool:
         settings = obs.settings
+        if obs.structure is not None:   # a robot description: its rigid body, no search
+            if self._evo is not None:
+                self._drop_search('the robot description gives the model')
+            return self._rigid.step(obs)
         if obs.reset:
             self._drop_search('~/reset')
             self._start_model = None
@@ -262,14 +278,14 @@ class OnlineIdentification:
         if obs.paused:
             self._set_status('paused', f'paused at generation {self._generation}')
             return False
-        if self._finished(settings, self._evo is not None):
+        if _finished(settings, self._evo is not None, self._generation):
             self._set_status('finished',
                              f'es.max_generations ({settings.max_generations}) reached')
             return False
         if obs.joints is None:
             self._set_status('waiting for data', 'no joint_states yet (joints unknown)')
             return False
-        if not self._staleness.fresh(obs, self._clock(), self._log, self._set_status):
+        if not self._staleness.fresh(obs, self._clock(), self._out.log, self._set_status):
             return False
         since = self._clock() - self._last_refresh
         due = since >= DATA_REFRESH_S or (self._evo is None and since >= WAITING_REFRESH_S)
@@ -281,7 +297,7 @@ class OnlineIdentification:
         line = hand_over_settings(self._evo, self._algorithm, settings, self._generation + 1)
         self._algorithm = settings.optimizer
         if line:
-            self._log('info', line)
+            self._out.log('info', line)
         stats = self._evo.step()
         self._after_generation(settings, stats, obs.joints)
         return True
@@ -291,10 +307,6 @@ class OnlineIdentification:
         return (self._evo is not None and not obs.reset
                 and self._evo_version == obs.settings.version
                 and self._evo_case == obs.settings.case)
-
-    def _finished(self, settings: OnlineSettings, searching: bool) -> bool:
-        limit = settings.max_generations
-        return bool(searching and limit and self._generation >= limit)
 
     def _refresh_data(self, settings: OnlineSettings, capture, joints,
                       estimate_velocity: bool = False) -> bool:
@@ -336,10 +348,10 @@ class OnlineIdentification:
             self._evo.set_data(train)
             if self._rewarm.due(self._evo.spec, seconds, self._clock()):
                 self._rewarm.placed(seconds, self._clock())
-                self._log('info', rewarm(self._evo, train, seconds, _warm_budget(
+                self._out.log('info', rewarm(self._evo, train, seconds, _warm_budget(
                     self._warm_start_seconds, seconds), self._warm_start_nfev))
             if self._had_finite and not math.isfinite(self._evo.optimizer.best_cost):
-                self._log_throttled(
+                self._out.log_throttled(
                     'diverges', 'warning',
                     'the best model diverges on the new data window: the last good model '
                     'stays published until a finite one is found')
@@ -350,7 +362,7 @@ class OnlineIdentification:
     def _feed_memory(self, settings: OnlineSettings, segments, origin: float) -> None:
         warning = feed_memory(self._memory, settings, segments, origin)
         if warning:
-            self._log_throttled('memory', 'warning', warning)
+            self._out.log_throttled('memory', 'warning', warning)
         self._set_status(self._status.state, self._status.detail,
                          condition_number=self._memory.condition_number(),
                          memory_samples=self._memory.size)
@@ -358,12 +370,12 @@ class OnlineIdentification:
     def _reclose(self, line: Optional[Tuple[str, str]], case: str) -> None:
         """Log ``line``; close the published model (``case`` if none yet) for prediction."""
         if line is not None:
-            self._log(*line)
+            self._out.log(*line)
         model = self._model  # None: a global loop may predict before any model
         if model is None or model.case in ('torque',) + _CLOSED_FIT_CASES:
             torque = (case if model is None else model.case) == 'torque'
             self._loop = (self._laws if torque else self._arm3).close(model)
-            self._events.append(LoopUpdate(model, self._loop))
+            self._out.append(LoopUpdate(model, self._loop))
 
     def _update_law(self, segments: List[Dataset], origin: float) -> Optional[ControllerLaw]:
         """
@@ -429,16 +441,16 @@ class OnlineIdentification:
         self._generation = 0
         self._evaluations = 0
         self._had_finite = False
-        self._log('info',
-                  f'search started from {origin}: case {spec.case}, joints {list(joints)}, '
-                  f'{spec.genome_size} genome elements, {algorithm} with population '
-                  f'{self._evo.optimizer.population_size}, {self._evo.substeps} substeps, '
-                  f'{seconds:.1f} s of data')
+        self._out.log('info',
+                      f'search started from {origin}: case {spec.case}, joints {list(joints)}, '
+                      f'{spec.genome_size} genome elements, {algorithm} with population '
+                      f'{self._evo.optimizer.population_size}, {self._evo.substeps} substeps, '
+                      f'{seconds:.1f} s of data')
 
     def _drop_search(self, why: str) -> None:
         if self._evo is not None:
-            self._log('info', f'restarting the search after generation {self._generation}: '
-                              f'{why}')
+            self._out.log('info', f'restarting the search after generation '
+                                  f'{self._generation}: {why}')
         self._evo = None
         self._resume = None
         self._generation = 0
@@ -467,11 +479,11 @@ class OnlineIdentification:
             self._had_finite = True
         failures = (id(optimizer), optimizer.failures)
         if optimizer.failures and failures != self._failures:
-            self._log_throttled('optimizer', 'warning',
-                                f'{self._algorithm} failed numerically '
-                                f'({optimizer.last_failure}): restarted around the best genome '
-                                f'(J {optimizer.best_cost:.4g}; {optimizer.failures} time(s) in '
-                                'this search)')
+            self._out.log_throttled(
+                'optimizer', 'warning',
+                f'{self._algorithm} failed numerically ({optimizer.last_failure}): restarted '
+                f'around the best genome (J {optimizer.best_cost:.4g}; {optimizer.failures} '
+                'time(s) in this search)')
         self._failures = failures
         key = (self._data_version, optimizer.best_x.tobytes())
         if (self._validation and key != self._val_key and math.isfinite(optimizer.best_cost)
@@ -482,7 +494,7 @@ class OnlineIdentification:
         self._maybe_publish_model(settings, joints)
         if now - self._last_stats >= EVOLUTION_MIN_PERIOD:
             self._last_stats = now
-            self._events.append(GenerationStats(
+            self._out.append(GenerationStats(
                 self._generation, stats['best_cost'], stats['mean_cost'], stats['spread'],
                 self._evaluations, self._val_nrmse, stats['population'],
                 self._status.condition_number, self._memory.size))
@@ -510,7 +522,7 @@ class OnlineIdentification:
         model.info['validation_nrmse'] = (self._val_nrmse if math.isfinite(self._val_nrmse)
                                           else math.nan)
         if not math.isfinite(self._val_nrmse) and self._validation:
-            self._log_throttled(
+            self._out.log_throttled(
                 'validation', 'warning',
                 'the new best model diverges on the validation segment; publishing it anyway '
                 '(its training cost is the best)')
@@ -527,21 +539,8 @@ class OnlineIdentification:
         self._model, self._loop = model, loop
         self._published_genome = (closed or model).genome.copy()
         self._last_model_pub = self._clock()
-        self._events.append(model_update(model, loop, gains))
+        self._out.append(model_update(model, loop, gains))
 
     def _set_status(self, state: str, detail: str, **numbers) -> None:
         self._status = self._status._replace(state=state, detail=detail, **numbers)
         self._on_status(self._status)
-
-    def _take_events(self) -> List[object]:
-        events, self._events = self._events, []
-        return events
-
-    def _log(self, level: str, text: str) -> None:
-        self._events.append(LogLine(level, text))
-
-    def _log_throttled(self, key: str, level: str, text: str) -> None:
-        now = self._clock()
-        if now - self._log_times.get(key, -math.inf) >= LOG_THROTTLE_S:
-            self._log_times[key] = now
-            self._log(level, text)

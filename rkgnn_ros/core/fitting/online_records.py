@@ -136,6 +136,8 @@ class Observation(NamedTuple):
     data: Optional[object] = None
     #: θ̇ is to be recomputed from θ (the driver publishes none, or it is not trusted)
     estimate_velocity: bool = False
+    #: the robot description's rigid-body structure for ``joints`` (None: none given)
+    structure: Optional[object] = None
 
 
 class Status(NamedTuple):

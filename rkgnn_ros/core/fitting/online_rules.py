@@ -21,7 +21,8 @@ verdict, and how the excitation memory is fed: kept apart so the policy's class 
 sequence of decisions, not their details.
 """
 
-from typing import Optional, Tuple
+import math
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from .case_one import LawKeeper
 from .case_three import ArmKeeper
 from .global_fit import is_global
 from .memory import MemoryFeed
-from .online_records import AUTO_BASIS, Observation, OnlineSettings
+from .online_records import AUTO_BASIS, LogLine, Observation, OnlineSettings
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 
 __all__ = ['Staleness', 'auto_untried', 'feed_memory', 'stale_stream', 'trig_holds']
@@ -105,3 +106,37 @@ def feed_memory(memory: MemoryFeed, settings: OnlineSettings, segments, origin: 
         memory.reset()
         return f'excitation memory cleared: {exc}'
     return None
+
+
+class EventLog:
+    """
+    The events one policy step gives, log lines among them, taken at the step's end.
+
+    :meth:`log_throttled` lets a repeating line through at most every ``throttle`` s of
+    ``clock`` per key.
+    """
+
+    def __init__(self, clock, throttle: float = 1.0):
+        self._clock, self._throttle = clock, float(throttle)
+        self._events: List[object] = []
+        self._times: Dict[str, float] = {}
+
+    def append(self, event) -> None:
+        """Queue an event."""
+        self._events.append(event)
+
+    def log(self, level: str, text: str) -> None:
+        """Queue a log line ('info', 'warning' or 'error')."""
+        self._events.append(LogLine(level, text))
+
+    def log_throttled(self, key: str, level: str, text: str) -> None:
+        """Queue a log line unless one of ``key`` was queued less than the throttle ago."""
+        now = self._clock()
+        if now - self._times.get(key, -math.inf) >= self._throttle:
+            self._times[key] = now
+            self.log(level, text)
+
+    def take(self) -> List[object]:
+        """Return the queued events and start a new list."""
+        events, self._events = self._events, []
+        return events

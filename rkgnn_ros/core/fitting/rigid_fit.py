@@ -36,6 +36,7 @@ Y π minus the servo's torque over the servo torque's std, per joint). :class:`R
 the arm a fit gives, with the model interface the gate and the feed-forward use.
 """
 
+import dataclasses
 import math
 from typing import NamedTuple, Optional, Sequence
 
@@ -350,11 +351,18 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
     law = _law_of(cols.layout, result.extra, n, kp, kd, features, gravity, fit, fit.n_samples)
     if not (np.all(np.isfinite(law.kp)) and np.all(law.kp > 0.0)):
         return None
-    arm = RigidArm(structure, result.parameters,
+    parameters = result.parameters
+    if kp is None:      # case 3: from units of the mean Kp back to N m (module docstring)
+        parameters = parameters / scale
+        law = dataclasses.replace(
+            law, kp=law.kp / scale, kd=law.kd / scale, ki=law.ki / scale,
+            bias=law.bias / scale, integral_term=law.integral_term / scale,
+            theta_weights=law.theta_weights / scale)
+    arm = RigidArm(structure, parameters,
                    {'case': 'unknown' if kp is None else 'pd_gains',
                     'samples': int(fit.n_samples), 'rms_residual': result.rms_residual,
                     'evaluations': result.evaluations, 'form': law.describe(),
-                    'units_per_newton_metre': scale,
+                    'mean_kp_unit_in_newton_metres': 1.0 / scale,
                     'scale_from': 'robot_description' if kp is None else 'gains'})
     errors = _equation_errors(arm, law, held, gravity)
     arm.info['equation_errors'] = errors.tolist()

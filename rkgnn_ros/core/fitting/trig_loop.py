@@ -52,6 +52,7 @@ from numba import njit
 import numpy as np
 
 from .controller_laws import ControllerLaw, TrigFeatures
+from .law_loop import LawLoop, PASSES
 from .linear import LinearDynamics, Samples, samples_from_datasets
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..control.gate import paired_torques, torque_error
@@ -65,9 +66,6 @@ from ..model.trig_dynamics import regressor
 __all__ = ['INTEGRAL_GAIN', 'INTEGRAL_MIN_ERROR', 'KI_ZERO', 'MAX_SUBSTEPS', 'PASSES',
            'YOUNG_DATA_S', 'TrigLoop', 'closed_loop_error', 'data_span',
            'fit_closed_trig_loop', 'fit_trig_loop', 'precompile_trig_loop', 'trig_torque_error']
-
-#: Rollouts of :meth:`TrigLoop.simulate` when the law has an integral or θ-terms on θ.
-PASSES = 3
 
 #: Most RKG steps per sampling interval (a stiffer loop is rolled out with this many).
 MAX_SUBSTEPS = 64
@@ -242,7 +240,7 @@ def _law_terms(law: ControllerLaw, n: int):
     return codes, np.ascontiguousarray(law.theta_weights, dtype=float)
 
 
-class TrigLoop:
+class TrigLoop(LawLoop):
     """
     A fitted :class:`LinearDynamics` arm closed with a :class:`ControllerLaw`.
 
@@ -297,15 +295,6 @@ class TrigLoop:
         """Return the number of joints n."""
         return self.arm.n_joints
 
-    def with_law(self, law: ControllerLaw) -> 'TrigLoop':
-        """Return this loop with ``law`` (the same gains; e.g. its integral term moved on)."""
-        if not (np.array_equal(law.kp, self.law.kp) and np.array_equal(law.kd, self.law.kd)):
-            raise ValueError('with_law keeps the gains: fit a new loop for other gains')
-        out = copy.copy(self)
-        out.law = law
-        out._set_law_terms()
-        return out
-
     def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
         n = self.n_joints
         dt = float(t[-1] - t[0]) / (t.size - 1)
@@ -341,44 +330,6 @@ class TrigLoop:
                     else min(MAX_SUBSTEPS, choose_substeps(dt, stiffness, safety=SAFETY)))
         self._substeps_cache = (theta.copy(), dt, substeps)
         return substeps
-
-    def simulate(self, x0, t, theta_d, theta_d_dot, integral_term=None,
-                 passes: int = PASSES) -> np.ndarray:
-        """
-        Roll the closed loop out from ``x0`` (2n,) over the uniform times ``t`` (K,).
-
-        ``theta_d``, ``theta_d_dot`` (K, n) are the commands at ``t``; ``integral_term``
-        (n,) the law's integral term at the start (default the law's). Returns the states
-        (K, 2n), NaN from a divergence on.
-        """
-        law = self.law
-        t = np.asarray(t, dtype=float)
-        theta_d = np.asarray(theta_d, dtype=float)
-        theta_d_dot = np.asarray(theta_d_dot, dtype=float)
-        n = theta_d.shape[1]
-        start = law.integral_term if integral_term is None else np.asarray(integral_term)
-        integral = np.broadcast_to(start, theta_d.shape)
-        # θ-terms on the measured θ: in the kernel; on another basis, along the last pass
-        on_theta = (law.theta_input == 'measured' and law.theta_weights.size > 0
-                    and not self._terms_compiled)
-        integrating = bool(np.any(law.ki != 0.0))
-        passes = max(1, int(passes)) if (on_theta or integrating) else 1
-        along = theta_d
-        states = None
-        for _ in range(passes):
-            shifted = theta_d + law.shift(theta_d, theta_d_dot, integral)
-            if on_theta:
-                shifted = shifted + law._theta_terms(along, None) / law.kp
-            states = self._once(x0, t, shifted, theta_d_dot)
-            if not np.all(np.isfinite(states)):
-                break
-            along = states[:, :n]
-            if integrating:
-                e = theta_d - along
-                grown = np.zeros_like(e)
-                grown[1:] = np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(t)[:, None], axis=0)
-                integral = start + law.ki * grown
-        return states
 
 
 def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],

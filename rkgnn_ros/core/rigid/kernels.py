@@ -43,8 +43,9 @@ from typing import NamedTuple
 from numba import njit
 import numpy as np
 
-__all__ = ['N_INERTIAL', 'N_JOINT', 'Tree', 'accelerations', 'bias_forces', 'gravity_regressor',
-           'inverse_dynamics', 'mass_matrix', 'regressor', 'regressor_rows']
+__all__ = ['N_INERTIAL', 'N_JOINT', 'Tree', 'accelerations', 'bias_forces', 'cholesky_solve',
+           'gravity_pass', 'gravity_regressor', 'inverse_dynamics', 'mass_matrix', 'regressor',
+           'regressor_rows']
 
 #: Inertial parameters per body.
 N_INERTIAL = 10
@@ -396,6 +397,7 @@ def _crba(parent, col, rot, pos, axis, pi, comp, fn, ff, tmp, mass):
     """Write M(θ) (joint terms' armature included) into ``mass``; ``rot`` at θ already."""
     nb = parent.shape[0]
     nj = mass.shape[0]
+    mass[:, :] = 0.0
     for k in range(comp.shape[0]):
         comp[k] = pi[k]
     for i in range(nb - 1, -1, -1):
@@ -498,3 +500,35 @@ def accelerations(parent, col, trot, pos, axis, gravity, vc, pi, q, qd, tau):
         if not cholesky_solve(mass, out[k]):
             out[k, :] = np.nan
     return out
+
+
+@njit(cache=True, nogil=True)
+def gravity_pass(parent, col, rot, pos, axis, gravity, pi, al, fn, ff, tmp, tau):
+    """
+    Write G(θ) of parameters ``pi`` (inertial part) into ``tau``; ``rot`` at θ already.
+
+    A Newton-Euler pass at rest: each body accelerates at −g in its frame, so its wrench is
+    (h × a, m a).
+    """
+    nb = parent.shape[0]
+    for i in range(nb):
+        p = parent[i]
+        r = rot[i]
+        for k in range(3):
+            tmp[0, k] = al[p, k] if p >= 0 else -gravity[k]
+        for k in range(3):
+            al[i, k] = r[0, k] * tmp[0, 0] + r[1, k] * tmp[0, 1] + r[2, k] * tmp[0, 2]
+        o = N_INERTIAL * i
+        m = pi[o]
+        tmp[1, 0], tmp[1, 1], tmp[1, 2] = pi[o + 1], pi[o + 2], pi[o + 3]
+        _cross(tmp[1], al[i], fn[i])
+        for k in range(3):
+            ff[i, k] = m * al[i, k]
+    for i in range(nb - 1, -1, -1):
+        tau[col[i]] = axis[i, 0] * fn[i, 0] + axis[i, 1] * fn[i, 1] + axis[i, 2] * fn[i, 2]
+        p = parent[i]
+        if p >= 0:
+            _to_parent(rot[i], pos[i], fn[i], ff[i], tmp)
+            for k in range(3):
+                fn[p, k] += fn[i, k]
+                ff[p, k] += ff[i, k]

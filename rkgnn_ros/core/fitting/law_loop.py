@@ -1,0 +1,103 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+A global arm model closed with a fitted servo law: what every such loop shares.
+
+A loop rolls the arm out under the law τ = Kp (θd − θ) + Kd (θ̇d − θ̇) + ... from one
+state over a plan. The law's command-only terms (constant, integral held, θ-terms on θd,
+velocity feed-forward) fold into a shifted θd (:meth:`ControllerLaw.shift`); its θ-terms
+on the measured θ are evaluated in the loop's compiled rollout when the loop knows their
+basis (``_terms_compiled``), else along the previous pass; an integral term grows along
+the previous pass (Picard iteration, :data:`PASSES` rollouts). A subclass gives
+``_once(x0, t, θd', θ̇d)`` (one compiled rollout of the PD loop with the compiled θ-terms)
+and ``_set_law_terms()`` (what of the law its kernel takes).
+"""
+
+import copy
+
+import numpy as np
+
+from .controller_laws import ControllerLaw
+
+__all__ = ['LawLoop', 'PASSES']
+
+#: Rollouts of :meth:`LawLoop.simulate` when the law has an integral or θ-terms on θ that
+#: the kernel does not evaluate.
+PASSES = 3
+
+
+class LawLoop:
+    """Base of an arm closed with a :class:`ControllerLaw` (module docstring)."""
+
+    law: ControllerLaw
+    _terms_compiled: bool = False
+
+    def _set_law_terms(self) -> None:
+        raise NotImplementedError
+
+    def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
+        raise NotImplementedError
+
+    @property
+    def n_joints(self) -> int:
+        """Return the number of joints n."""
+        return self.law.n_joints
+
+    def with_law(self, law: ControllerLaw) -> 'LawLoop':
+        """Return this loop with ``law`` (the same gains; e.g. its integral term moved on)."""
+        if not (np.array_equal(law.kp, self.law.kp) and np.array_equal(law.kd, self.law.kd)):
+            raise ValueError('with_law keeps the gains: fit a new loop for other gains')
+        out = copy.copy(self)
+        out.law = law
+        out._set_law_terms()
+        return out
+
+    def simulate(self, x0, t, theta_d, theta_d_dot, integral_term=None,
+                 passes: int = PASSES) -> np.ndarray:
+        """
+        Roll the closed loop out from ``x0`` (2n,) over the uniform times ``t`` (K,).
+
+        ``theta_d``, ``theta_d_dot`` (K, n) are the commands at ``t``; ``integral_term``
+        (n,) the law's integral term at the start (default the law's). Returns the states
+        (K, 2n), NaN from a divergence on.
+        """
+        law = self.law
+        t = np.asarray(t, dtype=float)
+        theta_d = np.asarray(theta_d, dtype=float)
+        theta_d_dot = np.asarray(theta_d_dot, dtype=float)
+        n = theta_d.shape[1]
+        start = law.integral_term if integral_term is None else np.asarray(integral_term)
+        integral = np.broadcast_to(start, theta_d.shape)
+        # θ-terms on the measured θ: in the kernel; on another basis, along the last pass
+        on_theta = (law.theta_input == 'measured' and law.theta_weights.size > 0
+                    and not self._terms_compiled)
+        integrating = bool(np.any(law.ki != 0.0))
+        passes = max(1, int(passes)) if (on_theta or integrating) else 1
+        along = theta_d
+        states = None
+        for _ in range(passes):
+            shifted = theta_d + law.shift(theta_d, theta_d_dot, integral)
+            if on_theta:
+                shifted = shifted + law._theta_terms(along, None) / law.kp
+            states = self._once(x0, t, shifted, theta_d_dot)
+            if not np.all(np.isfinite(states)):
+                break
+            along = states[:, :n]
+            if integrating:
+                e = theta_d - along
+                grown = np.zeros_like(e)
+                grown[1:] = np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(t)[:, None], axis=0)
+                integral = start + law.ki * grown
+        return states
