@@ -94,6 +94,7 @@ from rclpy.node import Node
 from rkgnn_ros.core.fitting.identify import precompile
 from rkgnn_ros.core.fitting.online import model_update, OnlineIdentification
 from rkgnn_ros.identification.clock import NodeSeconds, watch_clock_jumps
+from rkgnn_ros.identification.description import description_text, RobotDescription
 from rkgnn_ros.identification.feedforward import FeedforwardSender
 from rkgnn_ros.identification.ingest import Ingestion
 from rkgnn_ros.identification.model_file import load_at_start, save_model_file
@@ -101,7 +102,8 @@ from rkgnn_ros.identification.parameters import ConfigurationError, IdentifierPa
 from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import (create_publishers, EVOLUTION_LABELS, Outbox,
                                                  Publishing, SCORE_LABELS)
-from rkgnn_ros.identification.subscriptions import quiet_events, subscribe_streams
+from rkgnn_ros.identification.subscriptions import (quiet_events, subscribe_description,
+                                                    subscribe_streams)
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change
 from rkgnn_ros.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
@@ -150,12 +152,15 @@ class IdentifierNode(Node):
         self._predictor = Predictor(self._ingestion, self._from_predictor,
                                     lambda: self._params.config)
         model = load_at_start(config, self._ingestion, self._outbox.log)
+        self._description = RobotDescription(self._outbox.log)
+        self._configure_description()
         self._worker = SearchWorker(self._ingestion, self._predictor, self._outbox,
                                     alive=self.context.ok, published=model,
-                                    policy=partial(OnlineIdentification, clock=clock))
+                                    policy=partial(OnlineIdentification, clock=clock),
+                                    description=self._description)
         self._publishing = Publishing(self, self._outbox, publishers, self._params,
                                       self._predictor, self._ingestion,
-                                      lambda: self._worker.status)
+                                      lambda: self._worker.status, self._description)
         self._outbox.connect(self.create_guard_condition(self._publishing.drain).trigger)
         # the case in effect (``case: auto`` follows the streams) decides the feed-forward
         self._feedforward = FeedforwardSender(self, self._ingestion,
@@ -167,6 +172,7 @@ class IdentifierNode(Node):
         # the two 1 kHz-capable streams are taken by the ingest thread, the plan here
         state_sub, command_sub = subscribe_streams(self, self._ingestion, self._on_reference,
                                                    config['controller_state'])
+        subscribe_description(self, self._on_description)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_model', self._on_save_model)
         self.create_service(SetBool, '~/pause', self._on_pause)
@@ -215,8 +221,23 @@ class IdentifierNode(Node):
                                    + (f' ({"; ".join(notes)})' if notes else ''))
             if 'prediction.rate' in changed:
                 self._make_prediction_timer()
+            self._configure_description()
         except Exception:  # noqa: B902 - a callback must never raise
             self._ingestion.internal_error('parameters')
+
+    def _configure_description(self) -> None:
+        config = self._params.config
+        self._description.configure(config['robot_description'], config['urdf.locked_joints'],
+                                    config['urdf.locked_positions'], config['gravity'])
+
+    def _on_description(self, raw: bytes) -> None:
+        try:
+            self._description.take_message(description_text(raw))
+        except ValueError as problem:
+            self._ingestion.reject('robot_description', 'robot_description', 'over_budget'
+                                   if 'bytes' in str(problem) else 'malformed', str(problem))
+        except Exception:  # noqa: B902 - a callback must never raise
+            self._ingestion.internal_error('robot_description')
 
     def _make_prediction_timer(self) -> None:
         if self._prediction_timer is not None:

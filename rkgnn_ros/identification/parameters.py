@@ -41,6 +41,7 @@ from rkgnn_ros.core.fitting.identify import normalize_case
 from rkgnn_ros.core.fitting.online import AUTO_BASIS, OnlineSettings
 from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
 from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
+from rkgnn_ros.identification.description import MAX_DESCRIPTION_BYTES
 from rkgnn_ros.identification.ros2_control import declare_controller_gains
 from rkgnn_ros.parameters import Change, ParameterSpec
 
@@ -232,6 +233,22 @@ PARAMETERS = (
                   'atomically on ~/save_model and at shutdown; empty: no file. Only a regular '
                   'file (or a new path) is read or written: a directory, a device or a FIFO '
                   'is refused with the reason.', max_bytes=MAX_PATH_BYTES),
+    ParameterSpec('robot_description', '',
+                  "The arm's URDF (its XML, a file path, or example-robot-data:<path under "
+                  'robots/>); empty: the newest message on the robot_description topic. With '
+                  'one, the rigid body of its kinematics is identified in every case (no '
+                  'search runs); without, the network is searched. ' + _RESTARTS,
+                  max_bytes=MAX_DESCRIPTION_BYTES),
+    ParameterSpec('urdf.locked_joints', (),
+                  'Movable URDF joints not identified, held at urdf.locked_positions (any '
+                  'other one at 0 clipped into its limits).', ptype=_T.STRING_ARRAY,
+                  max_items=MAX_JOINTS, max_bytes=MAX_NAME_BYTES, change=_RESTART),
+    ParameterSpec('urdf.locked_positions', (),
+                  'One position (rad) per urdf.locked_joints.', ptype=_T.DOUBLE_ARRAY,
+                  max_items=MAX_JOINTS, change=_RESTART),
+    ParameterSpec('gravity', 9.81,
+                  'Gravitational acceleration (m/s^2) along -z of the root link of the robot '
+                  'description.', 0.0, 100.0, change=_RESTART),
     ParameterSpec('controller_state', '',
                   "A joint_trajectory_controller's controller_state topic: its reference "
                   '(θd, θ̇d) joins the command stream (needs control_msgs); empty: none.',
@@ -400,6 +417,10 @@ def check_parameters(values: Mapping, changed: Sequence[str], at_start: bool = F
                     f'{len(kp)} and {len(kd)} values')
         if joints and len(kp) != len(joints):
             return f'kp and kd have {len(kp)} values for {len(joints)} joints'
+    if len(values['urdf.locked_joints']) != len(values['urdf.locked_positions']):
+        return (f"urdf.locked_positions has {len(values['urdf.locked_positions'])} values for "
+                f"the {len(values['urdf.locked_joints'])} urdf.locked_joints; give one per "
+                'joint')
     clip = values['feedforward.max_effort']
     if any(v <= 0.0 for v in clip) or (joints and len(clip) not in (0, 1, len(joints))):
         return (f'feedforward.max_effort must hold one value > 0 per joint, one for all or '

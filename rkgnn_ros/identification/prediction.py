@@ -277,6 +277,10 @@ class Predictor:
         """Run the compiled rollout once in the calling thread, so predictions never compile."""
         if self._ready.is_set():
             return
+        if hasattr(model, 'warm_up'):      # a rigid-body model compiles its own rollout
+            model.warm_up()
+            self._ready.set()
+            return
         n = model.n_joints
         t = np.arange(3) * model.dt
         zeros = np.zeros((t.size, n))

@@ -149,8 +149,9 @@ class Publishing:
     """
 
     def __init__(self, node, outbox: Outbox, publishers: dict, parameters, predictor,
-                 ingestion, status: Callable[[], Status]):
+                 ingestion, status: Callable[[], Status], description=None):
         self._node = node
+        self._description = description   # its status joins /diagnostics
         self._outbox = outbox
         self._publishers = publishers
         self._parameters = parameters
@@ -255,6 +256,8 @@ class Publishing:
             ('prediction_inputs', self._predictor.inputs),
         ]
         pairs += list(ingestion.sources.describe().items())
+        if self._description is not None:
+            pairs.append(('robot_description', self._description.status))
         pairs += _selfcheck_pairs(self._predictor.report)
         pairs += [
             ('prediction_latency_p50_ms', _percentile_text(latencies, 50)),

@@ -38,9 +38,11 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rkgnn_ros.identification.ingest import PolledGroup
 from rkgnn_ros.identification.ros2_control import subscribe_controller_state
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
-__all__ = ['quiet_events', 'subscribe_streams', 'STREAM_QOS', 'REFERENCE_QOS']
+__all__ = ['DESCRIPTION_QOS', 'quiet_events', 'subscribe_description', 'subscribe_streams',
+           'STREAM_QOS', 'REFERENCE_QOS']
 
 STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                         reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -48,6 +50,10 @@ STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
 REFERENCE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                            reliability=ReliabilityPolicy.BEST_EFFORT,
                            durability=DurabilityPolicy.VOLATILE)
+#: robot_state_publisher's: a late subscriber gets the last description at once
+DESCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def quiet_events() -> Tuple[PublisherEventCallbacks, SubscriptionEventCallbacks]:
@@ -76,3 +82,10 @@ def subscribe_streams(node, ingestion, on_reference: Callable[[bytes], None],
                              REFERENCE_QOS, event_callbacks=events, raw=True)
     subscribe_controller_state(node, controller_state, ingestion, STREAM_QOS)
     return state_sub, command_sub
+
+
+def subscribe_description(node, on_description: Callable[[bytes], None]) -> object:
+    """Subscribe to ``robot_description`` (raw std_msgs/String, taken in the executor)."""
+    _, events = quiet_events()
+    return node.create_subscription(String, 'robot_description', on_description,
+                                    DESCRIPTION_QOS, event_callbacks=events, raw=True)

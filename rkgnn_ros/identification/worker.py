@@ -70,16 +70,19 @@ class SearchWorker:
     policy : callable
         Builds the policy from ``published`` and ``on_status`` (default
         :class:`OnlineIdentification`; tests pass their own).
+    description : RobotDescription, optional
+        Gives the structure of the joints (:mod:`.description`) for each observation.
 
     """
 
     def __init__(self, ingestion, predictor, outbox, alive: Callable[[], bool] = lambda: True,
-                 published=None, policy: Callable = OnlineIdentification):
+                 published=None, policy: Callable = OnlineIdentification, description=None):
         self._ingestion = ingestion
         self._predictor = predictor
         self._outbox = outbox
         self._alive = alive
         self._published = published
+        self._description = description
         self._lock = threading.Lock()
         self._paused = False
         self._reset = False
@@ -158,8 +161,10 @@ class SearchWorker:
         with self._lock:
             reset, self._reset = self._reset, False
             paused = self._paused
+        structure = None if self._description is None else self._description.structure(joints)
         obs = Observation(config.settings, joints, received, paused, reset,
-                          estimate_velocity=self._ingestion.velocity_estimated)
+                          estimate_velocity=self._ingestion.velocity_estimated,
+                          structure=structure)
         capture = None
         if buffer is not None and self._policy.data_due(obs):
             capture = buffer.capture()

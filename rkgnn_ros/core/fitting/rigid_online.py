@@ -131,7 +131,8 @@ class RigidKeeper:
         self.refits += 1
         error = fit.error
         model = RigidModel(fit.arm, law, case, segments[-1].dt,
-                           {'refits': self.refits, 'held_out_error': error,
+                           {'refits': self.refits, 'generation': self.refits,
+                            'held_out_error': error,
                             'held_out_errors': fit.errors.tolist(),
                             'window_s': float(sum(seg.duration for seg in segments))})
         loop = None

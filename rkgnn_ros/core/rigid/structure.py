@@ -75,6 +75,44 @@ def to_pinocchio_order(parameters) -> np.ndarray:
     return out
 
 
+def _check_inertials(urdf: str, source: str) -> None:
+    """
+    Refuse a URDF whose masses or inertias are not finite numbers, or whose mass is < 0.
+
+    urdfdom drops an ``<inertial>`` it cannot read (a link with mass "nan" becomes massless,
+    with a line on stderr only), so the values are read here first.
+    """
+    import xml.etree.ElementTree as ElementTree
+    try:
+        root = ElementTree.fromstring(urdf)
+    except ElementTree.ParseError as error:
+        raise DescriptionError(f'{source}: not valid XML ({error})') from None
+    for link in root.iter('link'):
+        inertial = link.find('inertial')
+        if inertial is None:
+            continue
+        name = link.get('name')
+        values = []
+        mass = inertial.find('mass')
+        if mass is not None:
+            values.append(('mass', mass.get('value')))
+        inertia = inertial.find('inertia')
+        if inertia is not None:
+            keys = ('ixx', 'ixy', 'ixz', 'iyy', 'iyz', 'izz')
+            values += [(key, inertia.get(key)) for key in keys]
+        for key, text in values:
+            try:
+                value = float(text)
+            except (TypeError, ValueError):
+                value = math.nan
+            if not math.isfinite(value):
+                raise DescriptionError(f'{source}: link {name!r} has {key} {text!r}, not a '
+                                       'finite number')
+            if key == 'mass' and value < 0.0:
+                raise DescriptionError(f'{source}: link {name!r} has a negative mass '
+                                       f'({value:g} kg)')
+
+
 class RigidStructure:
     """
     The kinematic tree of an arm's moving joints and the prior its URDF gives.
@@ -107,6 +145,7 @@ class RigidStructure:
         gravity = float(gravity)
         if not (math.isfinite(gravity) and gravity >= 0.0):
             raise DescriptionError(f'gravity must be finite and >= 0, got {gravity}')
+        _check_inertials(urdf, source)
         try:
             model = pinocchio.buildModelFromXML(urdf)
         except Exception as error:  # noqa: B902 - Pinocchio raises several types
@@ -147,6 +186,9 @@ class RigidStructure:
             if not np.all(np.isfinite(inertial)):
                 raise DescriptionError(f'{source}: the inertia moved by joint '
                                        f'{model.names[i]!r} is not finite')
+            if inertial[0] < 0.0:
+                raise DescriptionError(f'{source}: the mass moved by joint '
+                                       f'{model.names[i]!r} is negative ({inertial[0]:g} kg)')
             prior[N_INERTIAL * b:N_INERTIAL * (b + 1)] = inertial
         joint_prior = prior[N_INERTIAL * nb:].reshape(nb, N_JOINT)
         for name, values in (('armature', 0), ('damping', 1), ('friction', 2)):
