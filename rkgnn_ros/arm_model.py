@@ -60,6 +60,9 @@ URDF_PARAMETERS = (
     _Spec('urdf.home', [], 'URDF arm: the pose the references swing about (rad), one per '
           "moving joint; empty: the middle of each joint's limits.",
           ptype=Parameter.Type.DOUBLE_ARRAY),
+    _Spec('urdf.armature', [], 'URDF arm: rotor inertia of the drive of each joint (kg m^2, '
+          'the rotor times the gear ratio squared), one per moving joint or one for all; '
+          'empty: none.', ptype=Parameter.Type.DOUBLE_ARRAY, constraints='each >= 0'),
 )
 
 
@@ -100,6 +103,15 @@ def build_urdf_arm(values: dict, error=ValueError) -> Optional[UrdfChoice]:
     except UrdfError as problem:
         raise error(str(problem)) from None
     n = arm.n_joints
+    armature = np.asarray(values.get('urdf.armature', []), dtype=float)
+    if armature.size:
+        if armature.size not in (1, n):
+            raise error(f'urdf.armature has {armature.size} values for the {n} moving joints '
+                        f'{list(arm.joint_names)}: give one per joint or one for all')
+        try:
+            arm.set_armature(armature if armature.size == n else float(armature[0]))
+        except ValueError as problem:
+            raise error(f'urdf.armature: {problem}') from None
     home = np.asarray(values['urdf.home'], dtype=float)
     if home.size == 0:
         home = arm.home

@@ -198,6 +198,8 @@ class SimArm(Node):
         self._rate = config.publish_rate
         self._sensors = config.sensors.stream(1.0 / self._rate,
                                               np.random.default_rng(config.seed))
+        # the driver's own faults (stamp jitter, dropped messages) draw from their own stream
+        self._driver_rng = np.random.default_rng([config.seed, 1])
         self._ref_every = max(1, int(math.floor(config.publish_rate / config.reference_rate
                                                 + 1e-9)))
         steps = int(math.ceil(config.reference_horizon / config.reference_dt - 1e-9))
@@ -208,7 +210,7 @@ class SimArm(Node):
         self._next_ref_index = 0
         #: per-reason counters of timing events
         self.counters = {'skips': 0, 'skipped_seconds': 0.0, 'clock_jumps_back': 0,
-                         'samples': 0, 'references': 0}
+                         'samples': 0, 'references': 0, 'dropped': 0}
         self.exit_code = 0
         #: completes (with the exit code) when ``duration`` is reached or the simulation fails
         self.finished = Future()
@@ -432,14 +434,25 @@ class SimArm(Node):
         stamp = Time(nanoseconds=self._stamp_ns(index)).to_msg()
         theta, theta_dot, tau, theta_d, theta_d_dot = self.sim.sample()
         theta, theta_dot, tau = self._sensors.measure(theta, theta_dot, tau)
-        state = make_joint_state(stamp, self._names, theta, theta_dot, tau)
-        if self.config.sensors.velocity == 'none':
+        config = self.config
+        jitter = (self._driver_rng.uniform(-config.stamp_jitter, config.stamp_jitter)
+                  if config.stamp_jitter > 0.0 else 0.0)
+        dropped = (config.drop_fraction > 0.0
+                   and self._driver_rng.random() < config.drop_fraction)
+        state = make_joint_state(
+            Time(nanoseconds=self._stamp_ns(index) + int(round(jitter * _NANO))).to_msg()
+            if jitter else stamp, self._names, theta, theta_dot, tau)
+        if config.sensors.velocity == 'none':
             state.velocity = []                # as a driver without velocity publishes it
-        if not self.config.sensors.effort:
+        if not config.sensors.effort:
             state.effort = []
-        self._state_pub.publish(state)
-        self._command_pub.publish(
-            make_joint_state(stamp, self._names, theta_d, theta_d_dot, None))
+        if dropped:
+            self.counters['dropped'] += 1
+        else:
+            self._state_pub.publish(state)
+        if config.publish_commands:
+            self._command_pub.publish(
+                make_joint_state(stamp, self._names, theta_d, theta_d_dot, None))
         self.counters['samples'] += 1
         if index >= self._next_ref_index:
             self._next_ref_index = index + self._ref_every

@@ -144,6 +144,14 @@ PARAMETERS = (
     _Spec('sensors.effort', True,
           'Publish the applied torque as effort; false: an empty effort field (a driver '
           'without torque sensing).'),
+    _Spec('sensors.stamp_jitter', 0.0,
+          'Error of the joint_states stamps (s): each is off the sampling instant by a '
+          'uniform draw in [-jitter, +jitter], at most a quarter period.', 0.0, 0.1),
+    _Spec('sensors.drop_fraction', 0.0,
+          'Share of joint_states messages not published (drawn per message).', 0.0, 0.5),
+    _Spec('sensors.commands', True,
+          'Publish joint_commands (θd, θ̇d); false: as a real driver, only the plan on '
+          'reference_trajectory.'),
     _Spec('seed', 0, 'Seed of the measurement noise generator.', 0, _MAX_INT),
     _Spec('publish_rate', 100.0, 'Rate of joint_states and joint_commands (Hz).',
           1.0, 10000.0),
@@ -201,6 +209,9 @@ class SimConfig(NamedTuple):
     reference_dt: float
     reference_rate: float
     duration: float
+    stamp_jitter: float = 0.0        # s, uniform error of the joint_states stamps
+    drop_fraction: float = 0.0       # share of joint_states not published
+    publish_commands: bool = True    # joint_commands published
 
 
 def _joint_vector(values: dict, name: str, n: int, *, positive: bool,
@@ -371,7 +382,11 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
         integration_step=float(h), stable_step=float(limit),
         max_speed=float(values['max_speed']), reference_horizon=float(horizon),
         reference_dt=float(reference_dt), reference_rate=float(values['reference_rate']),
-        duration=float(values['duration']))
+        duration=float(values['duration']),
+        stamp_jitter=min(float(values['sensors.stamp_jitter']),
+                         0.25 / float(values['publish_rate'])),
+        drop_fraction=float(values['sensors.drop_fraction']),
+        publish_commands=bool(values['sensors.commands']))
     return config, [warning for warning in warnings if warning]
 
 

@@ -233,7 +233,10 @@ class Predictor:
         """
         slot = _Slot(model, loop)
         with self._slots_lock:
-            if self._model is None or self._model.model is None:
+            in_use = self._model
+            if (in_use is None or in_use.model is None
+                    or (in_use.loop is None and in_use.model.case == 'torque')):
+                # nothing predicts yet (a case-1 model predicts only closed with a law)
                 self._model = slot
             else:
                 self._pending = slot

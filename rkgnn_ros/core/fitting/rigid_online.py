@@ -54,7 +54,7 @@ __all__ = ['FORMS_EVERY_S', 'MAX_ERROR', 'MIN_DATA_S', 'REFRESH_S', 'RigidKeeper
            'RigidUpdate', 'refresh_events']
 
 #: A fit predicts while its held-out error (worst joint) is at most this.
-MAX_ERROR = 0.2
+MAX_ERROR = 0.5
 
 #: Seconds of data (gaps left out) before the first fit.
 MIN_DATA_S = 2.0

@@ -50,7 +50,7 @@ PRIOR_WEIGHT = 1e-6
 LENGTH_SCALE = 0.1
 
 #: Scale (in their own units) of the joint parameters' pull towards their prior.
-JOINT_SCALE = np.array([0.1, 1.0, 1.0, 1.0])
+JOINT_SCALE = np.array([10.0, 100.0, 100.0, 100.0])
 
 
 class ConsistentFit(NamedTuple):

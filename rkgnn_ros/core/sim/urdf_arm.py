@@ -374,6 +374,15 @@ class UrdfArm(ClosedLoopAnalysis):
         self.viscous = _friction('viscous', viscous, n)
         self.coulomb = _friction('coulomb', coulomb, n)
 
+    def set_armature(self, armature=None) -> None:
+        """
+        Set each joint's rotor (armature) inertia (kg m²): n values or a scalar, >= 0.
+
+        A geared motor adds its rotor's inertia times the gear ratio squared to the joint's
+        own (M's diagonal); URDFs do not carry it. Pinocchio's CRBA and ABA include it.
+        """
+        self.model.armature = _friction('armature', armature, self.n_joints)
+
     # -- description ----------------------------------------------------------------------
 
     @property
