@@ -96,6 +96,7 @@ from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
+from rkgnn_ros.core.stamps import StampGrid
 from rkgnn_ros.sample_series import SampleSeries
 from rkgnn_ros.stream_capture import Capture, covered_by, PlannedReference, Snapshot
 
@@ -269,6 +270,8 @@ class StreamBuffer:
         self._reference = None
         # per stream: the outliers in a row that follow each other, (absolute stamp, row)
         self._outliers = {stream: [] for stream in self._series}
+        # a steady driver's jittered stamps back on its grid (core/stamps.py)
+        self._grids = {stream: StampGrid() for stream in self._series}
 
     # ------------------------------------------------------------------ adding samples
 
@@ -337,6 +340,7 @@ class StreamBuffer:
             return self._insert_locked(stream, t, row)
 
     def _insert_locked(self, stream: str, t_abs: float, row: np.ndarray) -> AddResult:
+        t_abs = self._grids[stream](t_abs)
         series = self._series[stream]
         if self._origin is None:
             self._origin = float(t_abs)
@@ -405,6 +409,8 @@ class StreamBuffer:
             series.clear()
         for run in self._outliers.values():
             run.clear()
+        for grid in self._grids.values():
+            grid.reset()
         self._reference = None
         self._origin = None
         self._settled = -math.inf
