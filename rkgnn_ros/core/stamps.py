@@ -16,22 +16,23 @@
 A steady driver's stamps, put back on its sampling grid.
 
 A driver that samples at a fixed rate but stamps each message a little late or early (at
-its publish time, under a loaded scheduler) puts every sample at the wrong time: at 1 ms
-of jitter and 1 rad/s that is 1e-3 rad, ten times a good encoder's noise, and it reaches
-θ̈ as differentiated noise. :class:`StampGrid` follows the grid the stamps scatter about
-with a phase-locked loop: the next grid point is a whole number of periods after the
-previous output (dropped messages keep their slots, up to :data:`MAX_STEPS` periods); a
-stamp within :data:`TOLERANCE` of a period from it is moved onto it, the grid's phase following by :data:`FOLLOW` of the
-difference and its period by :data:`FOLLOW`² / 4 of it per period (a critically damped
-second-order loop: a clock that drifts is followed without a lasting offset; the jitter is
-reduced about √(FOLLOW / 2), seven to ten times). It starts as a least-squares line through the
-stamps (larger gains that fall to these), so its first period estimate leaves no offset. It acts only on a
-regular stream whose stamps jitter: until :data:`MIN_INTERVALS` intervals are seen, while
-their spread (median absolute deviation) exceeds :data:`REGULAR` of the period, or while
-consecutive intervals are not anticorrelated (lag-1 correlation above
-:data:`ANTICORRELATION` to start, :data:`RELEASE` to stop: irregular sampling stamped
-truly gives independent intervals), every stamp is returned as it came; so is one off the grid (a pause, a restart), which starts the grid anew. A
-stream stamped exactly on a grid comes out unchanged (to rounding).
+its publish time, under a loaded scheduler) puts every sample at the wrong time: at 1 ms of
+jitter and 1 rad/s that is 1e-3 rad, ten times a good encoder's noise, and it reaches θ̈ as
+differentiated noise. :class:`StampGrid` follows the grid the stamps scatter about with a
+phase-locked loop: the next grid point is a whole number of periods after the previous
+output (dropped messages keep their slots, up to :data:`MAX_STEPS` periods); a stamp within
+:data:`TOLERANCE` of a period from it is moved onto it, the grid's phase following by
+:data:`FOLLOW` of the difference and its period by :data:`FOLLOW`² / 4 of it per period (a
+critically damped second-order loop: a clock that drifts is followed without a lasting
+offset; the jitter is reduced about √(FOLLOW / 2), seven to ten times). It starts as a
+least-squares line through the stamps (larger gains that fall to these), so its first
+period estimate leaves no offset. It acts only on a regular stream whose stamps jitter:
+until :data:`MIN_INTERVALS` intervals are seen, while their spread (median absolute
+deviation) exceeds :data:`REGULAR` of the period, or while consecutive intervals are not
+anticorrelated (lag-1 correlation above :data:`ANTICORRELATION` to start, :data:`RELEASE`
+to stop: irregular sampling stamped truly gives independent intervals), every stamp is
+returned as it came; so is one off the grid (a pause, a restart), which starts the grid
+anew. A stream stamped exactly on a grid comes out unchanged (to rounding).
 """
 
 from collections import deque
