@@ -51,6 +51,8 @@ REGULAR = 0.2
 MIN_INTERVALS = 200
 #: Most periods between two stamps that still count as drops (beyond: a pause, anew).
 MAX_STEPS = 20
+#: Intervals between two judgements of the stream (each sorts the history).
+JUDGE_EVERY = 32
 #: Lag-1 correlation of the intervals at or below which they are jitter about a grid ...
 ANTICORRELATION = -0.3
 #: ... and above which a grid in use is given up.
@@ -66,12 +68,13 @@ class StampGrid:
         self._out = None       # the previous stamp returned
         self._period = None    # the loop's period (s), once the stream is regular
         self._count = 0        # stamps the loop has taken since it started
+        self._unjudged = 0     # intervals since the stream was last judged
 
     def reset(self) -> None:
         """Forget the grid (a cleared buffer, a clock jump)."""
         self._intervals.clear()
         self._raw = self._out = self._period = None
-        self._count = 0
+        self._count = self._unjudged = 0
 
     def _regular_period(self):
         """Return the median interval if the stream jitters about a grid, else None."""
@@ -103,11 +106,14 @@ class StampGrid:
         raw, self._raw = self._raw, t
         if raw is not None and t > raw:
             self._intervals.append(t - raw)
-        regular = self._regular_period()
-        if regular is None:
-            self._period = None
-        elif self._period is None:
-            self._period, self._count = regular, 0
+            self._unjudged += 1
+        if self._unjudged >= JUDGE_EVERY:      # the stream is judged anew now and then
+            self._unjudged = 0
+            regular = self._regular_period()
+            if regular is None:
+                self._period = None
+            elif self._period is None:
+                self._period, self._count = regular, 0
         previous, period, out = self._out, self._period, t
         if previous is not None and period is not None:
             steps = round((t - previous) / period)
