@@ -66,6 +66,8 @@ Published
 Services
     ``~/reset`` (std_srvs/Trigger): clear the buffer and restart the search.
     ``~/save_model`` (std_srvs/Trigger): write the published model to ``model_file``.
+    ``~/save_urdf`` (std_srvs/Trigger): with a robot description, write the identified URDF
+    (its inertials and friction replaced) to ``identified_urdf_file``.
     ``~/pause`` (std_srvs/SetBool): True pauses the search, False resumes it.
 Node parameters
     :data:`~rkgnn_ros.identification.parameters.PARAMETERS` (``ros2 param describe``
@@ -97,7 +99,8 @@ from rkgnn_ros.identification.clock import NodeSeconds, watch_clock_jumps
 from rkgnn_ros.identification.description import description_text, RobotDescription
 from rkgnn_ros.identification.feedforward import FeedforwardSender
 from rkgnn_ros.identification.ingest import Ingestion
-from rkgnn_ros.identification.model_file import load_at_start, save_model_file
+from rkgnn_ros.identification.model_file import (load_at_start, save_identified_urdf,
+                                                 save_model_file)
 from rkgnn_ros.identification.parameters import ConfigurationError, IdentifierParameters
 from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import (create_publishers, EVOLUTION_LABELS, Outbox,
@@ -175,6 +178,7 @@ class IdentifierNode(Node):
         subscribe_description(self, self._on_description)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_service(Trigger, '~/save_model', self._on_save_model)
+        self.create_service(Trigger, '~/save_urdf', self._on_save_urdf)
         self.create_service(SetBool, '~/pause', self._on_pause)
         self._prediction_timer = None
         self._make_prediction_timer()
@@ -262,6 +266,11 @@ class IdentifierNode(Node):
     def _on_save_model(self, request, response):
         response.success, response.message = save_model_file(
             self._params.config['model_file'], self._publishing.model)
+        return response
+
+    def _on_save_urdf(self, request, response):
+        response.success, response.message = save_identified_urdf(
+            self._params.config['identified_urdf_file'], self._publishing.model)
         return response
 
     def _on_pause(self, request, response):

@@ -462,3 +462,34 @@ def save_model_file(path: str, model: Optional[RKGNNModel]) -> Tuple[bool, str]:
         return False, f'cannot save the model to {path}: {reason}'
     return True, (f"model saved to {path} (generation {model.info.get('generation')}, "
                   f"cost {model.info.get('cost')})")
+
+
+def save_identified_urdf(path: str, model) -> Tuple[bool, str]:
+    """
+    Write the identified URDF of a rigid-body ``model`` atomically to ``path``; never raises.
+
+    (:func:`rkgnn_ros.core.rigid.urdf_out.identified_urdf`: the robot description with the
+    identified inertials and friction, rotor inertia and offsets in a comment.)
+    """
+    if not path:
+        return False, 'parameter identified_urdf_file is empty: set it to a file path first'
+    if getattr(model, 'kind', None) != 'rigid_body':
+        return False, ('no rigid-body model identified yet (it needs a robot description): '
+                       'nothing to save')
+    try:
+        from rkgnn_ros.core.rigid.urdf_out import identified_urdf
+        path = os.path.realpath(os.path.expanduser(path))
+        reason = _writable_target(path)
+        if reason is None:
+            info = model.info
+            note = (f"case {model.case}, fit {info.get('refits')}, held-out error "
+                    f"{info.get('held_out_error')}, {info.get('window_s')} s of data")
+            save_text_atomic(path, identified_urdf(model.arm.structure, model.arm.parameters,
+                                                   note))
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+    except Exception as exc:  # noqa: B902 - reported to the caller
+        reason = repr(exc)
+    if reason is not None:
+        return False, f'cannot save the identified URDF to {path}: {reason}'
+    return True, f'identified URDF saved to {path}'

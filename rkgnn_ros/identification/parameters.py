@@ -239,6 +239,10 @@ PARAMETERS = (
                   'one, the rigid body of its kinematics is identified in every case (no '
                   'search runs); without, the network is searched. ' + _RESTARTS,
                   max_bytes=MAX_DESCRIPTION_BYTES),
+    ParameterSpec('identified_urdf_file', '',
+                  'Where ~/save_urdf writes the identified URDF (the robot description with '
+                  'the identified inertials and friction); empty: nowhere.',
+                  max_bytes=MAX_PATH_BYTES),
     ParameterSpec('urdf.locked_joints', (),
                   'Movable URDF joints not identified, held at urdf.locked_positions (any '
                   'other one at 0 clipped into its limits).', ptype=_T.STRING_ARRAY,
