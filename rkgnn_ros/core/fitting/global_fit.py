@@ -48,7 +48,7 @@ import numpy as np
 from .fitness import FitnessProblem
 from .linear import LinearDynamics
 from ..data import Dataset
-from ..differentiate import centred_derivative
+from ..differentiate import centred_derivative, CENTRED_MIN_SAMPLES
 from ..model.scales import Scales
 from ..model.spec import NetworkSpec
 from ..model.trig import TrigBasis
@@ -113,13 +113,19 @@ def linear_fit(datasets: Sequence[Dataset], case: str, table: TrigBasis, kp=None
     Fit the arm (case 3: the arm and its PD servo, mean Kp 1) on ``table`` in closed form.
 
     Case 3's θ̇ is the centred derivative of θ: without torque, θ̈ comes from θ̇ alone and a
-    differenced velocity's noise would reach it amplified.
+    differenced velocity's noise would reach it amplified; segments too short for it
+    (fewer than :data:`~..differentiate.CENTRED_MIN_SAMPLES`) are left out. ValueError
+    when no segment is left or the samples are too few to fit.
     """
     fit = LinearDynamics(table, coulomb_velocity)
     if case == 'unknown':
         smooth = [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt))
-                  for seg in datasets]
+                  for seg in datasets if seg.n_samples >= CENTRED_MIN_SAMPLES]
+        if not smooth:
+            raise ValueError(f'no segment of at least {CENTRED_MIN_SAMPLES} samples to fit')
         return fit.fit(smooth, 'unknown')
+    if not datasets:
+        raise ValueError('no segment to fit')
     return fit.fit(list(datasets), case, *((kp, kd) if case == 'pd_gains' else ()))
 
 
