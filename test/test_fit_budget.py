@@ -1,0 +1,143 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+fit_best keeps its wall-time budget and says when it has nothing better than the start.
+
+No test times a fit: the budget runs on an injected clock the test moves, or is 0, and
+the assertions are about which stages ran.
+"""
+
+import math
+import threading
+
+import numpy as np
+import pytest
+from rkgnn_ros.core.fitting import global_fit
+from rkgnn_ros.core.fitting.budget import Budget
+from rkgnn_ros.core.fitting.fitness import FitnessProblem, Interrupted
+from rkgnn_ros.core.fitting.identify import fit_best
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
+
+
+class Clock:
+    """A clock that moves only when told."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self):
+        return self.now
+
+
+@pytest.fixture(scope='module')
+def data():
+    """5 s of the paper's arm under its PD, torque measured (case 1)."""
+    return simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 5.0,
+                    rate=100.0)
+
+
+def test_a_budget_of_zero_returns_the_closed_form_at_once(data):
+    result = fit_best(data, 'torque', time_budget=0.0)
+    assert [h['phase'] for h in result.history] == ['linear']
+    assert result.history[0].get('interrupted')      # not even scored
+    assert result.generations == 0
+    assert result.model.info['selected'] == 'linear'
+    assert 'unscored' in result.model.info['warning']
+    # it is the closed form: the model predicts the arm
+    predicted = result.model.predict(data.slice(0, 101))
+    assert np.all(np.isfinite(predicted))
+
+
+def test_the_stages_stop_when_the_injected_clock_says_the_budget_is_spent(data):
+    clock = Clock()
+
+    def jump(entry):
+        if entry['phase'] == 'lm':
+            clock.now += 100.0    # the first LM stage took the whole budget
+    result = fit_best(data, 'torque', time_budget=50.0, clock=clock, callback=jump,
+                      shootings=(10, 0), lm_nfev=3)
+    assert [h['phase'] for h in result.history] == ['linear', 'lm']
+    assert result.generations == 0                    # CMA-ES never started
+    assert result.wall_s == pytest.approx(100.0)
+    assert result.model.info['selected'] in ('linear', 'lm')
+    assert math.isfinite(result.model.info['validation_nrmse'])
+
+
+def test_a_generation_that_would_not_fit_in_what_is_left_is_not_started(data):
+    clock = Clock()
+
+    def tick(entry):
+        if entry['phase'] == 'cmaes':
+            clock.now += 4.0      # every generation takes 4 s of the budget
+    result = fit_best(data, 'torque', time_budget=10.0, clock=clock, callback=tick,
+                      shootings=(), max_generations=100)
+    # generations at 0-4 and 4-8 s; 2 s left is less than one generation
+    assert result.generations == 2
+
+
+def test_no_finite_cost_returns_the_closed_form_with_a_warning(data, monkeypatch):
+    # before: ValueError('min() arg is an empty sequence') at the selection
+    monkeypatch.setattr(global_fit.CoefficientProblem, 'cost',
+                        lambda self, x: np.full(np.atleast_2d(x).shape[0], np.inf))
+    result = fit_best(data, 'torque', time_budget=1e6, shootings=(), max_generations=2)
+    assert result.model.info['selected'] == 'linear'
+    assert 'every rollout diverged' in result.model.info['warning']
+    assert result.final_cost == math.inf
+    assert np.all(np.isfinite(result.model.genome))
+
+
+def test_a_closed_form_that_cannot_be_fitted_is_a_clear_error(data):
+    with pytest.raises(ValueError, match='fit_best: the closed-form fit .* too few samples'):
+        fit_best([data.slice(0, 2)], 'torque', time_budget=10.0)
+    with pytest.raises(ValueError, match='fit_best: no data'):
+        fit_best([], 'torque')
+    with pytest.raises(ValueError, match='time budget'):
+        fit_best(data, 'torque', time_budget=float('nan'))
+
+
+def test_the_rbf_pipeline_keeps_a_budget_of_zero(data):
+    result = fit_best(data, 'torque', time_budget=0.0, basis='rbf')
+    assert [h['phase'] for h in result.history] == ['budget']
+    assert 'no stage had a finite cost' in result.model.info['warning']
+    assert result.generations == 0
+
+
+def test_a_spent_budget_interrupts_the_rollouts_of_its_thread(data):
+    spec = global_fit.global_spec(3, 'torque')
+    problem = FitnessProblem(spec, [data], substeps=2)
+    population = np.tile(spec.initial_genome(), (3, 1))
+    clock = Clock()
+    budget = Budget(1.0, clock)
+    out = {}
+
+    def body():
+        with budget.interrupting():
+            out['before'] = problem.cost(population)     # within the budget
+            clock.now = 2.0
+            for name, call in (('cost', problem.cost), ('rollouts', problem.rollouts)):
+                try:
+                    call(population)
+                except Interrupted:
+                    out[name] = 'interrupted'
+        out['after'] = problem.cost(population)          # outside: as before
+    thread = threading.Thread(target=body)
+    thread.start()
+    thread.join()
+    assert out['cost'] == out['rollouts'] == 'interrupted'
+    np.testing.assert_array_equal(out['before'], out['after'])
+    assert budget.spent() and budget.left() == 0.0
+    assert Budget(float('inf')).left() == math.inf and not Budget(float('inf')).spent()
