@@ -13,12 +13,13 @@
 # limitations under the License.
 
 """
-fit_best keeps its wall-time budget and says when it has nothing better than the start.
+The offline fits keep their wall-time budgets and say when they have nothing better.
 
 No test times a fit: the budget runs on an injected clock the test moves, or is 0, and
 the assertions are about which stages ran.
 """
 
+from dataclasses import replace
 import math
 import threading
 
@@ -28,9 +29,14 @@ from rkgnn_ros.core.fitting import global_fit
 from rkgnn_ros.core.fitting.budget import Budget
 from rkgnn_ros.core.fitting.fitness import FitnessProblem, Interrupted
 from rkgnn_ros.core.fitting.identify import fit_best
+from rkgnn_ros.core.fitting.offline import heldout_baselines, identify_offline, judge
+from rkgnn_ros.core.fitting.online import OnlineIdentification, OnlineSettings
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
+from rkgnn_ros.stream_buffer import StreamBuffer
+
+JOINTS = ('joint1', 'joint2', 'joint3')
 
 
 class Clock:
@@ -47,7 +53,7 @@ class Clock:
 def data():
     """5 s of the paper's arm under its PD, torque measured (case 1)."""
     return simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 5.0,
-                    rate=100.0)
+                    rate=100.0, joint_names=JOINTS)
 
 
 def test_a_budget_of_zero_returns_the_closed_form_at_once(data):
@@ -141,3 +147,52 @@ def test_a_spent_budget_interrupts_the_rollouts_of_its_thread(data):
     np.testing.assert_array_equal(out['before'], out['after'])
     assert budget.spent() and budget.left() == 0.0
     assert Budget(float('inf')).left() == math.inf and not Budget(float('inf')).spent()
+
+
+def capture_of(data):
+    """Return a capture of ``data`` as the identifier's buffer holds it (case 1)."""
+    buffer = StreamBuffer(JOINTS, 0.01, 20.0, 0.1, need_tau=True, need_desired=False)
+    for k in range(data.n_samples):
+        buffer.add_state(100.0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+        buffer.add_command(100.0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+    return buffer.capture()
+
+
+SETTINGS = OnlineSettings(case='torque', min_window=2.0, validation_fraction=0.2,
+                          optimizer_settings={'population_size': 8}, seed=3)
+
+
+def test_identify_offline_starts_no_step_the_last_one_says_would_not_fit(data, monkeypatch):
+    clock = Clock()
+    real = OnlineIdentification.step
+
+    def four_seconds(self, obs):
+        clock.now += 4.0          # every step takes 4 s of the budget
+        return real(self, obs)
+    monkeypatch.setattr(OnlineIdentification, 'step', four_seconds)
+    result = identify_offline(SETTINGS, capture_of(data), JOINTS, budget_s=10.0, wall=clock)
+    # steps at 0-4 and 4-8 s; the 2 s left are less than a step
+    assert result.generations == 2 and result.seconds == pytest.approx(8.0)
+    assert result.model is not None
+
+
+def test_identify_offline_with_a_budget_of_zero_publishes_its_first_model(data):
+    result = identify_offline(SETTINGS, capture_of(data), JOINTS, budget_s=0.0, wall=Clock())
+    assert result.generations == 1 and result.model is not None
+
+
+def test_a_model_is_judged_against_holding_the_state_and_following_the_reference(data):
+    held = [data.slice(0, 201), data.slice(250, 451)]
+    baselines = heldout_baselines(held)
+    assert set(baselines) == {'hold_last_state', 'follow_reference'}
+    # following a reference the servo tracks is better than standing still
+    assert baselines['follow_reference'] < baselines['hold_last_state']
+    worse = judge(2.0 * baselines['follow_reference'], baselines)
+    assert worse.judged and worse.worse and worse.baseline == 'follow_reference'
+    assert 'worse than follow reference' in worse.text
+    better = judge(0.5 * baselines['follow_reference'], baselines)
+    assert better.judged and not better.worse
+    assert judge(math.inf, baselines).worse             # a diverged prediction
+    assert not judge(math.nan, {}).judged               # nothing held out
+    torque_only = [replace(seg, theta_d=None, theta_d_dot=None) for seg in held]
+    assert set(heldout_baselines(torque_only)) == {'hold_last_state'}
