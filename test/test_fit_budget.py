@@ -196,3 +196,34 @@ def test_a_model_is_judged_against_holding_the_state_and_following_the_reference
     assert not judge(math.nan, {}).judged               # nothing held out
     torque_only = [replace(seg, theta_d=None, theta_d_dot=None) for seg in held]
     assert set(heldout_baselines(torque_only)) == {'hold_last_state'}
+
+
+def test_a_chunk_the_budget_has_no_time_for_is_not_started(data, monkeypatch):
+    from rkgnn_ros.core.model import kernels
+    spec = global_fit.global_spec(3, 'torque')
+    problem = FitnessProblem(spec, [data], substeps=2)
+    problem.seconds_per_candidate = 5.0     # what a rollout took before
+    calls = []
+    real = kernels.population_cost
+
+    def counting(*args):
+        calls.append(args[2].weights.shape[0])
+        return real(*args)
+    monkeypatch.setattr(kernels, 'population_cost', counting)
+    clock = Clock()
+    outer, inner = Budget(100.0, clock), Budget(4.0, clock)   # 4 s left of the inner one
+    out = {}
+
+    def body():
+        with outer.interrupting(), inner.interrupting():
+            try:
+                problem.cost(spec.initial_genome()[None])
+            except Interrupted:
+                out['inner'] = 'interrupted'
+        with outer.interrupting():
+            out['outer'] = problem.cost(spec.initial_genome()[None])
+    thread = threading.Thread(target=body)
+    thread.start()
+    thread.join()
+    assert out['inner'] == 'interrupted' and calls[0] == 1 and len(calls) == 1
+    assert out['outer'].shape == (1,)

@@ -37,13 +37,17 @@ __all__ = ['Budget']
 
 
 class _Either:
-    """Set when either of two stop events is set."""
+    """Set when either of two stop events is set; left: the least of their ``left()``."""
 
     def __init__(self, first, second):
         self.first, self.second = first, second
 
     def is_set(self) -> bool:
         return self.first.is_set() or self.second.is_set()
+
+    def left(self) -> float:
+        return min(event.left() for event in (self.first, self.second)
+                   if hasattr(event, 'left'))
 
 
 class Budget:

@@ -80,30 +80,38 @@ def interrupt_on(event) -> Optional[object]:
     return previous
 
 
-def _chunked(evaluate, params, event) -> np.ndarray:
+def _chunked(evaluate, params, event, problem) -> np.ndarray:
     """
     Evaluate ``params`` in chunks of about CHUNK_S s; raise Interrupted once ``event``.
 
     A chunk holds at least one candidate per numba thread (the kernels run the population
-    in parallel); the first, that many, times the rest.
+    in parallel); the first, that many, times the rest. An event with a ``left()`` (a
+    :class:`~.budget.Budget`) also stops before a chunk that the seconds per candidate
+    measured so far (``problem.seconds_per_candidate``, the largest: a candidate that
+    diverges early is quick) say would end past it.
     """
     import numba
     pop = params.weights.shape[0]
     out = None
     least = max(1, int(numba.get_num_threads()))
+    left = getattr(event, 'left', None)
+    per = problem.seconds_per_candidate
     start, size = 0, least
     while start < pop:
-        if event.is_set():
-            raise Interrupted('the search was asked to stop')
         stop = min(pop, start + size)
+        if event.is_set() or (left is not None and per is not None
+                              and left() < per * (stop - start)):
+            raise Interrupted('the search was asked to stop')
         t0 = time.perf_counter()
         part = evaluate(params if start == 0 and stop == pop
                         else params.take(slice(start, stop)))
         if out is None:
             out = np.empty((pop,) + part.shape[1:], dtype=part.dtype)
         out[start:stop] = part
-        per = max(time.perf_counter() - t0, 1e-9) / (stop - start)
-        start, size = stop, max(least, int(CHUNK_S / per))
+        last = max(time.perf_counter() - t0, 1e-9) / (stop - start)
+        per = last if per is None else max(per, last)
+        problem.seconds_per_candidate = per
+        start, size = stop, max(least, int(CHUNK_S / last))
     return out
 
 
@@ -196,6 +204,8 @@ class FitnessProblem:
         self.n_predicted = sum(self._predicted(d.n_samples) for d in datasets)
         self.constants = spec.constants(self.scales, self.kp, self.kd)
         self._segments = None
+        #: the most wall seconds per candidate a chunked evaluation took (None: none yet)
+        self.seconds_per_candidate: Optional[float] = None
 
     @staticmethod
     def _predicted(n_samples):
@@ -300,7 +310,7 @@ class FitnessProblem:
             return population_cost(self.segments, self.constants, chunk, self.penalty_weight,
                                    float(self.n_predicted))
         event = getattr(_interrupts, 'event', None)
-        return evaluate(params) if event is None else _chunked(evaluate, params, event)
+        return evaluate(params) if event is None else _chunked(evaluate, params, event, self)
 
     __call__ = cost
 
@@ -321,4 +331,4 @@ class FitnessProblem:
         def evaluate(chunk):
             return population_rollouts(self.segments, self.constants, chunk)
         event = getattr(_interrupts, 'event', None)
-        return evaluate(params) if event is None else _chunked(evaluate, params, event)
+        return evaluate(params) if event is None else _chunked(evaluate, params, event, self)

@@ -18,7 +18,7 @@ The global network's search within a wall-time budget: closed form, then rollout
 :func:`fit_global` runs stages in order, each on what is left of the budget when it starts
 (:class:`~.budget.Budget`: wall time, so on a busy machine the later stages get less), with
 every rollout of the training data interruptible at the budget's end
-(:meth:`~.budget.Budget.interrupting`):
+(:meth:`~.budget.Budget.interrupting`), which they keep :data:`FINISH_SHARE` of it before:
 
 1. ``linear``: the closed-form fit on the trigonometric basis
    (:func:`.global_fit.linear_fit`), mapped into the genome. It always runs and is the
@@ -56,10 +56,14 @@ from ..data import Dataset
 from ..model.scales import Scales
 from ..model.spec import NetworkSpec
 
-__all__ = ['CLOSED_FORM_SHARE', 'GlobalFit', 'STAGES', 'fit_global']
+__all__ = ['CLOSED_FORM_SHARE', 'FINISH_SHARE', 'GlobalFit', 'STAGES', 'fit_global']
 
 #: Share of the budget after which the closed form's rounds that keep M positive stop.
-CLOSED_FORM_SHARE = 0.5
+CLOSED_FORM_SHARE = 0.4
+
+#: Share of the budget the stages leave free at its end: the chunk of rollouts in progress
+#: when their time is up, the scoring of a last result and the model finish in it.
+FINISH_SHARE = 0.05
 
 
 class GlobalFit(NamedTuple):
@@ -100,6 +104,7 @@ class _Search:
                                                 torque_interpolation=interpolation)
         self.validation = list(validation)
         self.on_stage = on_stage
+        self._timed: List[FitnessProblem] = []   # the problems made since the last timed()
         self.full = self.problem_for(0)
         self.history: List[dict] = []
         self.kept: List[tuple] = []     # (validation error, cost, phase, x) of every best
@@ -109,11 +114,22 @@ class _Search:
         self.best_cost = math.inf
 
     def problem_for(self, shooting: int) -> CoefficientProblem:
+        """Return the problem of ``shooting``, timed as the full rollout was last."""
         spec, scales, substeps, kp, kd, interpolation = self._settings
-        return CoefficientProblem(
-            FitnessProblem(spec, self.train, scales=scales, substeps=substeps, kp=kp, kd=kd,
-                           shooting=int(shooting), torque_interpolation=interpolation),
-            self.cmap, self.unit)
+        fitness = FitnessProblem(spec, self.train, scales=scales, substeps=substeps, kp=kp,
+                                 kd=kd, shooting=int(shooting),
+                                 torque_interpolation=interpolation)
+        if hasattr(self, 'full'):
+            fitness.seconds_per_candidate = self.full.problem.seconds_per_candidate
+            self._timed.append(fitness)
+        return CoefficientProblem(fitness, self.cmap, self.unit)
+
+    def timed(self) -> None:
+        """Give the full rollout's problem the most seconds per candidate any problem took."""
+        seen = [p.seconds_per_candidate for p in [self.full.problem] + self._timed
+                if p.seconds_per_candidate is not None]
+        self.full.problem.seconds_per_candidate = max(seen) if seen else None
+        self._timed = []
 
     def cost(self, x) -> float:
         """Return J of the variables ``x`` on the training data (one rollout)."""
@@ -170,6 +186,7 @@ def _levenberg_marquardt(search: _Search, budget: Budget, options: _Options, arm
         with lm.interrupting():
             x, steps = refine_lm(search.problem_for, search.best_x, (shooting,),
                                  options.lm_nfev, deadline=lm.deadline())
+        search.timed()
         search.evaluations += steps[-1]['evaluations'] if steps else 0
         unchanged = np.array_equal(x, search.best_x)    # nothing better found: not scored
         search.record('lm', x, search.best_cost if unchanged else search.cost(x),
@@ -178,6 +195,9 @@ def _levenberg_marquardt(search: _Search, budget: Budget, options: _Options, arm
 
 def _cmaes(search: _Search, budget: Budget, options: _Options, arm) -> None:
     """Stage 3: CMA-ES around the best coefficients until the budget or a limit ends it."""
+    per = search.full.problem.seconds_per_candidate
+    if per is not None and budget.left() < per:
+        return                              # not one rollout would fit
     from .optimizers import make_optimizer
     optimizer = make_optimizer('cmaes', search.best_x.size, x0=search.best_x,
                                rng=np.random.default_rng(options.seed),
@@ -228,6 +248,9 @@ def fit_global(train: Sequence[Dataset], validation: Sequence[Dataset], spec: Ne
     entries: ``phase``, ``cost``, ``kept``, ``best_cost``, ``evaluations`` (and
     ``validation_nrmse`` when kept; ``interrupted`` for a stage the budget's end cut).
     """
+    if math.isfinite(budget.seconds):   # the stages end FINISH_SHARE before the budget
+        budget = Budget(max(0.0, budget.left() - FINISH_SHARE * budget.seconds),
+                        budget.clock)
     case = spec.case
     table = trig_table(spec)
     try:

@@ -351,9 +351,11 @@ def _fit_rbf_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction, 
                     **evolution_kw)
 
     def problem_for(shooting):
-        return FitnessProblem(spec, datasets, scales=evo.scales, substeps=evo.substeps,
-                              kp=kp, kd=kd, shooting=shooting,
-                              torque_interpolation=evo.torque_interpolation)
+        problem = FitnessProblem(spec, datasets, scales=evo.scales, substeps=evo.substeps,
+                                 kp=kp, kd=kd, shooting=shooting,
+                                 torque_interpolation=evo.torque_interpolation)
+        problem.seconds_per_candidate = evo.problem.seconds_per_candidate
+        return problem
 
     history: List[dict] = []
 
