@@ -160,6 +160,10 @@ class _Search:
         """Record that the budget ended during ``phase``."""
         self._add({'phase': phase, 'cost': math.nan, 'kept': False, 'interrupted': True})
 
+    def skipped(self, phase: str, why: str) -> None:
+        """Record that ``phase`` was not started: ``why``."""
+        self._add({'phase': phase, 'cost': math.nan, 'kept': False, 'skipped': why})
+
     def _add(self, entry: dict) -> None:
         entry.update(best_cost=self.best_cost, evaluations=self.evaluations)
         self.history.append(entry)
@@ -183,6 +187,12 @@ def _levenberg_marquardt(search: _Search, budget: Budget, options: _Options, arm
     for shooting in options.shootings:
         if lm.spent():
             break
+        per = search.full.problem.seconds_per_candidate
+        need = None if per is None else per * (search.best_x.size + 2)
+        if need is not None and lm.left() < need:   # not one step: a residual and a Jacobian
+            search.skipped('lm', f'one step ({search.best_x.size + 2} rollouts, about '
+                                 f'{need:.0f} s) would not fit in {lm.left():.0f} s')
+            break
         with lm.interrupting():
             x, steps = refine_lm(search.problem_for, search.best_x, (shooting,),
                                  options.lm_nfev, deadline=lm.deadline())
@@ -203,7 +213,7 @@ def _cmaes(search: _Search, budget: Budget, options: _Options, arm) -> None:
                                rng=np.random.default_rng(options.seed),
                                sigma=options.polish_sigma)
     optimizer.seed_best(search.best_x, search.best_cost)
-    stall, generation_s = 0, 0.0
+    stall, generation_s = 0, (per or 0.0) * optimizer.population_size  # the first: predicted
     while (budget.left() > generation_s and stall < options.stall_generations
            and (options.max_generations is None
                 or optimizer.generation < options.max_generations)
@@ -246,7 +256,8 @@ def fit_global(train: Sequence[Dataset], validation: Sequence[Dataset], spec: Ne
     among those bests, the one with the lowest validation error (the training J when
     nothing is held out): how far to refine is decided on data the fit never saw. History
     entries: ``phase``, ``cost``, ``kept``, ``best_cost``, ``evaluations`` (and
-    ``validation_nrmse`` when kept; ``interrupted`` for a stage the budget's end cut).
+    ``validation_nrmse`` when kept; ``interrupted`` for a stage the budget's end cut,
+    ``skipped`` for one that its rollouts' measured time said would not fit).
     """
     if math.isfinite(budget.seconds):   # the stages end FINISH_SHARE before the budget
         budget = Budget(max(0.0, budget.left() - FINISH_SHARE * budget.seconds),
