@@ -375,18 +375,6 @@ def _say(quiet: bool, text: str) -> None:
         print(text, flush=True)
 
 
-def _process_age() -> float:
-    """Return the seconds this process has run (from Linux's /proc; 0 where unknown)."""
-    try:
-        with open('/proc/self/stat', encoding='ascii') as f:
-            ticks = float(f.read().rsplit(')', 1)[1].split()[19])
-        with open('/proc/uptime', encoding='ascii') as f:
-            uptime = float(f.read().split()[0])
-        return max(0.0, uptime - ticks / os.sysconf('SC_CLK_TCK'))
-    except (OSError, ValueError, IndexError):
-        return 0.0
-
-
 def identify(args, started: Optional[float] = None) -> dict:
     """
     Identify the recording ``args.bag``; return the report (raises IdentifyError).
@@ -572,7 +560,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     report are written, but the model predicts the held-out part worse than a baseline.
     Run from the command line (``argv`` None), the budget counts from the process's start.
     """
-    started = time.monotonic() - (_process_age() if argv is None else 0.0)
+    from rkgnn_ros.core.fitting.budget import process_age
+    started = time.monotonic() - (process_age() if argv is None else 0.0)
     args = parser().parse_args(argv)
     if not args.out:
         args.out = os.path.abspath(args.bag.rstrip('/')) + '_identified'

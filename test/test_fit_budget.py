@@ -26,7 +26,7 @@ import threading
 import numpy as np
 import pytest
 from rkgnn_ros.core.fitting import global_fit
-from rkgnn_ros.core.fitting.budget import Budget
+from rkgnn_ros.core.fitting.budget import Budget, process_age
 from rkgnn_ros.core.fitting.fitness import FitnessProblem, Interrupted
 from rkgnn_ros.core.fitting.identify import fit_best
 from rkgnn_ros.core.fitting.offline import heldout_baselines, identify_offline, judge
@@ -227,3 +227,9 @@ def test_a_chunk_the_budget_has_no_time_for_is_not_started(data, monkeypatch):
     thread.join()
     assert out['inner'] == 'interrupted' and calls[0] == 1 and len(calls) == 1
     assert out['outer'].shape == (1,)
+
+
+def test_the_age_of_this_process_is_known_on_linux():
+    import sys
+    age = process_age()
+    assert age > 0.0 if sys.platform.startswith('linux') else age == 0.0

@@ -23,17 +23,20 @@ checked between stages and inside the long ones. :meth:`Budget.left` and
 :meth:`Budget.interrupting`, every population evaluation of the thread
 (:func:`.fitness.interrupt_on`: costs and rollouts, in chunks of about
 :data:`.fitness.CHUNK_S` seconds) raises :class:`.fitness.Interrupted` once the budget is
-spent. The clock is injected, so tests can run a budget on a fake one.
+spent. The clock is injected, so tests can run a budget on a fake one. A command's budget
+counts from its process's start (:func:`process_age`: the interpreter and its imports are
+part of the wall time its user waits).
 """
 
 from contextlib import contextmanager
 import math
+import os
 import time
 from typing import Callable
 
 from .fitness import interrupt_on
 
-__all__ = ['Budget']
+__all__ = ['Budget', 'process_age']
 
 
 class _Either:
@@ -102,3 +105,15 @@ class Budget:
             yield self
         finally:
             interrupt_on(previous)
+
+
+def process_age() -> float:
+    """Return the seconds this process has run (from Linux's /proc; 0 where unknown)."""
+    try:
+        with open('/proc/self/stat', encoding='ascii') as f:
+            ticks = float(f.read().rsplit(')', 1)[1].split()[19])
+        with open('/proc/uptime', encoding='ascii') as f:
+            uptime = float(f.read().split()[0])
+        return max(0.0, uptime - ticks / os.sysconf('SC_CLK_TCK'))
+    except (OSError, ValueError, IndexError):
+        return 0.0
