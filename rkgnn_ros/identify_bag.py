@@ -38,6 +38,14 @@ Progress goes to standard output. A recording it cannot use (missing, unknown fo
 corrupt, without the needed topics, other joint names, messages it cannot decode) ends it
 with a one-line error naming the file and exit code 1, never a traceback; a recording
 that breaks part way is used up to there and the report says so.
+
+``--budget`` is the wall time of the whole run, counted from its start: the fit gets what
+reading left, less :data:`REPORT_SHARE` of the budget kept for scoring the model and
+writing the report; the figures are drawn only when :data:`FIGURES_S` seconds are left.
+The model is judged against predictions that need no model on the held-out part
+(holding the first state; following the recorded reference): when it does worse, the
+model and the report are written all the same, the report says so at its top, and the
+exit code is :data:`EXIT_WORSE_THAN_BASELINE` (3).
 """
 
 import argparse
@@ -50,9 +58,15 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ['main', 'IdentifyError', 'read_parameters']
+__all__ = ['main', 'IdentifyError', 'read_parameters', 'EXIT_WORSE_THAN_BASELINE']
 
 NODE_NAME = 'identifier'
+#: Exit code when the model is written but predicts the held-out part worse than a baseline.
+EXIT_WORSE_THAN_BASELINE = 3
+#: Share of ``--budget`` kept for scoring the model and writing the report after the fit.
+REPORT_SHARE = 0.1
+#: Seconds that must be left of the budget for the figures to be drawn.
+FIGURES_S = 3.0
 
 
 class IdentifyError(Exception):
@@ -296,7 +310,8 @@ def _figures(out: str, joints, heldout, predicted, online_predicted, history, tr
             for label, segs in parts:
                 if segs:
                     values = np.concatenate([seg.theta[:, j] for seg in segs])
-                    ax.hist(values, bins=30, alpha=0.6, label=label)
+                    still = np.ptp(values) <= 1e-9 * max(1.0, float(np.abs(values).max()))
+                    ax.hist(values, bins=1 if still else 30, alpha=0.6, label=label)
             ax.set_title(joints[j], fontsize=7)
             ax.set_xlabel('θ [rad]', fontsize=7)
         axes[0, 0].legend(fontsize=7)
@@ -327,6 +342,13 @@ def _markdown(report: dict) -> str:
              '', '## Held out', '',
              f'- identify_bag\'s model: θ-NRMSE {report["heldout"]["nrmse"]:.4g} '
              f'({report["heldout"]["how"]})']
+    lines += [f'- {name.replace("_", " ")} (no model): θ-NRMSE {value:.4g}'
+              for name, value in report['heldout']['baselines'].items()]
+    verdict = report['verdict']
+    lines.append(f'- verdict: {verdict["text"]}')
+    if verdict['worse']:  # at the top
+        lines[2:2] = [f'**Warning: {verdict["text"]}. The model is written but should not '
+                      'be used.**', '']
     online = report['heldout'].get('online_nrmse')
     if online is not None:
         lines.append(f"- the online identifier's model recorded in the bag (last before the "
@@ -340,6 +362,8 @@ def _markdown(report: dict) -> str:
     lines += ['', '## Log', ''] + [f'- {level}: {text}' for level, text in report['log']]
     if report['figures']:
         lines += ['', '## Figures', ''] + [f'![{name}]({name})' for name in report['figures']]
+    elif report['figures_skipped']:
+        lines += ['', f'Figures skipped: {report["figures_skipped"]}.']
     return '\n'.join(lines) + '\n'
 
 
@@ -351,12 +375,17 @@ def _say(quiet: bool, text: str) -> None:
         print(text, flush=True)
 
 
-def identify(args) -> dict:
-    """Identify the recording ``args.bag``; return the report (raises IdentifyError)."""
-    from rkgnn_ros.core.fitting.offline import heldout_prediction, identify_offline
+def identify(args, started: Optional[float] = None) -> dict:
+    """
+    Identify the recording ``args.bag``; return the report (raises IdentifyError).
+
+    ``started``: the ``time.monotonic()`` the budget counts from (default: now).
+    """
+    started = time.monotonic() if started is None else started
+    from rkgnn_ros.core.fitting.offline import (heldout_baselines, heldout_prediction,
+                                                identify_offline, judge)
     from rkgnn_ros.core.fitting.validation import MIN_SEGMENT_SAMPLES
     from rkgnn_ros.recording import find_topics, open_recording, read_messages, RecordingError
-    started = time.monotonic()
     values = read_parameters(args.params_file, args.node_name) if args.params_file else {}
     try:
         recording = open_recording(args.bag)
@@ -419,7 +448,7 @@ def identify(args) -> dict:
                      f'{counts["controller_states"]} controller states; training part '
                      f'{sum(s.duration for s in train_segments):.1f} s, joints {list(joints)}'
                      + (f'; dropped {drops}' if drops else ''))
-    budget = max(1.0, float(args.budget) - (time.monotonic() - started))
+    budget = max(0.0, (1.0 - REPORT_SHARE) * float(args.budget) - (time.monotonic() - started))
 
     def progress(status, elapsed):
         _say(args.quiet, f'  {elapsed:5.1f} s  {status.state}: {status.detail}; best J '
@@ -444,10 +473,13 @@ def identify(args) -> dict:
     if online_model is not None and heldout_segments:
         online_nrmse, online_predicted, _ = heldout_prediction(
             online_model, heldout_segments, _loop_of(online_model))
+    baselines = heldout_baselines(heldout_segments)
+    verdict = judge(nrmse, baselines)
     os.makedirs(args.out, exist_ok=True)
     result.model.save(os.path.join(args.out, 'model.yaml'))
+    drawn = float(args.budget) - (time.monotonic() - started) >= FIGURES_S
     figures = _figures(args.out, joints, heldout_segments, predicted, online_predicted,
-                       result.history, train_segments, None)
+                       result.history, train_segments, None) if drawn else []
     update = result.update
     report = {
         'recording': args.bag, 'storage': recording.storage, 'topics': topics._asdict(),
@@ -462,7 +494,9 @@ def identify(args) -> dict:
                 'cost': update.cost, 'validation_nrmse': update.validation_nrmse,
                 'kp': list(update.kp), 'kd': list(update.kd)},
         'heldout': {'seconds': heldout_s, 'nrmse': nrmse, 'how': how,
-                    'online_nrmse': online_nrmse},
+                    'online_nrmse': online_nrmse, 'baselines': baselines},
+        'verdict': verdict._asdict(),
+        'figures_skipped': '' if drawn else f'less than {FIGURES_S:g} s of the budget left',
         'history': [list(map(float, h)) for h in result.history],
         'history_fields': list(result.history[0]._fields) if result.history else [],
         'log': log_lines, 'figures': figures,
@@ -474,7 +508,7 @@ def identify(args) -> dict:
         f.write(_markdown(report))
     _say(args.quiet, f'held-out {heldout_s:g} s θ-NRMSE {nrmse:.4g} ({how})'
                      + (f'; the online model recorded in the bag: {online_nrmse:.4g}'
-                        if online_nrmse is not None else ''))
+                        if online_nrmse is not None else '') + f'; {verdict.text}')
     _say(args.quiet, f'wrote {args.out}/model.yaml, report.md, report.json'
                      + (', ' + ', '.join(figures) if figures else '')
                      + f' in {report["total_seconds"]:.1f} s')
@@ -503,7 +537,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument('--heldout', type=float, default=10.0,
                    help='seconds at the end kept out of the fit and predicted (0: none)')
     p.add_argument('--budget', type=float, default=90.0,
-                   help='wall-time budget of the whole run (s)')
+                   help='wall-time budget of the whole run (s); exit code 3: the model is '
+                   'written but predicts the held-out part worse than a baseline')
     p.add_argument('--max-generations', type=int, default=0,
                    help='stop after this many generations (0: the budget decides)')
     p.add_argument('--namespace', default='', help='take the topics under this namespace')
@@ -518,18 +553,31 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Run identify_bag; return the exit code (0 done, 1 an error it explains)."""
+    """
+    Run identify_bag; return the exit code.
+
+    0 done; 1 an error it explains; 3 (:data:`EXIT_WORSE_THAN_BASELINE`) the model and the
+    report are written, but the model predicts the held-out part worse than a baseline.
+    Run from the command line (``argv`` None), the budget counts from the process's start.
+    """
+    from rkgnn_ros.core.fitting.budget import process_age
+    started = time.monotonic() - (process_age() if argv is None else 0.0)
     args = parser().parse_args(argv)
     if not args.out:
         args.out = os.path.abspath(args.bag.rstrip('/')) + '_identified'
     try:
-        identify(args)
+        report = identify(args, started)
     except IdentifyError as error:
         print(f'identify_bag: error: {error}', file=sys.stderr, flush=True)
         return 1
     except KeyboardInterrupt:
         print('identify_bag: interrupted', file=sys.stderr, flush=True)
         return 130
+    if report['verdict']['worse']:
+        print(f'identify_bag: warning: {report["verdict"]["text"]}; the model is written '
+              f'to {args.out} all the same (exit code {EXIT_WORSE_THAN_BASELINE})',
+              file=sys.stderr, flush=True)
+        return EXIT_WORSE_THAN_BASELINE
     return 0
 
 

@@ -187,10 +187,10 @@ def test_a_thread_with_an_interrupt_gets_the_same_costs_in_chunks(generated, mon
 
 def test_a_set_interrupt_stops_the_evaluation_between_chunks(generated, monkeypatch):
     from rkgnn_ros.core.model import kernels
-    monkeypatch.setattr(fitness, 'CHUNK_S', 0.0)  # one candidate per kernel call
+    monkeypatch.setattr(fitness, 'CHUNK_S', 0.0)  # one candidate per thread and kernel call
     spec, g, data = generated('pd_gains', 'cholesky')
     problem = FitnessProblem(spec, [data], scales=SCALES, kp=KP, kd=KD, substeps=2)
-    population = np.tile(g, (6, 1))
+    population = np.tile(g, (12, 1))
     event = threading.Event()
     calls = []
     real = kernels.population_cost
@@ -202,16 +202,21 @@ def test_a_set_interrupt_stops_the_evaluation_between_chunks(generated, monkeypa
         return real(*args)
     monkeypatch.setattr(kernels, 'population_cost', counting)
 
+    threads = []
+
     def evaluate():
+        import numba
+        threads.append(numba.get_num_threads())  # a chunk: at least one candidate each
         interrupt_on(event)
         return problem.cost(population)
     with pytest.raises(Interrupted):
         _in_thread(evaluate)
-    assert calls == [1, 1]  # the chunk in progress finished, no other began
+    assert threads[0] <= 4   # else the population would not make three chunks
+    assert calls == [threads[0]] * 2  # the chunk in progress finished, no other began
     # a thread that registered no interrupt evaluates the whole population in one call
     calls.clear()
     assert np.all(np.isfinite(problem.cost(population)))
-    assert calls == [6]
+    assert calls == [12]
 
 
 @pytest.mark.parametrize('inertia', INERTIA)

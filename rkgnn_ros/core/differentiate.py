@@ -46,6 +46,8 @@ import numpy as np
 #: (within 1 %) up to 2 Hz at 100 Hz, noise 9 × θ's.
 CENTRED_WINDOW = 21
 CENTRED_ORDER = 3
+#: The fewest samples the default centred derivative takes (a window of order + 2).
+CENTRED_MIN_SAMPLES = CENTRED_ORDER + 2
 
 #: Default window (samples) and order of the causal derivative at the newest sample.
 CAUSAL_WINDOW = 15

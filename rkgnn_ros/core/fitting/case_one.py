@@ -49,7 +49,7 @@ from .controller_laws import ControllerLaw, RBFFeatures, TrigFeatures
 from .online_records import ClosedLoop as PredictionLoop
 from .rigid_law import fit_gravity_law
 from .trig_loop import data_span, fit_trig_loop, trig_torque_error, TrigLoop, YOUNG_DATA_S
-from .validation import MIN_SEGMENT_SAMPLES, split_validation
+from .validation import MIN_SEGMENT_SAMPLES, newest_share, split_validation
 from ..data import Dataset
 from ..model.model import RKGNNModel
 
@@ -107,7 +107,7 @@ def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples:
     law = _fit(segments, theta_input, min_samples, None, features)
     if law is None or not law.usable(max_fit_ratio):
         return law
-    half = _fit(_newest_half(segments), law.theta_input, min_samples,
+    half = _fit(newest_share(segments, 0.5), law.theta_input, min_samples,
                 bool(np.any(law.ki != 0.0)), features)
     if half is None or not law.close_to(half, AGREEMENT_RTOL):
         return None
@@ -148,22 +148,6 @@ def _fit(segments, theta_input: str, min_samples: int, integral: Optional[bool],
                       integral_term=np.where(negligible, 0.0, law.integral_term),
                       bias=law.bias + np.where(negligible, law.integral_term, 0.0))
     return law
-
-
-def _newest_half(segments: Sequence[Dataset]) -> List[Dataset]:
-    """Return the newest half (in time) of ``segments``, oldest first."""
-    left = 0.5 * sum(seg.duration for seg in segments)
-    out = []
-    for seg in reversed(list(segments)):
-        if left <= 0.0:
-            break
-        if seg.duration <= left:
-            out.append(seg)
-        else:
-            out.append(seg.slice(seg.n_samples - 1 - int(round(left / seg.dt)),
-                                 seg.n_samples))
-        left -= seg.duration
-    return out[::-1]
 
 
 def _simpler_holds(bare: Optional[ControllerLaw], full: Optional[ControllerLaw]) -> bool:

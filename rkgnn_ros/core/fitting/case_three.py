@@ -61,13 +61,15 @@ from .online_records import ClosedLoop as PredictionLoop
 from .refine import refine_equation_error
 from .trig_loop import (closed_loop_error, data_span, fit_closed_trig_loop, TrigLoop,
                         YOUNG_DATA_S)
+from .validation import newest_share
 from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..model.params import decode
 from ..model.trig import TrigBasis
 
-__all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_LOOP_SAMPLES', 'REFIT_S',
-           'RETRY_MAX_S', 'RETRY_S', 'Start', 'fit_gains', 'search_gains', 'start_genome']
+__all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_GAIN_SAMPLES',
+           'MIN_LOOP_SAMPLES', 'REFIT_S', 'RETRY_MAX_S', 'RETRY_S', 'Start', 'fit_gains',
+           'search_gains', 'start_genome']
 
 #: The gains fitted on the whole data and on its newest half must agree this well.
 AGREEMENT_RTOL = 0.15
@@ -91,6 +93,9 @@ RETRY_MAX_S = 30.0
 
 #: Training samples before the linear closed loop is tried.
 MIN_LOOP_SAMPLES = 200
+
+#: Shorter segments (and pieces of the newest half) are left out of the gains' fit.
+MIN_GAIN_SAMPLES = 51
 
 #: The gains' fit uses the general trigonometric basis up to this many features (43 at 3
 #: joints, 179 at 4) and the tied planar one beyond: the general basis has 3,611 at 6
@@ -125,18 +130,6 @@ def _linear_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.
     return _usable(kp, kd)
 
 
-def _newest_half(segments: Sequence[Dataset]):
-    left = 0.5 * sum(seg.duration for seg in segments)
-    out = []
-    for seg in reversed(list(segments)):
-        if left <= 0.0:
-            break
-        keep = seg.n_samples if seg.duration <= left else int(round(left / seg.dt)) + 1
-        out.append(seg.slice(seg.n_samples - keep, seg.n_samples))
-        left -= seg.duration
-    return out[::-1]
-
-
 def fit_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.ndarray]]:
     """
     Return the servo's gains ``(kp, kd)`` (n,) up to the common factor, or None.
@@ -144,12 +137,15 @@ def fit_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.ndar
     Normalised so that Kp e + Kd ė along ``segments`` (with ``theta_d``) has an RMS of 1,
     averaged over the joints. None when the fit fails, a Kp is not positive, or the newest
     half of the data gives other gains (beyond :data:`AGREEMENT_RTOL` of Kp, and of
-    Kd + 0.1 s Kp for Kd).
+    Kd + 0.1 s Kp for Kd). Both fits use only segments (and parts of the newest half) of at
+    least :data:`MIN_GAIN_SAMPLES` samples.
     """
-    segments = [seg for seg in segments if seg.theta_d is not None and seg.n_samples > 50]
-    if not segments:
+    segments = [seg for seg in segments
+                if seg.theta_d is not None and seg.n_samples >= MIN_GAIN_SAMPLES]
+    half = newest_share(segments, 0.5, MIN_GAIN_SAMPLES)
+    if not half:
         return None
-    whole, half = _linear_gains(segments), _linear_gains(_newest_half(segments))
+    whole, half = _linear_gains(segments), _linear_gains(half)
     if whole is None or half is None:
         return None
     (kp, kd), (kp_h, kd_h) = whole, half

@@ -34,10 +34,11 @@ hold them equal. The problem builds the kernels' genome-independent records once
 decodes its population into one :class:`..model.params.NetworkParams`.
 
 A thread that must be able to stop mid-generation (the identifier's worker: a generation of
-10,000 candidates over 600 s of data takes minutes) registers its stop event with
-:func:`interrupt_on`; ``cost`` called from that thread then evaluates the population in
-chunks of about :data:`CHUNK_S` seconds and raises :class:`Interrupted` between two once the
-event is set. Other threads (offline fits, benchmarks) evaluate in one call, as before.
+10,000 candidates over 600 s of data takes minutes; an offline fit at the end of its
+wall-time budget) registers its stop event with :func:`interrupt_on`; ``cost`` and
+``rollouts`` called from that thread then evaluate the population in chunks of about
+:data:`CHUNK_S` seconds and raise :class:`Interrupted` between two once the event is set.
+Other threads (benchmarks) evaluate in one call, as before.
 """
 
 import threading
@@ -63,32 +64,55 @@ class Interrupted(Exception):
     """The calling thread's stop event was set during an evaluation (:func:`interrupt_on`)."""
 
 
-def interrupt_on(event: Optional[threading.Event]) -> None:
+def interrupt_on(event) -> Optional[object]:
     """
     Let ``event`` interrupt the calling thread's population evaluations (None: never).
 
-    From then on :meth:`FitnessProblem.cost` called from this thread checks ``event``
-    between chunks of about :data:`CHUNK_S` seconds and raises :class:`Interrupted` once it
-    is set, so a thread that owns a search stops within a chunk, not a whole generation.
+    ``event`` is anything with ``is_set()`` (a ``threading.Event``, a
+    :class:`~.budget.Budget`). From then on :meth:`FitnessProblem.cost` and
+    :meth:`FitnessProblem.rollouts` called from this thread check it between chunks of
+    about :data:`CHUNK_S` seconds and raise :class:`Interrupted` once it is set, so a
+    thread that owns a search stops within a chunk, not a whole generation. Returns the
+    event registered before (to restore it).
     """
+    previous = getattr(_interrupts, 'event', None)
     _interrupts.event = event
+    return previous
 
 
-def _chunked(evaluate, params, event: threading.Event) -> np.ndarray:
-    """Evaluate ``params`` in chunks of about CHUNK_S s; raise Interrupted once ``event``."""
+def _chunked(evaluate, params, event, problem) -> np.ndarray:
+    """
+    Evaluate ``params`` in chunks of about CHUNK_S s; raise Interrupted once ``event``.
+
+    A chunk holds at least one candidate per numba thread (the kernels run the population
+    in parallel); the first, that many, times the rest. An event with a ``left()`` (a
+    :class:`~.budget.Budget`) also stops before a chunk that the seconds per candidate
+    measured so far (``problem.seconds_per_candidate``, the largest: a candidate that
+    diverges early is quick) say would end past it.
+    """
+    import numba
     pop = params.weights.shape[0]
-    costs = np.empty(pop)
-    start, size = 0, 1  # the first chunk is one candidate: it times the rest
+    out = None
+    least = max(1, int(numba.get_num_threads()))
+    left = getattr(event, 'left', None)
+    per = problem.seconds_per_candidate
+    start, size = 0, least
     while start < pop:
-        if event.is_set():
-            raise Interrupted('the search was asked to stop')
         stop = min(pop, start + size)
+        if event.is_set() or (left is not None and per is not None
+                              and left() < per * (stop - start)):
+            raise Interrupted('the search was asked to stop')
         t0 = time.perf_counter()
-        costs[start:stop] = evaluate(params if start == 0 and stop == pop
-                                     else params.take(slice(start, stop)))
-        per = max(time.perf_counter() - t0, 1e-9) / (stop - start)
-        start, size = stop, max(1, int(CHUNK_S / per))
-    return costs
+        part = evaluate(params if start == 0 and stop == pop
+                        else params.take(slice(start, stop)))
+        if out is None:
+            out = np.empty((pop,) + part.shape[1:], dtype=part.dtype)
+        out[start:stop] = part
+        last = max(time.perf_counter() - t0, 1e-9) / (stop - start)
+        per = last if per is None else max(per, last)
+        problem.seconds_per_candidate = per
+        start, size = stop, max(least, int(CHUNK_S / last))
+    return out
 
 
 class FitnessProblem:
@@ -180,6 +204,8 @@ class FitnessProblem:
         self.n_predicted = sum(self._predicted(d.n_samples) for d in datasets)
         self.constants = spec.constants(self.scales, self.kp, self.kd)
         self._segments = None
+        #: the most wall seconds per candidate a chunked evaluation took (None: none yet)
+        self.seconds_per_candidate: Optional[float] = None
 
     @staticmethod
     def _predicted(n_samples):
@@ -284,7 +310,7 @@ class FitnessProblem:
             return population_cost(self.segments, self.constants, chunk, self.penalty_weight,
                                    float(self.n_predicted))
         event = getattr(_interrupts, 'event', None)
-        return evaluate(params) if event is None else _chunked(evaluate, params, event)
+        return evaluate(params) if event is None else _chunked(evaluate, params, event, self)
 
     __call__ = cost
 
@@ -301,4 +327,8 @@ class FitnessProblem:
         """
         from ..model.kernels import population_rollouts
         params = self.spec.decode(np.atleast_2d(np.asarray(genomes, dtype=float)), self.scales)
-        return population_rollouts(self.segments, self.constants, params)
+
+        def evaluate(chunk):
+            return population_rollouts(self.segments, self.constants, chunk)
+        event = getattr(_interrupts, 'event', None)
+        return evaluate(params) if event is None else _chunked(evaluate, params, event, self)

@@ -35,28 +35,26 @@ things:
 
 :func:`global_spec` is the structure, :func:`linear_fit` the closed-form fit for a case,
 :func:`coefficient_map` the image, :class:`CoefficientProblem` a fitness problem over
-coefficients (what :func:`~.refine.refine_lm` and CMA-ES take).
+coefficients (what :func:`~.refine.refine_lm` and CMA-ES take); the staged search within a
+wall-time budget is :func:`.global_search.fit_global`.
 """
 
 from dataclasses import replace
-import math
-import time
-from typing import Callable, List, NamedTuple, Optional, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
 from .fitness import FitnessProblem
 from .linear import LinearDynamics
 from ..data import Dataset
-from ..differentiate import centred_derivative
+from ..differentiate import centred_derivative, CENTRED_MIN_SAMPLES
 from ..model.scales import Scales
 from ..model.spec import NetworkSpec
 from ..model.trig import TrigBasis
 from ..model.trig_dynamics import Layout, unpack_mass
 
-__all__ = ['CoefficientMap', 'CoefficientProblem', 'GlobalFit', 'closed_form_genome',
-           'coefficient_map', 'fit_global', 'global_spec', 'is_global', 'linear_fit', 'trig_table',
-           'variable_unit']
+__all__ = ['CoefficientMap', 'CoefficientProblem', 'closed_form_genome', 'coefficient_map',
+           'global_spec', 'is_global', 'linear_fit', 'trig_table', 'variable_unit']
 
 #: Bases whose features are a :class:`~..model.trig.TrigBasis` table (the first of a sum).
 TRIG_BASES = ('trig', 'trig3d')
@@ -108,19 +106,29 @@ def trig_table(spec: NetworkSpec) -> TrigBasis:
 
 
 def linear_fit(datasets: Sequence[Dataset], case: str, table: TrigBasis, kp=None, kd=None,
-               coulomb_velocity: float = 0.05) -> LinearDynamics:
+               coulomb_velocity: float = 0.05,
+               deadline: Optional[float] = None) -> LinearDynamics:
     """
     Fit the arm (case 3: the arm and its PD servo, mean Kp 1) on ``table`` in closed form.
 
+    ``deadline``: see :meth:`.linear.LinearDynamics.fit`.
+
     Case 3's θ̇ is the centred derivative of θ: without torque, θ̈ comes from θ̇ alone and a
-    differenced velocity's noise would reach it amplified.
+    differenced velocity's noise would reach it amplified; segments too short for it
+    (fewer than :data:`~..differentiate.CENTRED_MIN_SAMPLES`) are left out. ValueError
+    when no segment is left or the samples are too few to fit.
     """
     fit = LinearDynamics(table, coulomb_velocity)
     if case == 'unknown':
         smooth = [replace(seg, theta_dot=centred_derivative(seg.theta, seg.dt))
-                  for seg in datasets]
-        return fit.fit(smooth, 'unknown')
-    return fit.fit(list(datasets), case, *((kp, kd) if case == 'pd_gains' else ()))
+                  for seg in datasets if seg.n_samples >= CENTRED_MIN_SAMPLES]
+        if not smooth:
+            raise ValueError(f'no segment of at least {CENTRED_MIN_SAMPLES} samples to fit')
+        return fit.fit(smooth, 'unknown', deadline=deadline)
+    if not datasets:
+        raise ValueError('no segment to fit')
+    kp, kd = (kp, kd) if case == 'pd_gains' else (None, None)
+    return fit.fit(list(datasets), case, kp, kd, deadline=deadline)
 
 
 class CoefficientMap(NamedTuple):
@@ -244,156 +252,15 @@ def variable_unit(coefficients, floor: float = 1e-3) -> np.ndarray:
     return np.maximum(c, floor * max(float(c.max()), 1e-300))
 
 
-class GlobalFit(NamedTuple):
-    """What :func:`fit_global` found."""
-
-    genome: np.ndarray          # the selected genome
-    cost: float                 # its J on the training data
-    validation_nrmse: float     # its θ-NRMSE on the validation data (NaN: none held out)
-    phase: str                  # the stage it comes from
-    history: List[dict]
-    evaluations: int            # rollouts of the training data (equation fits count none)
-    generations: int            # CMA-ES generations
-    arm: LinearDynamics         # the closed-form fit the search started from
-
-
-def fit_global(train: Sequence[Dataset], validation: Sequence[Dataset], spec: NetworkSpec,
-               scales: Scales, substeps: int, kp=None, kd=None, *, deadline: float,
-               shootings: Sequence[int] = (20, 0), lm_nfev: int = 30, lm_deadline=None,
-               polish_sigma: float = 0.01, max_generations: Optional[int] = None,
-               max_evaluations: Optional[int] = None, stall_generations: int = 40,
-               seed: int = 0, torque_interpolation: str = 'linear',
-               on_stage: Optional[Callable[[dict], None]] = None) -> GlobalFit:
-    """
-    Fit the global network: closed form, then rollouts in the arm's coefficients.
-
-    Stages, each scored by J on ``train`` and by the θ-NRMSE of the rollout of each
-    ``validation`` segment from its first state:
-
-    1. ``linear``: :func:`linear_fit` on ``train``, mapped into the genome;
-    2. ``lm``: Levenberg-Marquardt on the rollout residuals over the coefficients, one stage
-       per multiple-shooting interval of ``shootings`` (0: the whole rollout), from the
-       best coefficients so far, until ``lm_deadline``;
-    3. ``cmaes``: CMA-ES over the coefficients (spread ``polish_sigma`` of each one) on J,
-       until ``deadline``, ``max_generations``, ``max_evaluations`` or
-       ``stall_generations`` generations without a lower J.
-
-    A stage's coefficients become the search's best only if they lower J (so later stages
-    start from the best fit of the training data); the result is, among those bests, the
-    one with the lowest validation error (the training J when nothing is held out): how
-    far to refine is decided on data the fit never saw.
-    """
-    from .optimizers import make_optimizer
-    from ..model.model import RKGNNModel
-    from ..scoring import nrmse
-
-    case = spec.case
-    table = trig_table(spec)
-    arm = linear_fit(train, case, table, kp, kd, spec.coulomb_velocity)
-    cmap = coefficient_map(spec, scales, table, arm.layout_, rng=seed)
-    coef0 = arm.full_coefficients
-    unit = variable_unit(coef0)
-
-    def problem_for(shooting):
-        return CoefficientProblem(
-            FitnessProblem(spec, list(train), scales=scales, substeps=substeps, kp=kp, kd=kd,
-                           shooting=int(shooting), torque_interpolation=torque_interpolation),
-            cmap, unit)
-
-    full = problem_for(0)
-    history: List[dict] = []
-    evaluations = 0
-    dt = train[0].dt
-
-    def validation_error(genome):
-        if not validation:
-            return math.nan
-        model = RKGNNModel(spec, scales, genome, kp=kp, kd=kd, dt=dt, substeps=substeps,
-                           torque_interpolation=torque_interpolation)
-        n = spec.n_joints
-        predicted = np.vstack([model.predict(seg)[:, :n] for seg in validation])
-        return nrmse(predicted, np.vstack([seg.theta for seg in validation]))
-
-    best = {'x': coef0 / unit, 'cost': math.inf}
-    kept = []  # (validation error, cost, phase, genome) of every best
-
-    def record(phase, x, cost, **extra):
-        better = bool(cost < best['cost'])
-        entry = dict(extra, phase=phase, cost=float(cost), kept=better)
-        if better:
-            best.update(x=np.array(x, dtype=float), cost=float(cost))
-            entry['validation_nrmse'] = validation_error(full.genomes(x)[0])
-            kept.append((entry['validation_nrmse'], float(cost), phase, best['x']))
-        entry.update(best_cost=best['cost'], evaluations=evaluations)
-        history.append(entry)
-        if on_stage is not None:
-            on_stage(entry)
-
-    start = spec.initial_genome()
-    evaluations += 1
-    start_cost = float(full.problem.cost(start[None])[0])
-    history.append({'phase': 'start', 'cost': start_cost, 'kept': False,
-                    'best_cost': math.inf, 'evaluations': evaluations})
-    if on_stage is not None:
-        on_stage(history[-1])
-    evaluations += 1
-    record('linear', best['x'], float(full.cost(best['x'])[0]),
-           ridge=float(arm.ridge_), window_samples=int(arm.window_),
-           certified=bool(arm.certificate_ is not None and arm.certificate_.certified))
-    from .refine import refine_lm
-    for shooting in shootings:
-        if time.perf_counter() >= (lm_deadline or deadline):
-            break
-        x, lm_hist = refine_lm(problem_for, best['x'], (shooting,), lm_nfev,
-                               deadline=lm_deadline or deadline)
-        evaluations += lm_hist[-1]['evaluations'] if lm_hist else 0
-        evaluations += 1
-        record('lm', x, float(full.cost(x)[0]), shooting=int(shooting))
-
-    optimizer = make_optimizer('cmaes', coef0.size, x0=best['x'],
-                               rng=np.random.default_rng(seed), sigma=polish_sigma)
-    optimizer.seed_best(best['x'], best['cost'])
-    stall, generation_s = 0, 0.0
-    while (time.perf_counter() + generation_s < deadline and stall < stall_generations
-           and (max_generations is None or optimizer.generation < max_generations)
-           and (max_evaluations is None or evaluations < max_evaluations)):
-        t0 = time.perf_counter()
-        xs = optimizer.ask()
-        costs = full.cost(xs)
-        optimizer.tell(xs, costs)
-        evaluations += xs.shape[0]
-        i = int(np.argmin(np.where(np.isfinite(costs), costs, np.inf)))
-        before = best['cost']
-        finite = costs[np.isfinite(costs)]
-        record('cmaes', xs[i], float(costs[i]), generation=int(optimizer.generation),
-               mean_cost=float(np.mean(finite)) if finite.size else math.inf,
-               finite=int(finite.size), population=int(costs.size),
-               spread=float(optimizer.spread))
-        stall = 0 if best['cost'] < before * (1.0 - 1e-6) else stall + 1
-        generation_s = time.perf_counter() - t0
-
-    finite = [k for k in kept if math.isfinite(k[0])]
-    if finite:
-        chosen = min(finite, key=lambda k: (k[0], k[1]))
-    else:  # nothing held out (or every validation rollout diverged): the training fit
-        chosen = min(kept, key=lambda k: k[1])
-    coef = chosen[3] * unit
-    if cmap.layout.kp is not None:
-        # case 3: the rollouts fix the arm and the servo only up to one common factor, which
-        # the refinement may have moved; the model is given in units of mean Kp = 1
-        coef = coef / float(np.mean(coef[cmap.layout.kp]))
-    return GlobalFit(cmap.genome(coef), chosen[1], chosen[0], chosen[2], history, evaluations,
-                     optimizer.generation, arm)
-
-
 def closed_form_genome(spec: NetworkSpec, train: Sequence[Dataset], scales: Scales, kp=None,
                        kd=None) -> np.ndarray:
     """
     Return the genome of :func:`linear_fit` on ``train`` for ``spec``, shape (N,).
 
     The online search's start (:func:`..search_starts.warm_start`): the closed form, under
-    a second; the rollout refinement over the coefficients (:func:`fit_global`'s) takes tens
-    of seconds, too long to hold a running search.
+    a second; the rollout refinement over the coefficients
+    (:func:`.global_search.fit_global`'s) takes tens of seconds, too long to hold a running
+    search.
     """
     table = trig_table(spec)
     arm = linear_fit(list(train), spec.case, table, kp, kd, spec.coulomb_velocity)

@@ -19,7 +19,7 @@ Identification API: fit an RKGNN (:class:`..model.model.RKGNNModel`) on recorded
   replaced between generations (what the identifier node runs in its worker thread).
 - :func:`fit`: the offline loop (generations, evaluations or wall-time budget).
 - :func:`fit_best`: our best pipeline inside a wall-time budget (by default the global
-  network of :mod:`.global_fit`: closed form, Levenberg-Marquardt and CMA-ES over the arm's
+  network of :mod:`.global_search`: closed form, Levenberg-Marquardt and CMA-ES over the arm's
   coefficients, the stage chosen on held-out data; for RBF networks the equation error,
   Levenberg-Marquardt on rollout residuals, CMA-ES on the paper's cost).
 - :func:`precompile`: compile every kernel the online identifier runs, before it spins.
@@ -251,21 +251,30 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
              theta_units=None, equation_nfev=500, equation_fraction=0.3,
              max_generations: Optional[int] = None, basis: str = 'trig',
              validation_fraction: float = 0.2, max_evaluations: Optional[int] = None,
-             **evolution_kw) -> FitResult:
+             clock: Callable[[], float] = time.perf_counter, **evolution_kw) -> FitResult:
     """
     Identify with our best pipeline inside a wall-time budget.
 
+    ``time_budget`` (s, None: no limit) is wall time on ``clock``, counted from the call
+    (:class:`.budget.Budget`): each stage gets what is left when it starts, the clock is
+    checked between stages and inside them (every rollout of the training data stops at
+    the budget's end), so the call returns within about a rollout of the budget whatever
+    the machine's load. A budget of 0 gives the first stage's result at once.
+
     By default the network is global (:func:`.global_fit.global_spec` on ``basis``, the
     trigonometric basis of a planar arm: M, V, G, F right on the whole joint range, not only
-    along the data), fitted by :func:`.global_fit.fit_global`: the closed-form fit of the
-    arm's coefficients, Levenberg-Marquardt on the rollouts over those coefficients (until
-    ``lm_fraction`` of the budget), CMA-ES over them (spread ``polish_sigma``, 0.01 of each
-    coefficient by default) for the rest, ``max_generations`` or ``max_evaluations``, or
-    until it stalls. The newest ``validation_fraction`` of the data is held out, and of the
-    stages' results the one with the lowest θ-NRMSE there is returned
-    (``info['validation_nrmse']``, ``info['selected']``). Each history entry has ``phase``
-    ('start', 'linear', 'lm', 'cmaes'), ``cost``, ``kept``, ``best_cost``, ``evaluations``,
-    ``wall_s`` and, when kept, ``validation_nrmse``.
+    along the data), fitted by :func:`.global_search.fit_global`: the closed-form fit of the
+    arm's coefficients, Levenberg-Marquardt on the rollouts over those coefficients (for
+    ``lm_fraction`` of the time left after the closed form), CMA-ES over them (spread
+    ``polish_sigma``, 0.01 of each coefficient by default) for the rest, ``max_generations``
+    or ``max_evaluations``, or until it stalls. The newest ``validation_fraction`` of the
+    data is held out, and of the stages' results the one with the lowest θ-NRMSE there is
+    returned (``info['validation_nrmse']``, ``info['selected']``). When no stage has a
+    finite cost J (every rollout diverged, or the budget ended first), the closed form is
+    returned and ``info['warning']`` says why; a closed form that cannot be fitted raises a
+    ValueError naming the cause. Each history entry has ``phase`` ('linear', 'lm',
+    'cmaes'), ``cost``, ``kept``, ``best_cost``, ``evaluations``, ``wall_s`` and, when kept,
+    ``validation_nrmse`` (``interrupted``: the budget's end cut that stage).
 
     With ``basis='rbf'``, ``theta_units`` or a ``spec`` that is not global, the paper-shaped
     RBF network is fitted by the earlier pipeline, on all the data:
@@ -277,7 +286,7 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
        (:func:`rkgnn_ros.core.fitting.refine.refine_equation_error`; skipped if ``equation_nfev``
        is 0);
     2. Levenberg-Marquardt on the rollout residuals, over a continuation of multiple-shooting
-       windows (``shootings``), until ``lm_fraction`` of the budget
+       windows (``shootings``), for ``lm_fraction`` of the time left after stage 1
        (:func:`rkgnn_ros.core.fitting.refine.refine_lm`);
     3. CMA-ES around the best genome on the paper's cost J of the full rollout for the rest
        of the budget (it tolerates the diverged candidates that stop a gradient method), or
@@ -298,39 +307,60 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     """
     from dataclasses import replace
     from . import global_fit
-    from .refine import refine_equation_error, refine_lm
+    from .budget import Budget
+    budget = Budget(float('inf') if time_budget is None else time_budget, clock)
     # default θ units per case: chosen on held-out data of the paper's arm (README)
     default_units = {'torque': 5, 'pd_gains': 5, 'unknown': 8}
     if isinstance(datasets, Dataset):
         datasets = [datasets]
+    datasets = list(datasets)
+    if not datasets:
+        raise ValueError('fit_best: no data (an empty list of segments)')
     case = normalize_case(case)
     n = datasets[0].n_joints
     if spec is None and theta_units is None and basis != 'rbf':
         spec = global_fit.global_spec(n, case, basis)
     if spec is not None and global_fit.is_global(spec):
-        return _fit_global_best(datasets, spec, time_budget, kp, kd, seed, shootings,
-                                lm_fraction, lm_nfev, 0.01 if polish_sigma is None
-                                else polish_sigma, callback, max_generations,
-                                validation_fraction, max_evaluations,
-                                evolution_kw.get('torque_interpolation', 'linear'))
+        try:
+            return _fit_global_best(datasets, spec, budget, kp, kd, seed, shootings,
+                                    lm_fraction, lm_nfev, 0.01 if polish_sigma is None
+                                    else polish_sigma, callback, max_generations,
+                                    validation_fraction, max_evaluations,
+                                    evolution_kw.get('torque_interpolation', 'linear'))
+        except ValueError as error:
+            raise ValueError(f'fit_best: {error}') from error
     polish_sigma = 0.05 if polish_sigma is None else polish_sigma
     if spec is None:
         spec = NetworkSpec.recommended(n, case)
         units = default_units[case] if theta_units is None else int(theta_units)
         spec = replace(spec, theta_units=units)
-    t0 = time.perf_counter()
+    with budget.interrupting():
+        return _fit_rbf_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction,
+                             lm_nfev, polish_sigma, callback, equation_nfev,
+                             equation_fraction, max_generations, evolution_kw)
+
+
+def _fit_rbf_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction, lm_nfev,
+                  polish_sigma, callback, equation_nfev, equation_fraction, max_generations,
+                  evolution_kw) -> FitResult:
+    """:func:`fit_best` for an RBF network (inside ``budget.interrupting()``)."""
+    from .budget import Budget
+    from .fitness import Interrupted
+    from .refine import refine_equation_error, refine_lm
     evo = Evolution(spec, datasets, 'cmaes', {'sigma': polish_sigma}, seed, kp, kd,
                     **evolution_kw)
 
     def problem_for(shooting):
-        return FitnessProblem(spec, datasets, scales=evo.scales, substeps=evo.substeps,
-                              kp=kp, kd=kd, shooting=shooting,
-                              torque_interpolation=evo.torque_interpolation)
+        problem = FitnessProblem(spec, datasets, scales=evo.scales, substeps=evo.substeps,
+                                 kp=kp, kd=kd, shooting=shooting,
+                                 torque_interpolation=evo.torque_interpolation)
+        problem.seconds_per_candidate = evo.problem.seconds_per_candidate
+        return problem
 
     history: List[dict] = []
 
     def on_stage(entry):
-        entry = dict(entry, wall_s=time.perf_counter() - t0)
+        entry = dict(entry, wall_s=budget.elapsed())
         history.append(entry)
         if callback is not None:
             callback(entry)
@@ -343,8 +373,7 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
         return float(evo.problem.cost(genome[None])[0])
 
     # the pipeline's result: the best genome by J so far; a stage replaces it only if better
-    best = {'genome': evo.optimizer.x0.copy()}
-    best['cost'] = full_cost(best['genome'])
+    best = {'genome': evo.optimizer.x0.copy(), 'cost': float('inf')}
 
     def stage_result(phase, genome, cost, **extra):
         kept = bool(cost < best['cost'])
@@ -353,54 +382,66 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
         on_stage(dict(extra, phase=phase, cost=cost, kept=kept, best_cost=best['cost'],
                       evaluations=evaluations))
 
-    on_stage({'phase': 'start', 'cost': best['cost'], 'kept': True,
-              'best_cost': best['cost'], 'evaluations': evaluations})
-    if equation_nfev:
-        eq_genome, eq_cost = refine_equation_error(
-            spec, datasets, evo.scales, best['genome'], kp, kd, max_nfev=int(equation_nfev),
-            deadline=t0 + equation_fraction * time_budget)
-        stage_result('equation', eq_genome, full_cost(eq_genome), equation_cost=eq_cost)
-    # LM continues from its own stage results (the continuation over shooting windows) and
-    # starts from the best so far; the pipeline keeps a stage's genome only if J improved
-    genome = best['genome']
-    for shooting in shootings:
-        genome, lm_hist = refine_lm(problem_for, genome, (shooting,), lm_nfev,
-                                    deadline=t0 + lm_fraction * time_budget)
-        evaluations += lm_hist[-1]['evaluations'] if lm_hist else 0
-        stage_result('lm', genome, full_cost(genome), shooting=int(shooting),
-                     residual_cost=lm_hist[-1]['cost'] if lm_hist else float('nan'))
-        if time.perf_counter() > t0 + lm_fraction * time_budget:
-            break
-    # CMA-ES around the best, which it evaluates in its first generation and reports as
-    # its best until it finds a better one
-    evo.optimizer.restart(best['genome'], polish_sigma, cost=best['cost'])
-    before = evaluations
-    while (time.perf_counter() - t0 < time_budget
-           and (max_generations is None or evo.optimizer.generation < max_generations)):
-        stats = evo.step()
-        evaluations = before + stats['evaluations']
-        kept = stats['best_cost'] < best['cost']
-        if kept:
-            best.update(genome=evo.optimizer.best_x.copy(), cost=float(stats['best_cost']))
-        on_stage(dict(stats, phase='cmaes', cost=evo.optimizer.history[-1]['min_cost'],
-                      kept=kept, evaluations=evaluations))
+    try:
+        best['cost'] = full_cost(best['genome'])
+        on_stage({'phase': 'start', 'cost': best['cost'], 'kept': True,
+                  'best_cost': best['cost'], 'evaluations': evaluations})
+        if equation_nfev and not budget.spent():
+            eq_genome, eq_cost = refine_equation_error(
+                spec, datasets, evo.scales, best['genome'], kp, kd,
+                max_nfev=int(equation_nfev), deadline=budget.deadline(equation_fraction))
+            stage_result('equation', eq_genome, full_cost(eq_genome), equation_cost=eq_cost)
+        # LM continues from its own stage results (the continuation over shooting windows)
+        # and starts from the best so far; the pipeline keeps a stage's genome only if J
+        # improved
+        genome = best['genome']
+        lm = Budget(lm_fraction * budget.left(), budget.clock)
+        for shooting in shootings:
+            if lm.spent():
+                break
+            with lm.interrupting():
+                genome, lm_hist = refine_lm(problem_for, genome, (shooting,), lm_nfev,
+                                            deadline=lm.deadline())
+            evaluations += lm_hist[-1]['evaluations'] if lm_hist else 0
+            stage_result('lm', genome, full_cost(genome), shooting=int(shooting),
+                         residual_cost=lm_hist[-1]['cost'] if lm_hist else float('nan'))
+        # CMA-ES around the best, which it evaluates in its first generation and reports as
+        # its best until it finds a better one
+        evo.optimizer.restart(best['genome'], polish_sigma, cost=best['cost'])
+        before, generation_s = evaluations, 0.0
+        while (budget.left() > generation_s
+               and (max_generations is None or evo.optimizer.generation < max_generations)):
+            t0 = budget.clock()
+            stats = evo.step()
+            generation_s = budget.clock() - t0
+            evaluations = before + stats['evaluations']
+            kept = stats['best_cost'] < best['cost']
+            if kept:
+                best.update(genome=evo.optimizer.best_x.copy(), cost=float(stats['best_cost']))
+            on_stage(dict(stats, phase='cmaes', cost=evo.optimizer.history[-1]['min_cost'],
+                          kept=kept, evaluations=evaluations))
+    except Interrupted:
+        on_stage({'phase': 'budget', 'cost': float('nan'), 'kept': False, 'interrupted': True,
+                  'best_cost': best['cost'], 'evaluations': evaluations})
     info = {'cost': best['cost'], 'pipeline': 'equation+lm+cmaes' if equation_nfev
             else 'lm+cmaes'}
+    if not np.isfinite(best['cost']):
+        info['warning'] = ('no stage had a finite cost J (every rollout diverged, or the '
+                           'budget ended first): the start genome is returned')
     model = RKGNNModel(spec, evo.scales, best['genome'], datasets[0].joint_names, kp, kd,
                        dt=evo.problem.dt, substeps=evo.substeps,
                        torque_interpolation=evo.torque_interpolation, info=info)
     return FitResult(model=model, history=history, evaluations=evaluations,
                      generations=evo.optimizer.generation,
-                     wall_s=time.perf_counter() - t0, final_cost=best['cost'])
+                     wall_s=budget.elapsed(), final_cost=best['cost'])
 
 
-def _fit_global_best(datasets, spec, time_budget, kp, kd, seed, shootings, lm_fraction,
+def _fit_global_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction,
                      lm_nfev, polish_sigma, callback, max_generations, validation_fraction,
                      max_evaluations, torque_interpolation) -> FitResult:
-    """:func:`fit_best` for a global network (:func:`.global_fit.fit_global`)."""
-    from .global_fit import fit_global
+    """:func:`fit_best` for a global network (:func:`.global_search.fit_global`)."""
+    from .global_search import fit_global
     from .validation import split_validation
-    t0 = time.perf_counter()
     train, validation, _ = split_validation(datasets, validation_fraction)
     if not train:
         train, validation = list(datasets), []
@@ -408,24 +449,25 @@ def _fit_global_best(datasets, spec, time_budget, kp, kd, seed, shootings, lm_fr
     substeps = default_substeps(datasets[0].dt, spec.case, kd, scales)
 
     def on_stage(entry):
-        entry['wall_s'] = time.perf_counter() - t0
+        entry['wall_s'] = budget.elapsed()
         if callback is not None:
             callback(entry)
 
-    result = fit_global(train, validation, spec, scales, substeps, kp, kd,
-                        deadline=t0 + time_budget, lm_deadline=t0 + lm_fraction * time_budget,
-                        shootings=shootings, lm_nfev=lm_nfev, polish_sigma=polish_sigma,
-                        max_generations=max_generations, max_evaluations=max_evaluations,
-                        seed=seed, torque_interpolation=torque_interpolation,
-                        on_stage=on_stage)
+    result = fit_global(train, validation, spec, scales, substeps, kp, kd, budget=budget,
+                        lm_fraction=lm_fraction, shootings=shootings, lm_nfev=lm_nfev,
+                        polish_sigma=polish_sigma, max_generations=max_generations,
+                        max_evaluations=max_evaluations, seed=seed,
+                        torque_interpolation=torque_interpolation, on_stage=on_stage)
     info = {'cost': result.cost, 'pipeline': 'linear+lm+cmaes', 'selected': result.phase,
             'validation_nrmse': result.validation_nrmse,
             'validation_s': float(sum(seg.duration for seg in validation))}
+    if result.warning:
+        info['warning'] = result.warning
     model = RKGNNModel(spec, scales, result.genome, datasets[0].joint_names, kp, kd,
                        dt=datasets[0].dt, substeps=substeps,
                        torque_interpolation=torque_interpolation, info=info)
     return FitResult(model=model, history=result.history, evaluations=result.evaluations,
-                     generations=result.generations, wall_s=time.perf_counter() - t0,
+                     generations=result.generations, wall_s=budget.elapsed(),
                      final_cost=result.cost)
 
 

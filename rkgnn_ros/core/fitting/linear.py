@@ -62,12 +62,13 @@ the model predicts (θ, θ̇ under its own controller) does not depend on the sc
 known mean gain (or any one known physical quantity) gives the physical model.
 """
 
+import time
 from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, LinAlgError, solve_triangular
-from scipy.optimize import nnls
+from scipy.linalg import cho_factor, LinAlgError
 
+from .qp import solve_qp
 from .warmstart import estimate_acceleration
 from ..model.trig_certificate import certify_inertia
 from ..model.trig_dynamics import Layout, regressor, TrigDynamics
@@ -172,35 +173,6 @@ def samples_from_datasets(datasets, case: str, kp=None, kd=None,
 
 
 # ----------------------------------------------------------------------------- solving
-
-def _solve_qp(chol, b, rows=None, rhs=None, equalities=0):
-    """
-    Minimise ½ zᵀHz - bᵀz subject to ``rows @ z >= rhs`` (the last ``equalities`` rows: ==).
-
-    ``chol`` is the Cholesky factor of H (scipy ``cho_factor``). The constraints are few
-    next to the coefficients, so the dual is solved: with Q = rows H⁻¹ rowsᵀ = UᵀU it is
-    the non-negative least squares min ‖U y - U⁻ᵀ r‖ (an equality's multiplier is free:
-    written as the difference of two non-negative ones), and z = H⁻¹ (b + rowsᵀ y).
-    """
-    z = cho_solve(chol, b)
-    if rows is None or rows.shape[0] == 0:
-        return z
-    r = rhs - rows @ z
-    if equalities == 0 and np.all(r <= 0.0):
-        return z                                                    # nothing is active
-    hinv_at = cho_solve(chol, rows.T)                               # (P, m)
-    q = rows @ hinv_at
-    q = 0.5 * (q + q.T) + 1e-12 * np.trace(q) / q.shape[0] * np.eye(q.shape[0])
-    upper = np.linalg.cholesky(q).T                                 # q = Uᵀ U
-    target = solve_triangular(upper, r, trans='T')
-    if equalities:
-        upper = np.hstack([upper, -upper[:, -equalities:]])
-    y, _ = nnls(upper, target, maxiter=50 * upper.shape[1])
-    if equalities:
-        y = y[:rows.shape[0]] - np.concatenate([np.zeros(rows.shape[0] - equalities),
-                                                y[rows.shape[0]:]])
-    return z + hinv_at @ y
-
 
 class _Normal(NamedTuple):
     """Normal equations of a weighted least-squares problem: G = AᵀA, b = Aᵀy, c = yᵀy."""
@@ -369,7 +341,8 @@ class LinearDynamics(TrigDynamics):
 
     # ----- fitting
     def fit(self, datasets, case: str = 'torque', kp=None, kd=None,
-            prior: Optional[Samples] = None) -> 'LinearDynamics':
+            prior: Optional[Samples] = None,
+            deadline: Optional[float] = None) -> 'LinearDynamics':
         """
         Fit to one or more datasets (see :func:`samples_from_datasets`); returns ``self``.
 
@@ -378,7 +351,10 @@ class LinearDynamics(TrigDynamics):
         of θ̈ is chosen with the ridge weight on the held-out samples, among ``windows``
         (or fixed by ``window``). ``prior``: samples with θ̈ already estimated (an
         :class:`~.memory.ExcitationMemory`'s) fitted beside the datasets, as older ones.
+        Past ``deadline`` (a ``time.perf_counter()`` value) no further window is tried and
+        the rounds that keep M positive stop (``late_`` True, no certificate).
         """
+        self._deadline = deadline
         if not isinstance(datasets, (list, tuple)):
             datasets = [datasets]
         if self.window is not None:
@@ -396,6 +372,7 @@ class LinearDynamics(TrigDynamics):
     def fit_samples(self, samples: Samples, case: str = 'torque', kp=None,
                     kd=None) -> 'LinearDynamics':
         """Fit to :class:`Samples` (θ̈ already estimated); returns ``self``."""
+        self._deadline = None
         self._fit([samples], [None], case, kp, kd)
         return self
 
@@ -434,6 +411,8 @@ class LinearDynamics(TrigDynamics):
             weights = 1.0 / np.maximum(rms, 1e-6 * max(rms.max(), 1e-300))
         best = None
         for samples, window in zip(candidates, windows):
+            if best is not None and self._late():
+                break
             path = self._solve_path(*split(samples), weights, lay, self.stride)
             score = min(e for _, e in path[2])
             if best is None or score < best[0]:
@@ -449,6 +428,7 @@ class LinearDynamics(TrigDynamics):
         self.min_eigenvalue_ = 0.0
         self.certificate_ = None
         self.cuts_ = 0
+        self.late_ = False
         self.floor_active_ = None
         if self.certify:
             self._enforce_positive(samples, chol, normal, scale, lay, case, kp, kd)
@@ -484,7 +464,7 @@ class LinearDynamics(TrigDynamics):
 
     def _constrained(self, chol, normal, scale, lay, cuts):
         rows, rhs, eq = self._constraints(lay, scale, cuts)
-        coef = _solve_qp(chol, normal.rhs / scale, rows, rhs, eq) / scale
+        coef = solve_qp(chol, normal.rhs / scale, rows, rhs, eq) / scale
         for block in (lay.viscous, lay.coulomb):        # the dual is exact up to rounding
             coef[block] = np.maximum(coef[block], 0.0)
         return coef
@@ -550,6 +530,8 @@ class LinearDynamics(TrigDynamics):
         check = rng.uniform(lo, hi, (self.check_points, self.n_joints))
         cuts = []
         for _ in range(rounds):
+            if self._late():
+                break
             lam, vecs = np.linalg.eigh(self.raw_mass_matrix(check) * np.outer(s, s))
             bad = np.flatnonzero(lam[:, 0] < floor)
             if bad.size == 0:
@@ -565,10 +547,15 @@ class LinearDynamics(TrigDynamics):
         self.certificate_ = None
         varying = np.count_nonzero(np.any(self.basis.frequencies[
             np.any(self._w_mass != 0.0, axis=(1, 2))] != 0, axis=0))
-        if self.max_cells > 0 and varying <= self.max_certified_joints:
+        self.late_ = self._late()
+        if self.max_cells > 0 and varying <= self.max_certified_joints and not self.late_:
             self.certificate_ = certify_inertia(
                 self.basis, self._full_coef[lay.mass], floor, s, self.joint_lower,
                 self.joint_upper, self.max_cells)
+
+    def _late(self) -> bool:
+        deadline = getattr(self, '_deadline', None)
+        return deadline is not None and time.perf_counter() > deadline
 
     def _cut_row(self, theta, v, lay):
         """Row r with ``r @ coef`` = vᵀ M(θ) v."""

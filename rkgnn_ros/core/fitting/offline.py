@@ -23,26 +23,40 @@ own: the data are handed over once, every stream is always fresh, and the clock 
 ``model_publish_period`` per generation so each better model is published at once. It
 stops at a wall-time budget or a generation count; the last published model is the result.
 
+The budget is wall time: the warm start gets at most :data:`WARM_START_SHARE` of it, no
+step starts that the last one's duration says would end past it, and once a model is
+published every population evaluation stops at its end (:meth:`.budget.Budget.interrupting`).
+
 :func:`heldout_prediction` scores a model on data it never saw the way the node predicts:
 case 1 with a fitted controller law in closed loop along the recorded θd, otherwise
 open loop (recorded torque in case 1, recorded θd in cases 2 and 3), each segment from its
-first state.
+first state. :func:`heldout_baselines` scores what needs no model on the same segments
+(holding the first state; following the recorded reference), and :func:`judge` says
+whether the model did better.
 """
 
+from contextlib import contextmanager
 from dataclasses import replace
 import math
 import time
-from typing import Callable, List, NamedTuple, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .budget import Budget
+from .fitness import Interrupted
 from .identify import nrmse, RKGNNModel
 from .online import OnlineIdentification
 from .online_records import (ClosedLoop, GenerationStats, LogLine, ModelUpdate, Observation,
                              OnlineSettings, Status)
+from .search_starts import WARM_START_S
 from ..data import Dataset
 
-__all__ = ['OfflineResult', 'identify_offline', 'heldout_prediction']
+__all__ = ['OfflineResult', 'Verdict', 'heldout_baselines', 'heldout_prediction',
+           'identify_offline', 'judge', 'WARM_START_SHARE']
+
+#: Share of the budget the search's warm start (an equation-error fit) may take at most.
+WARM_START_SHARE = 0.25
 
 
 class OfflineResult(NamedTuple):
@@ -93,21 +107,30 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
     """
     clock = [0.0]
     status = [Status()]
+    budget = Budget(budget_s, wall)
     policy = OnlineIdentification(clock=lambda: clock[0],
-                                  on_status=lambda new: status.__setitem__(0, new))
+                                  on_status=lambda new: status.__setitem__(0, new),
+                                  warm_start_seconds=min(WARM_START_S,
+                                                         WARM_START_SHARE * budget.seconds))
     joints = tuple(joints)
     settings = replace(settings, max_generations=int(max_generations))
     history: List[GenerationStats] = []
     log: List[LogLine] = []
     update: Optional[ModelUpdate] = None
     loop: Optional[ClosedLoop] = None
-    start = wall()
     last_progress = -math.inf
     data = capture
     steps_without_generation = 0
+    step_s = 0.0
     while True:
         received = {'state': clock[0], 'command': clock[0]}
-        result = policy.step(Observation(settings, joints, received, data=data))
+        began = wall()
+        try:  # once a model is published, the budget's end interrupts a generation
+            with budget.interrupting() if update is not None else _nothing():
+                result = policy.step(Observation(settings, joints, received, data=data))
+        except Interrupted:
+            break
+        step_s = wall() - began
         data = None  # the recording is handed over once
         for event in result.events:
             if isinstance(event, GenerationStats):
@@ -117,12 +140,12 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
             elif isinstance(event, ModelUpdate):
                 update, loop = event, event.loop
         clock[0] += max(settings.model_publish_period, 1.0) + 1e-3
-        elapsed = wall() - start
+        elapsed = budget.elapsed()
         if progress is not None and elapsed - last_progress >= progress_period_s:
             last_progress = elapsed
             progress(status[0], elapsed)
         steps_without_generation = 0 if result.ran else steps_without_generation + 1
-        if elapsed >= budget_s or steps_without_generation >= 3:
+        if budget.left() <= step_s or steps_without_generation >= 3:
             break
         if max_generations and policy.generation >= max_generations:
             # one more step publishes the best of the last generation
@@ -132,7 +155,12 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
                     update, loop = event, event.loop
             break
     return OfflineResult(None if update is None else update.model, loop, update, history, log,
-                         policy.generation, wall() - start, status[0])
+                         policy.generation, budget.elapsed(), status[0])
+
+
+@contextmanager
+def _nothing():
+    yield
 
 
 def heldout_prediction(model: RKGNNModel, segments: Sequence[Dataset],
@@ -176,3 +204,48 @@ def heldout_prediction(model: RKGNNModel, segments: Sequence[Dataset],
     if not predicted:
         return math.nan, [], how
     return float(nrmse(np.vstack(predicted), np.vstack(measured))), predicted, how
+
+
+def heldout_baselines(segments: Sequence[Dataset]) -> Dict[str, float]:
+    """
+    Return the θ-NRMSE of predictions that need no model, on ``segments`` (as predicted).
+
+    ``'hold_last_state'``: θ stays at each segment's first sample; ``'follow_reference'``
+    (when every segment has θd): θ is the recorded reference. Both scored by the same
+    :func:`~..scoring.nrmse` over all segments as :func:`heldout_prediction`. Empty
+    without segments.
+    """
+    segments = list(segments)
+    if not segments:
+        return {}
+    measured = np.vstack([seg.theta for seg in segments])
+    held = np.vstack([np.repeat(seg.theta[:1], seg.n_samples, axis=0) for seg in segments])
+    out = {'hold_last_state': float(nrmse(held, measured))}
+    if all(seg.theta_d is not None for seg in segments):
+        out['follow_reference'] = float(nrmse(np.vstack([seg.theta_d for seg in segments]),
+                                              measured))
+    return out
+
+
+class Verdict(NamedTuple):
+    """Whether a model beat the baselines on held-out data, and the line that says so."""
+
+    judged: bool     # False: nothing held out, or no baseline
+    worse: bool      # its θ-NRMSE is above the best baseline's (or not finite)
+    baseline: str    # the best baseline ('' when not judged)
+    text: str
+
+
+def judge(model_nrmse: float, baselines: Dict[str, float]) -> Verdict:
+    """Compare a model's held-out θ-NRMSE with the best of ``baselines``."""
+    finite = {name: value for name, value in baselines.items() if math.isfinite(value)}
+    if not finite or (model_nrmse is not None and math.isnan(model_nrmse)):
+        return Verdict(False, False, '', 'not judged: no held-out part to predict')
+    name = min(finite, key=finite.get)
+    best = finite[name]
+    shown = name.replace('_', ' ')
+    if not model_nrmse <= best:
+        return Verdict(True, True, name, f'the model is worse than {shown} on the held-out '
+                       f'part: θ-NRMSE {model_nrmse:.4g} against {best:.4g}')
+    return Verdict(True, False, name, f'the model beats {shown} on the held-out part: '
+                   f'θ-NRMSE {model_nrmse:.4g} against {best:.4g}')

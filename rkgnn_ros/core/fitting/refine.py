@@ -35,7 +35,7 @@ from typing import List, Optional, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from .fitness import FitnessProblem
+from .fitness import FitnessProblem, Interrupted
 from ..model.network import BatchedNetwork
 
 DIVERGED_RESIDUAL = 10.0
@@ -109,7 +109,8 @@ def refine_lm(problem_for, genome, shootings: Sequence[int] = (20, 0), max_nfev=
     max_nfev : int
         Residual evaluations per stage (scipy's ``max_nfev``).
     deadline : float, optional
-        ``time.perf_counter()`` value at which to stop (the best genome so far is kept).
+        ``time.perf_counter()`` value at which to stop (the best genome so far is kept; so
+        it is when the thread's stop event interrupts a rollout, :func:`.fitness.interrupt_on`).
     callback : callable, optional
         Called with a dict after every stage.
 
@@ -160,15 +161,17 @@ def refine_lm(problem_for, genome, shootings: Sequence[int] = (20, 0), max_nfev=
         try:
             with blas_threads(1):
                 least_squares(fun, g, jac=jac, method='trf', x_scale='jac', max_nfev=max_nfev)
-        except _Deadline:
-            pass
+        except (_Deadline, Interrupted):  # past the deadline or the thread's stop event
+            interrupted = True
+        else:
+            interrupted = False
         g = best['g']
         entry = {'phase': 'lm', 'shooting': int(shooting), 'cost': best['cost'],
                  'evaluations': evaluations}
         history.append(entry)
         if callback is not None:
             callback(entry)
-        if deadline is not None and time.perf_counter() > deadline:
+        if interrupted or (deadline is not None and time.perf_counter() > deadline):
             break
     return g, history
 

@@ -23,6 +23,8 @@ import math
 import time
 from typing import Optional
 
+import numpy as np
+
 from . import case_three, global_fit
 from .identify import Evolution
 from .online_records import OnlineSettings
@@ -67,10 +69,18 @@ class RewarmSchedule:
 
 
 def _equation_error_fit(evo: Evolution, train, kp, kd, budget_s: float, nfev: int):
-    """Return ``(genome, rollout cost, seconds)`` of the equation-error fit from the best."""
+    """
+    Return ``(genome, rollout cost, seconds)`` of the equation-error fit from the best.
+
+    A fit the data cannot carry (too few samples, a singular system) gives the best genome
+    with cost inf.
+    """
     t0 = time.perf_counter()  # a computation budget: real time, whatever the clock
-    genome, _ = refine_equation_error(evo.spec, train, evo.scales, evo.optimizer.best_x, kp,
-                                      kd, max_nfev=nfev, deadline=t0 + budget_s)
+    try:
+        genome, _ = refine_equation_error(evo.spec, train, evo.scales, evo.optimizer.best_x,
+                                          kp, kd, max_nfev=nfev, deadline=t0 + budget_s)
+    except (ValueError, np.linalg.LinAlgError):
+        return evo.optimizer.best_x, math.inf, time.perf_counter() - t0
     cost = float(evo.problem.cost(genome[None])[0])
     return genome, cost, time.perf_counter() - t0
 
@@ -81,10 +91,15 @@ def _closed_form(evo: Evolution, train):
 
     The arm's coefficients fitted on the trigonometric basis (case 3: with its PD servo),
     mapped into the genome (:func:`.global_fit.closed_form_genome`): the same model, no
-    search needed; the search's CMA-ES refines it generation by generation.
+    search needed; the search's CMA-ES refines it generation by generation. A fit the data
+    cannot carry (too few samples, a singular system) gives the best genome with cost inf.
     """
     t0 = time.perf_counter()
-    genome = global_fit.closed_form_genome(evo.spec, list(train), evo.scales, evo.kp, evo.kd)
+    try:
+        genome = global_fit.closed_form_genome(evo.spec, list(train), evo.scales, evo.kp,
+                                               evo.kd)
+    except (ValueError, np.linalg.LinAlgError):
+        return evo.optimizer.best_x, math.inf, time.perf_counter() - t0
     return genome, float(evo.problem.cost(genome[None])[0]), time.perf_counter() - t0
 
 

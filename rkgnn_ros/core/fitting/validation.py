@@ -16,7 +16,9 @@
 Validation of an online fit: hold out the newest data, score a model on it.
 
 Pure functions on :class:`~rkgnn_ros.core.data.Dataset` segments, used by the online policy
-(:mod:`.online`) and testable on their own.
+(:mod:`.online`) and testable on their own. They take the segments as the buffer gives
+them, however short (a gap at each end, a two-sample segment): a cut never makes a piece
+shorter than the caller's minimum, which is left out instead.
 """
 
 import math
@@ -28,7 +30,7 @@ from ..data import Dataset
 from ..model.model import RKGNNModel
 from ..scoring import nrmse
 
-__all__ = ['MIN_SEGMENT_SAMPLES', 'split_validation', 'validation_nrmse']
+__all__ = ['MIN_SEGMENT_SAMPLES', 'newest_share', 'split_validation', 'validation_nrmse']
 
 MIN_SEGMENT_SAMPLES = 10  # shorter segments (training or validation) are left out
 
@@ -75,6 +77,29 @@ def split_validation(segments: Sequence[Dataset], fraction: float,
             else:
                 train.append(seg)
     return train[::-1], validation[::-1], seconds
+
+
+def newest_share(segments: Sequence[Dataset], share: float,
+                 min_samples: int = MIN_SEGMENT_SAMPLES) -> List[Dataset]:
+    """
+    Return the newest ``share`` of the time ``segments`` span, oldest first.
+
+    Whole segments while they fit, then the newest samples of the segment the cut falls in
+    (``round(rest / dt) + 1`` of them). A piece of fewer than ``min_samples`` samples (at
+    least 2) is left out: a cut just inside a gap's edge would otherwise make a
+    one-sample segment, which no fit can use.
+    """
+    floor = max(2, int(min_samples))
+    left = float(share) * sum(seg.duration for seg in segments)
+    out: List[Dataset] = []
+    for seg in reversed(list(segments)):
+        if left <= 0.0:
+            break
+        keep = seg.n_samples if seg.duration <= left else int(round(left / seg.dt)) + 1
+        if keep >= floor:
+            out.append(seg.slice(seg.n_samples - keep, seg.n_samples))
+        left -= seg.duration
+    return out[::-1]
 
 
 def validation_nrmse(model: RKGNNModel, segments: Sequence[Dataset]) -> float:
