@@ -43,7 +43,7 @@ from typing import NamedTuple, Optional, Sequence
 import numpy as np
 
 from .controller_laws import ControllerLaw
-from .rigid_data import DEFAULT_SIGMA, filtered_rows, FilteredRows
+from .rigid_data import choose_sigma, filtered_rows, FilteredRows
 from .rigid_law import GravityFeatures
 from ..data import Dataset
 from ..rigid import consistency
@@ -184,6 +184,8 @@ def _prepare(structure, train, validation, sigma, measured_velocity, features=No
     def regressor(theta, theta_dot, theta_ddot):
         return structure.regressor(theta, theta_dot, theta_ddot)
 
+    if sigma is None:        # one filter for both, chosen on the training data's noise
+        sigma = choose_sigma(train)
     fit = filtered_rows(train, regressor, sigma, measured_velocity, features)
     held = (filtered_rows(validation, regressor, sigma, measured_velocity, features)
             if validation else None)
@@ -193,7 +195,7 @@ def _prepare(structure, train, validation, sigma, measured_velocity, features=No
 
 
 def fit_torque(structure: RigidStructure, train: Sequence[Dataset],
-               validation: Sequence[Dataset] = (), prior=None, sigma: float = DEFAULT_SIGMA,
+               validation: Sequence[Dataset] = (), prior=None, sigma: Optional[float] = None,
                measured_velocity: bool = False,
                min_samples: int = 50) -> Optional[RigidFit]:
     """
@@ -309,7 +311,7 @@ def _equation_errors(arm: RigidArm, law: ControllerLaw, samples: Optional[Filter
 def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
                validation: Sequence[Dataset] = (), kp=None, kd=None, integral: bool = False,
                gravity: Optional[str] = None, features: Optional[GravityFeatures] = None,
-               prior=None, sigma: float = DEFAULT_SIGMA, measured_velocity: bool = False,
+               prior=None, sigma: Optional[float] = None, measured_velocity: bool = False,
                min_samples: int = 50) -> Optional[RigidFit]:
     """
     Return the arm and servo of the closed loop fitted on ``train`` (cases 2 and 3).
@@ -407,7 +409,7 @@ def _case_three_start(structure, rows, extras, normalise, prior, n):
 def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
                      validation: Sequence[Dataset], kp=None, kd=None,
                      features: Optional[GravityFeatures] = None,
-                     sigma: float = DEFAULT_SIGMA,
+                     sigma: Optional[float] = None,
                      measured_velocity: bool = False) -> Optional[RigidFit]:
     """
     Return the closed-loop fit of the form the held-out data support best.
