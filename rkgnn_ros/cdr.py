@@ -31,12 +31,13 @@ equal to rclpy's own serialization. No ROS import: the layout is the OMG CDR enc
 from functools import lru_cache
 import math
 import struct
-from typing import Sequence, Tuple
+from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ['is_plain_cdr', 'joint_trajectory_cdr', 'joint_trajectory_cdr_size',
-           'parse_joint_state_cdr', 'parse_joint_trajectory_cdr', 'split_seconds']
+__all__ = ['encapsulation_problem', 'is_plain_cdr', 'joint_trajectory_cdr',
+           'joint_trajectory_cdr_size', 'parse_joint_state_cdr', 'parse_joint_trajectory_cdr',
+           'split_seconds']
 
 _CDR_LE = b'\x00\x01\x00\x00'  # CDR encapsulation: plain CDR, little endian
 _NANO = 1_000_000_000
@@ -64,6 +65,32 @@ _CDR_F8 = {1: np.dtype('<f8'), 0: np.dtype('>f8')}
 def is_plain_cdr(raw: bytes) -> bool:
     """Return whether ``raw`` starts with the encapsulation of plain CDR (either order)."""
     return len(raw) >= 4 and raw[0] == 0 and raw[1] in (0, 1)
+
+
+#: The encapsulation identifiers of the DDS-XTypes specification (byte 1, byte 0 zero).
+_ENCAPSULATIONS = {2: 'PL_CDR, big endian', 3: 'PL_CDR, little endian',
+                   6: 'XCDR2, big endian', 7: 'XCDR2, little endian',
+                   8: 'delimited XCDR2, big endian', 9: 'delimited XCDR2, little endian',
+                   10: 'PL_CDR2, big endian', 11: 'PL_CDR2, little endian'}
+
+
+def encapsulation_problem(raw: bytes, what: str) -> Optional[str]:
+    """
+    Return why ``raw`` is not read as a ``what`` message, or None for plain CDR.
+
+    The nodes read plain CDR (XCDR1, either byte order), which every ROS 2 middleware
+    sends for these types. Bytes of any other encapsulation are refused without being
+    handed to rclpy's deserializer: for XCDR2 and the others it prints a line on stderr for
+    every malformed message ("sequence size exceeds remaining buffer"), one per message.
+    """
+    if is_plain_cdr(raw):
+        return None
+    if len(raw) < 4:
+        return f'{len(raw)} bytes: too short for a {what}'
+    code = raw[0] << 8 | raw[1]
+    name = _ENCAPSULATIONS.get(code, 'not a CDR encapsulation')
+    return (f'{len(raw)} bytes with encapsulation 0x{code:04x} ({name}): a {what} is read '
+            'as plain CDR (XCDR1), what ROS 2 middlewares send')
 
 
 def parse_joint_state_cdr(raw: bytes):

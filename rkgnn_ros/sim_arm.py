@@ -108,7 +108,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
-from .cdr import is_plain_cdr, joint_trajectory_cdr_size, parse_joint_trajectory_cdr
+from .cdr import encapsulation_problem, joint_trajectory_cdr_size, parse_joint_trajectory_cdr
 from .conversions import (make_joint_state, make_joint_trajectory, MAX_MESSAGE_JOINTS,
                           MAX_NAME_BYTES, MAX_TRAJECTORY_BYTES, MAX_TRAJECTORY_POINTS)
 from .core.control.receiver import FeedforwardReceiver
@@ -144,19 +144,22 @@ def read_feedforward(raw: bytes):
 
     The reason is ``'over_budget'`` (bytes, names or points over the budgets of
     :mod:`rkgnn_ros.conversions`, checked before anything is built from the points) or
-    ``'bad_shape'`` (plain CDR that does not form a JointTrajectory: never handed to
-    rclpy's deserializer, which prints on stderr for it).
+    ``'bad_shape'`` (plain CDR that does not form a JointTrajectory, or bytes of another
+    encapsulation than plain CDR: never handed to rclpy's deserializer, which prints on
+    stderr for each malformed one).
     """
     if len(raw) > MAX_TRAJECTORY_BYTES:
         return 'over_budget', f'{len(raw)} bytes, over the budget of {MAX_TRAJECTORY_BYTES}'
     raw = bytes(raw)
-    if is_plain_cdr(raw):
-        size = joint_trajectory_cdr_size(raw)
-        reason = None if size is None else _over_budget(*size)
-        if reason is not None:
-            return 'over_budget', reason
-        if parse_joint_trajectory_cdr(raw) is None:
-            return 'bad_shape', f'{len(raw)} bytes of CDR that do not form a JointTrajectory'
+    problem = encapsulation_problem(raw, 'JointTrajectory')
+    if problem is not None:
+        return 'bad_shape', problem
+    size = joint_trajectory_cdr_size(raw)
+    reason = None if size is None else _over_budget(*size)
+    if reason is not None:
+        return 'over_budget', reason
+    if parse_joint_trajectory_cdr(raw) is None:
+        return 'bad_shape', f'{len(raw)} bytes of CDR that do not form a JointTrajectory'
     msg = deserialize_message(raw, JointTrajectory)
     reason = _over_budget(msg.joint_names, len(msg.points))
     return msg if reason is None else ('over_budget', reason)

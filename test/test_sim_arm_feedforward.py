@@ -218,6 +218,19 @@ def test_the_size_budgets_are_checked_on_the_bytes():
         assert read_feedforward(good[:cut])[0] == 'bad_shape'
 
 
+def test_another_encapsulation_is_refused_before_rclpy_prints_a_line(capfd):
+    good = serialize_message(trajectory(5_000_000_000, [(1.0, 2.0, 3.0)] * 3))
+    malformed = good[:20] + b'\xff\xff\xff\x7f' + good[24:]  # a count beyond the end
+    capfd.readouterr()
+    for code in (2, 3, 6, 7, 8, 9, 10, 11, 0x100):
+        head = code.to_bytes(2, 'big')
+        for raw in (head + good[2:], head + malformed[2:]):
+            reason, message = read_feedforward(raw)
+            assert reason == 'bad_shape' and f'0x{code:04x}' in message
+    err = capfd.readouterr().err
+    assert 'sequence size' not in err and 'Fast CDR' not in err, err[:500]
+
+
 def test_the_node_applies_a_feedforward_and_falls_back_on_bad_ones(ros):
     context, executor = ros
     arm = Arm(context, executor, tau_limit=[30.0, 20.0, 6.0])

@@ -47,15 +47,12 @@ from typing import Callable, Dict, NamedTuple, Optional, Tuple
 import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
-from rclpy.serialization import deserialize_message
-from rkgnn_ros.cdr import is_plain_cdr
+from rkgnn_ros.cdr import encapsulation_problem
 from rkgnn_ros.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
                                    parse_joint_state_cdr, Rejection, REJECTION_REASONS)
 from rkgnn_ros.identification.parameters import MAX_JOINTS
 from rkgnn_ros.identification.sources import read_joint_state, Sources
 from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
-from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['NODE_REASONS', 'INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'StateSample']
 
@@ -101,16 +98,12 @@ def received_ns(info) -> int:
 
 
 def _read_trajectory(msg, joints, now: float):
-    """Read a reference (CDR bytes or a message): our CDR reader, else rclpy's."""
+    """Read a reference (CDR bytes or a message): our CDR reader, never rclpy's."""
     if not isinstance(msg, (bytes, bytearray, memoryview)):
         return joint_trajectory_to_arrays(msg, joints, now=now)
     sample = joint_trajectory_cdr_to_arrays(msg, joints, now=now)
-    if sample is None:  # another encoding (within the byte budget): rclpy decides
-        try:
-            msg = deserialize_message(bytes(msg), JointTrajectory)
-        except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
-            return Rejection('malformed', f'cannot read JointTrajectory: {error!r}')
-        sample = joint_trajectory_to_arrays(msg, joints, now=now)
+    if sample is None:  # another encapsulation: refused before rclpy prints on stderr
+        return Rejection('malformed', encapsulation_problem(bytes(msg), 'JointTrajectory'))
     return sample
 
 
@@ -118,11 +111,7 @@ def _message_names(raw: bytes):
     """Return the joint names of a raw JointState, or None if it has none readable."""
     try:
         parsed = parse_joint_state_cdr(raw)
-        if parsed is not None:
-            return parsed[2]
-        if is_plain_cdr(raw):
-            return None  # malformed: the sample's own reading says so
-        return tuple(deserialize_message(raw, JointState).name)
+        return None if parsed is None else parsed[2]  # None: its own reading says why
     except Exception:  # noqa: B902 - the sample's own reading reports why
         return None
 
