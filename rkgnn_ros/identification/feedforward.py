@@ -166,6 +166,10 @@ class FeedforwardSender:
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
 
+    def forward_to(self, publisher) -> None:
+        """Also publish on ``publisher`` (``feedforward.forward_topic``); before :meth:`start`."""
+        self._publishers.append(publisher)
+
     def _now(self) -> float:
         return self._node.get_clock().now().nanoseconds * 1e-9
 
