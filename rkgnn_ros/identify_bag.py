@@ -40,7 +40,6 @@ with a one-line error naming the file and exit code 1, never a traceback; a reco
 that breaks part way is used up to there and the report says so.
 """
 
-import argparse
 import json
 import math
 import os
@@ -53,6 +52,8 @@ import numpy as np
 __all__ = ['main', 'IdentifyError', 'read_parameters']
 
 NODE_NAME = 'identifier'
+#: Largest parameters file read (bytes); the node's own is about 10 kB.
+MAX_PARAMS_BYTES = 4 * 1024 * 1024
 
 
 class IdentifyError(Exception):
@@ -91,11 +92,15 @@ def read_parameters(path: str, node_name: str = NODE_NAME) -> Dict[str, object]:
     ``identifier``) are merged in file order. Raises IdentifyError naming the file.
     """
     import yaml
+    from rkgnn_ros.core.input_files import InputFileError, read_bounded
     try:
-        with open(os.path.expanduser(path), encoding='utf-8') as f:
-            tree = yaml.safe_load(f)
-    except OSError as error:
-        raise IdentifyError(f'{path}: cannot read the parameters file: {error.strerror}')
+        tree = yaml.safe_load(read_bounded(os.path.expanduser(path), MAX_PARAMS_BYTES)
+                              .decode('utf-8'))
+    except InputFileError as error:
+        raise IdentifyError(f'{path}: cannot read the parameters file: {error}')
+    except UnicodeDecodeError as error:
+        raise IdentifyError(f'{path}: the parameters file is not UTF-8 text (byte '
+                            f'{error.start})')
     except yaml.YAMLError as error:
         raise IdentifyError(f'{path}: not YAML: {" ".join(str(error).split())}')
     if not isinstance(tree, dict):
@@ -387,6 +392,10 @@ def identify(args) -> dict:
                             f'controller_state topic; the recording has '
                             f'{sorted(recording.types)}')
     heldout_s = max(0.0, float(args.heldout))
+    if heldout_s >= span:
+        recording.close()
+        raise IdentifyError(f'{args.bag}: --heldout {heldout_s:g} s leaves nothing to fit: '
+                            f'the states on {topics.states} span {span:.3g} s')
     split_ns = state_times[-1] - int(heldout_s * 1e9) if heldout_s > 0 else None
     log_lines: List[Tuple[str, str]] = []
 
@@ -489,43 +498,22 @@ def _json_default(value):
     return str(value)
 
 
-def parser() -> argparse.ArgumentParser:
-    """Return the command line parser."""
-    p = argparse.ArgumentParser(
-        prog='identify_bag', description='Identify an arm from a rosbag2 recording (MCAP or '
-        "sqlite3) with the identifier node's pipeline and parameters.")
-    p.add_argument('bag', help='the recording: a rosbag2 folder, an .mcap or a .db3 file')
-    p.add_argument('--params-file', default='',
-                   help="the identifier's parameters file (default: its defaults)")
-    p.add_argument('--node-name', default=NODE_NAME,
-                   help='the node whose entry of the parameters file applies')
-    p.add_argument('--out', default='', help='output folder (default: <bag>_identified)')
-    p.add_argument('--heldout', type=float, default=10.0,
-                   help='seconds at the end kept out of the fit and predicted (0: none)')
-    p.add_argument('--budget', type=float, default=90.0,
-                   help='wall-time budget of the whole run (s)')
-    p.add_argument('--max-generations', type=int, default=0,
-                   help='stop after this many generations (0: the budget decides)')
-    p.add_argument('--namespace', default='', help='take the topics under this namespace')
-    p.add_argument('--joint-states', default='', help='joint states topic')
-    p.add_argument('--joint-commands', default='', help='joint commands topic')
-    p.add_argument('--controller-state', default='',
-                   help="a joint_trajectory_controller's controller_state topic")
-    p.add_argument('--model-topic', default='',
-                   help="the online identifier's ~/model topic (compared on the held-out part)")
-    p.add_argument('--quiet', action='store_true', help='no progress lines')
-    return p
-
-
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Run identify_bag; return the exit code (0 done, 1 an error it explains)."""
-    args = parser().parse_args(argv)
+    from rkgnn_ros.identify_bag_args import parser
+    args = parser(NODE_NAME).parse_args(argv)
     if not args.out:
         args.out = os.path.abspath(args.bag.rstrip('/')) + '_identified'
     try:
+        if os.path.exists(args.out) and not os.path.isdir(args.out):
+            raise IdentifyError(f'--out {args.out}: exists and is not a folder')
         identify(args)
     except IdentifyError as error:
         print(f'identify_bag: error: {error}', file=sys.stderr, flush=True)
+        return 1
+    except OSError as error:  # writing the results: a full disk, no permission
+        print(f'identify_bag: error: {error.filename or args.out}: '
+              f'{error.strerror or error}', file=sys.stderr, flush=True)
         return 1
     except KeyboardInterrupt:
         print('identify_bag: interrupted', file=sys.stderr, flush=True)

@@ -36,7 +36,9 @@ with ``inverse_dynamics = Y @ parameter_vector()`` (Pinocchio's, ten inertial pa
 per body, with the two friction columns per joint).
 
 A URDF that does not parse, names joints that do not exist, moves a joint that is not a
-revolute joint with limits, or whose moving joints carry no inertia is refused with a
+revolute joint with limits, has an ``<inertial>`` no rigid body has (NaN or inf in it, a
+negative mass) or whose moving joints carry no
+inertia is refused with a
 :class:`UrdfError` naming the source and the problem. Gravity acts along -z of the root
 link, as URDFs are drawn.
 """
@@ -50,6 +52,7 @@ import xml.etree.ElementTree as ElementTree
 import numpy as np
 
 from .stability import ClosedLoopAnalysis
+from ..input_files import InputFileError, read_bounded
 
 __all__ = ['UrdfArm', 'UrdfError', 'example_robot_urdf', 'read_description', 'reduce_urdf']
 
@@ -62,6 +65,10 @@ EXAMPLE_ROBOT_PREFIX = 'example-robot-data:'
 #: A moving joint whose inertia (the diagonal of M at the home pose) is below this
 #: (kg m^2) moves no mass: the URDF lacks <inertial> elements beyond it.
 MIN_JOINT_INERTIA = 1e-9
+
+#: Largest URDF read (bytes): example-robot-data's largest (a two-armed mobile robot) has
+#: about 0.2 MB.
+MAX_URDF_BYTES = 16 * 1024 * 1024
 
 _MOVABLE = ('revolute', 'continuous', 'prismatic')
 
@@ -102,28 +109,31 @@ def read_description(description: str) -> Tuple[str, str]:
     Return ``(xml, source)`` of a ``robot_description`` value.
 
     The value is the URDF's XML itself (it starts with ``<``), a file path, or
-    ``example-robot-data:<path under robots/>``; ``source`` names it for messages.
+    ``example-robot-data:<path under robots/>``; ``source`` names it for messages. A file
+    must be a regular file (a FIFO is refused, not waited on) of at most
+    :data:`MAX_URDF_BYTES`, read no further than that.
 
     Raises
     ------
     UrdfError
-        If the value is empty or the file cannot be read.
+        If the value is empty, too long, or the file cannot be read.
 
     """
     text = (description or '').strip()
     if not text:
         raise UrdfError('robot_description is empty')
     if text.startswith('<'):
+        if len(text) > MAX_URDF_BYTES:
+            raise UrdfError(f'robot_description (XML) has {len(text)} characters, more than '
+                            f'the limit of {MAX_URDF_BYTES}')
         return text, 'robot_description (XML)'
     path = text
     if text.startswith(EXAMPLE_ROBOT_PREFIX):
         path = example_robot_urdf(text[len(EXAMPLE_ROBOT_PREFIX):])
     try:
-        with open(os.path.expanduser(path), encoding='utf-8') as f:
-            return f.read(), path
-    except (OSError, UnicodeDecodeError) as error:
-        raise UrdfError(f'robot_description: cannot read {path!r}: '
-                        f'{error.strerror if isinstance(error, OSError) else error}') from None
+        return read_bounded(os.path.expanduser(path), MAX_URDF_BYTES).decode('utf-8'), path
+    except (InputFileError, UnicodeDecodeError) as error:
+        raise UrdfError(f'robot_description: cannot read {path!r}: {error}') from None
 
 
 def _floats(text: Optional[str], count: int, default: float, where: str) -> np.ndarray:
