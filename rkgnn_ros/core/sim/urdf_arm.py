@@ -148,6 +148,34 @@ def _floats(text: Optional[str], count: int, default: float, where: str) -> np.n
     return values
 
 
+def _check_inertials(root, source: str) -> None:
+    """
+    Refuse an ``<inertial>`` no rigid body has: NaN or inf in it, a negative mass.
+
+    Checked here because urdfdom, which Pinocchio parses with, prints an error for such an
+    element and drops it: the arm simulated would silently miss that body.
+    """
+    for link in root.findall('link'):
+        inertial = link.find('inertial')
+        if inertial is None:
+            continue
+        where = f"{source}: link {link.get('name')!r}"
+        mass = inertial.find('mass')
+        value = _floats(None if mass is None else mass.get('value'), 1, 0.0,
+                        f'{where}: <mass value>')[0]
+        if value < 0.0:
+            raise UrdfError(f'{where}: <mass value> {value:g} is negative')
+        origin = inertial.find('origin')
+        if origin is not None:
+            _floats(origin.get('xyz'), 3, 0.0, f'{where}: inertial <origin xyz>')
+            _floats(origin.get('rpy'), 3, 0.0, f'{where}: inertial <origin rpy>')
+        tensor = inertial.find('inertia')
+        if tensor is None:
+            continue
+        for key in ('ixx', 'ixy', 'ixz', 'iyy', 'iyz', 'izz'):
+            _floats(tensor.get(key, '0'), 1, 0.0, f'{where}: <inertia {key}>')
+
+
 def _rotation(rpy: np.ndarray) -> np.ndarray:
     """Return the rotation matrix of URDF roll-pitch-yaw angles (R = Rz(y) Ry(p) Rx(r))."""
     cr, sr = math.cos(rpy[0]), math.sin(rpy[0])
@@ -242,9 +270,9 @@ def reduce_urdf(xml: str, joints: Optional[Sequence[str]] = None,
     Raises
     ------
     UrdfError
-        If the XML does not parse, is not a URDF, a moving joint does not exist, is not
-        revolute or has no limits, a locked position names an unknown or fixed joint or
-        is not finite.
+        If the XML does not parse, is not a URDF, an ``<inertial>`` is not a rigid body's, a
+        moving joint does not exist, is not revolute or has no limits, a locked position
+        names an unknown or fixed joint or is not finite.
 
     """
     try:
@@ -253,6 +281,7 @@ def reduce_urdf(xml: str, joints: Optional[Sequence[str]] = None,
         raise UrdfError(f'{source}: not valid XML ({error})') from None
     if root.tag != 'robot':
         raise UrdfError(f'{source}: not a URDF (root element <{root.tag}>, not <robot>)')
+    _check_inertials(root, source)
     by_name = {joint.get('name'): joint for joint in root.findall('joint')}
     movable = [name for name, joint in by_name.items() if joint.get('type') in _MOVABLE]
     if joints is None or len(joints) == 0:
