@@ -40,7 +40,7 @@ from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.servo import FeedforwardTrack, Servo
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.sim_arm import read_feedforward, SimArm
+from rkgnn_ros.sim_arm import FeedforwardMessage, read_feedforward, SimArm
 from ros_helpers import retire_node, Rosout, spinning_context, stamp_ns, wait_for
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -204,7 +204,7 @@ def trajectory(start_ns, efforts, dt=0.5, names=JOINTS):
 def test_the_size_budgets_are_checked_on_the_bytes():
     names = [f'j{i}' for i in range(3)]
     good = serialize_message(trajectory(5_000_000_000, [(1.0, 2.0, 3.0)] * 3, names=names))
-    assert isinstance(read_feedforward(good), JointTrajectory)
+    assert isinstance(read_feedforward(good), FeedforwardMessage)
     for msg, words in [
             (trajectory(0, [(0.0,)] * (MAX_TRAJECTORY_POINTS + 1), dt=1e-3, names=['j']),
              'points'),
