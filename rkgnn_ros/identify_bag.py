@@ -52,6 +52,8 @@ import numpy as np
 __all__ = ['main', 'IdentifyError', 'read_parameters']
 
 NODE_NAME = 'identifier'
+#: A joint whose θ spans less than this (rad) in the training part does not move.
+MIN_MOTION = 0.01
 #: Largest parameters file read (bytes); the node's own is about 10 kB.
 MAX_PARAMS_BYTES = 4 * 1024 * 1024
 
@@ -233,6 +235,25 @@ def _loop_of(model):
         return ClosedLoop(model, closed_loop(model, law), math.nan)
     except (TypeError, ValueError):  # a law that does not fold (Kp not > 0, wrong sizes)
         return None
+
+
+def _refuse_still_joints(bag: str, joints, segments) -> None:
+    """
+    Refuse a recording in which some joints never move (θ range below MIN_MOTION).
+
+    Their dynamics cannot be identified from it: the fit has nothing to go on, and the
+    held-out θ-NRMSE (normalised by each joint's range) of such a joint reached 1.2e11.
+    """
+    theta = np.vstack([seg.theta for seg in segments])
+    motion = theta.max(axis=0) - theta.min(axis=0)
+    still = [name for name, span in zip(joints, motion) if not span >= MIN_MOTION]
+    if still:
+        moving = [name for name in joints if name not in still]
+        raise IdentifyError(
+            f'{bag}: {len(still)} of {len(joints)} joints never move in the training part '
+            f'(θ range below {MIN_MOTION:g} rad): {still}; their dynamics cannot be '
+            f'identified from this recording: record them moving, or identify the others '
+            f'alone (joints: {moving} in the parameters file)')
 
 
 def _coverage(segments) -> dict:
@@ -424,6 +445,7 @@ def identify(args) -> dict:
             + (f' for the joints {list(joints)}' if joints else '')
             + (f'; dropped: {drops}' if drops else '')
             + (f' ({truncated})' if truncated else ''))
+    _refuse_still_joints(args.bag, joints, train_segments)
     _say(args.quiet, f'{counts["states"]} states, {counts["commands"]} commands, '
                      f'{counts["controller_states"]} controller states; training part '
                      f'{sum(s.duration for s in train_segments):.1f} s, joints {list(joints)}'

@@ -18,13 +18,17 @@ identify_bag against what the third adversarial probe (issue 31) found.
 Each input ends in one line on stderr and a non-zero exit code, in bounded time and
 memory: a FIFO as the recording, inside a recording folder or as ``--params-file`` (no
 hang); a folder without ``metadata.yaml``; ``--heldout 1e308``, ``--budget nan``,
-``--heldout nan``; a junk file (memory independent of its size).
+``--heldout nan``; a junk file (memory independent of its size); a recording in which 7
+of 10 joints never move (identify_bag exited 0 with a held-out θ-NRMSE of 1.2e11).
 """
 
 import os
 import threading
 import tracemalloc
+import types
 
+from bag_helpers import simulated_run, write_run
+import numpy as np
 import pytest
 
 pytest.importorskip('rosbags')
@@ -138,3 +142,30 @@ def test_a_junk_file_is_refused_in_memory_independent_of_its_size(tmp_path, magi
     finally:
         tracemalloc.stop()
     assert peak < size / 8, f'{peak / 2 ** 20:.1f} MiB allocated to refuse a junk file'
+
+
+def test_joints_that_never_move_are_refused_naming_them(tmp_path, capsys):
+    run = simulated_run(20.0)
+
+    def widen(values, still):  # 7 more joints that hold still
+        return np.hstack([values, np.full((values.shape[0], 7), still)])
+    data = types.SimpleNamespace(
+        t=run.t, theta=widen(run.theta, 0.3), theta_dot=widen(run.theta_dot, 0.0),
+        tau=widen(run.tau, 0.0), theta_d=widen(run.theta_d, 0.3),
+        theta_d_dot=widen(run.theta_d_dot, 0.0))
+    names = [f'joint{i + 1}' for i in range(10)]
+    bag = tmp_path / 'still'
+    write_run(bag, data, names=names)
+    out = tmp_path / 'out'
+    code = bounded_main([str(bag), '--out', str(out), '--max-generations', '3', '--quiet'])
+    err = capsys.readouterr().err
+    assert code == 1 and '7 of 10 joints never move' in err, err
+    assert all(f"'joint{i}'" in err for i in range(4, 11)) and 'Traceback' not in err
+    assert not (out / 'model.yaml').exists()  # no model saved
+    # what the message advises: the moving joints alone are identified
+    params = tmp_path / 'three.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    joints: [joint1, joint2, joint3]\n')
+    code = bounded_main([str(bag), '--out', str(out), '--max-generations', '3', '--quiet',
+                         '--params-file', str(params)], timeout=4 * PATIENCE)
+    assert code == 0, capsys.readouterr().err
+    assert (out / 'model.yaml').exists()
