@@ -284,7 +284,7 @@ class FeedforwardSender:
         try:
             model = self._fit(train, cfg.case, cfg['kp'] or None, cfg['kd'] or None)
             rollout = rollout_error(model, validation, cfg.case)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        except (ValueError, ArithmeticError, MemoryError, np.linalg.LinAlgError) as exc:
             gate.switch_off(f'the model could not be fitted: {exc}')
             self._model = None
             return

@@ -51,13 +51,15 @@ from rkgnn_ros.cdr import encapsulation_problem
 from rkgnn_ros.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
                                    parse_joint_state_cdr, Rejection, REJECTION_REASONS)
 from rkgnn_ros.identification.parameters import MAX_JOINTS
+from rkgnn_ros.identification.plausibility import PLAUSIBILITY_REASONS, PlausibilityFilter
 from rkgnn_ros.identification.sources import read_joint_state, Sources
 from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
 
 __all__ = ['NODE_REASONS', 'INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'StateSample']
 
 #: Drop reasons the node adds to the buffer's and the conversions' own.
-NODE_REASONS = ('no_joints', 'internal_error', 'prediction_non_finite', 'worker_error')
+NODE_REASONS = ('no_joints', 'internal_error', 'prediction_non_finite',
+                'worker_error') + PLAUSIBILITY_REASONS
 
 DRAIN_LIMIT = 100        # queued stream messages taken per stream and pass
 FEED_LIMIT = 20000       # states and commands kept for the self-check (at 1 kHz: 10 s)
@@ -202,6 +204,8 @@ class Ingestion:
         self._counts_lock = threading.Lock()
         self._joints: Optional[Tuple[str, ...]] = None
         self._buffer: Optional[StreamBuffer] = None
+        # per stream: what no arm could produce is dropped before the buffer
+        self._plausible = {stream: PlausibilityFilter(()) for stream in ('state', 'command')}
         self._retired_drops: Dict[str, int] = {}
         self._extra_drops: Dict[str, int] = {}
         self._log_times: Dict[Tuple[str, str], float] = {}
@@ -295,6 +299,8 @@ class Ingestion:
                                       cfg['gap_threshold'], need_tau=case == 'torque',
                                       need_desired=case != 'torque',
                                       max_rate_hz=cfg['max_rate_hz'])
+            self._plausible = {stream: PlausibilityFilter(joints or ())
+                               for stream in ('state', 'command')}
             with self._counts_lock:
                 old = self._buffer
                 if old is not None:
@@ -315,6 +321,9 @@ class Ingestion:
     def clear(self) -> None:
         """Forget every buffered sample and the reference (``~/reset``); counters stay."""
         buffer = self._buffer
+        with self.lock:
+            for plausible in self._plausible.values():
+                plausible.reset()
         if buffer is not None:
             buffer.clear()
 
@@ -442,6 +451,16 @@ class Ingestion:
             self.reject('joint_states', 'state', 'missing_effort',
                         f'effort is empty or NaN (case torque, {sources.case_reason})')
             return
+        passed, dropped = self._plausible['state'].offer(
+            (sample, effort, received), sample.stamp, sample.position, sample.velocity, effort)
+        for _, reason, why in dropped:
+            self.reject('joint_states', 'state', reason, f'{why}: no arm does that')
+        for item in passed:
+            self._take_state(*item)
+
+    def _take_state(self, sample, effort, received: int) -> None:
+        """Buffer a plausible joint_states sample; keep it as the newest state."""
+        cfg, sources, joints = self._config, self.sources, self._joints
         theta_dot, estimated = sources.velocity(sample.stamp, sample.position,
                                                 sample.velocity)
         result = self._buffer.add_state(
@@ -525,6 +544,15 @@ class Ingestion:
             self.reject('joint_commands', 'command', 'missing_velocity',
                         'velocity (θ̇d) is empty or NaN')
             return
+        passed, dropped = self._plausible['command'].offer(
+            sample, sample.stamp, sample.position, sample.velocity)
+        for _, reason, why in dropped:
+            self.reject('joint_commands', 'command', reason, f'{why}: no servo is asked that')
+        for item in passed:
+            self._take_command(item)
+
+    def _take_command(self, sample) -> None:
+        """Buffer a plausible joint_commands sample; keep it as the newest command."""
         result = self._buffer.add_command(sample.stamp, sample.position, sample.velocity)
         if result.clock_jump:
             self._warn_jump('joint_commands', sample.stamp)
