@@ -105,6 +105,7 @@ from rkgnn_ros.identification.publishing import (create_forward_publisher, creat
 from rkgnn_ros.identification.subscriptions import quiet_events, subscribe_streams
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change
+from rkgnn_ros.sigint import Interrupt
 from rkgnn_ros.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 from std_srvs.srv import SetBool, Trigger
 
@@ -280,11 +281,14 @@ class IdentifierNode(Node):
 def main(args=None):
     """Run the identifier node until SIGINT or shutdown; return the exit code."""
     dump_stacks_on_sigusr1()
+    interrupt = Interrupt()
+    interrupt.install()                     # before rclpy.init: its handler chains to it
     rclpy.init(args=args)
     node = None
     code = 0
     try:
         node = IdentifierNode()
+        interrupt.arm()                     # a SIGINT now ends the spin, raises nothing
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -116,6 +116,7 @@ from .core.control.receiver import FeedforwardReceiver
 from .core.sim.arm_simulator import ArmSimulator, SimulationDiverged
 from .core.sim.plant import PlanarArm
 from .parameters import Change
+from .sigint import Interrupt
 from .sim_arm_parameters import build_config, BY_NAME, ConfigurationError, PARAMETERS
 from .stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 
@@ -469,11 +470,14 @@ class SimArm(Node):
 def main(args=None) -> int:
     """Run the node until SIGINT, shutdown or ``duration``; return the exit code."""
     dump_stacks_on_sigusr1()
+    interrupt = Interrupt()
+    interrupt.install()                     # before rclpy.init: its handler chains to it
     rclpy.init(args=args)
     node = None
     exit_code = 0
     try:
         node = SimArm()
+        interrupt.arm()                     # a SIGINT now ends the spin, raises nothing
         rclpy.spin_until_future_complete(node, node.finished)
         exit_code = node.exit_code
     except ConfigurationError:
