@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Hostile input to the installed identifier, as processes: every break of issue 15.
+Hostile input to the installed nodes, as processes: every break of issues 15 and 31.
 
 Starts the ``identifier`` executable (what ``ros2 run`` starts) on a private ROS domain
 and feeds it each break an adversarial pass found: model files that are a FIFO,
@@ -21,14 +21,22 @@ and feeds it each break an adversarial pass found: model files that are a FIFO,
 it must start, answer a service and say why it refused the file); then, on one node with
 a good model, a save over a device node, float extremes and a parameter named '', one
 stamp outlier a second interleaved with good data, malformed raw CDR, over-budget
-messages, and 100,000-point reference trajectories at 2 Hz for ``--flood-minutes``.
+messages, and 100,000-point reference trajectories at 2 Hz for ``--flood-minutes``. Then
+the third probe's breaks (issue 31, :mod:`hostile_probe`): FIFOs, a 1 GB URDF, a junk
+recording, bad folders and numbers for identify_bag; URDFs with NaN or inf inertials;
+a recording whose joints never move; a forward topic of another type; finite garbage
+joint_states with the feed-forward on (``--garbage-seconds``); feed-forwards beyond
+sim_arm's default limit, of 10,000 points, and malformed CDR of encapsulation 7 to both
+nodes; and 1 kHz streams with random drops and bursts for ``--drop-burst-minutes``.
+``--only`` picks groups of breaks (``earlier`` is issue 15's).
 
 Writes ``bench/results/hostile.json``: ``breaks_tested`` (how many breaks were fed),
 ``breaks_survived`` (those whose documented outcome held), ``tracebacks`` (lines with
 'Traceback' in every identifier's log), ``max_rss_mb`` (the largest resident memory of
 any identifier process, sampled), ``reference_flood_rss_growth_fraction`` (resident
 memory at the end of the flood over its value after the first minute, minus one), and
-one entry per break. Not a test: ``python bench/hostile.py`` (about 8 minutes).
+one entry per break, and ``drop_burst_tracebacks`` (the drop/burst identifier's log). Not a
+test: ``python bench/hostile.py`` (about 20 minutes).
 """
 
 import argparse
@@ -343,54 +351,105 @@ def live_breaks(model_path, data, domain, log_dir, folder, flood_minutes):
     return results, tracebacks, node.max_rss
 
 
+GROUPS = ('earlier', 'files', 'urdf', 'still', 'forward', 'garbage', 'sim_arm', 'dropburst')
+
+
+def probe_breaks(groups, domain, log_dir, folder, data, args):
+    """Run the third probe's breaks (bench/hostile_probe.py); return (results, drop/burst)."""
+    import hostile_probe as probe
+    results, drop_burst = [], None
+    for group, run in (
+            ('files', lambda: probe.file_breaks(domain, folder)),
+            ('urdf', lambda: probe.urdf_breaks(domain, folder)),
+            ('still', lambda: probe.still_joints_break(domain, folder)),
+            ('forward', lambda: probe.forward_topic_breaks(domain)),
+            ('garbage', lambda: probe.garbage_break(Identifier, domain, log_dir, data,
+                                                    args.garbage_seconds)),
+            ('sim_arm', lambda: probe.sim_arm_breaks(domain, log_dir))):
+        if group in groups:
+            print(f'== {group}', flush=True)
+            for result in run():
+                print(f"   {result['break']}: survived {result['survived']}", flush=True)
+                results.append(result)
+    if 'dropburst' in groups:
+        print(f'== 1 kHz drops and bursts for {args.drop_burst_minutes:g} min', flush=True)
+        drop_burst = probe.drop_burst_stream(Identifier, domain, log_dir, data,
+                                             args.drop_burst_minutes)
+        print(f"   survived {drop_burst['survived']}, tracebacks {drop_burst['tracebacks']}",
+              flush=True)
+        results.append(drop_burst)
+    return results, drop_burst
+
+
 def main(argv=None):
     """Feed every break; write bench/results/hostile.json; non-zero if one did not hold."""
     parser = argparse.ArgumentParser(description='hostile input to the identifier')
     parser.add_argument('--flood-minutes', type=float, default=5.0)
+    parser.add_argument('--garbage-seconds', type=float, default=60.0,
+                        help='finite garbage joint_states with the feed-forward on')
+    parser.add_argument('--drop-burst-minutes', type=float, default=5.0,
+                        help='1 kHz streams with random drops and bursts')
+    parser.add_argument('--only', default=','.join(GROUPS),
+                        help=f'comma-separated groups of breaks, of {",".join(GROUPS)}')
     parser.add_argument('--domain', type=int, default=None)
     parser.add_argument('--out', default=os.path.join(HERE, 'results', 'hostile.json'))
     args = parser.parse_args(argv)
+    groups = set(args.only.split(','))
+    unknown = groups - set(GROUPS)
+    if unknown:
+        parser.error(f'unknown groups {sorted(unknown)}')
     import rclpy  # noqa: F401 - fail early without ROS
     domain = args.domain if args.domain is not None else 20 + os.getpid() % 200
     log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
     model, data = make_model()
-    results, tracebacks, max_rss = [], 0, 0.0
+    results, tracebacks, max_rss, flood = [], 0, 0.0, None
     with tempfile.TemporaryDirectory(prefix='hostile_') as folder:
-        from rkgnn_ros.identification.model_file import save_model_file
-        model_path = os.path.join(folder, 'model.yaml')
-        assert save_model_file(model_path, model)[0]
-        for name, path in bad_model_files(model, folder).items():
-            print(f'== model file: {name}', flush=True)
-            result = refused_file_break(name, path, domain, log_dir)
-            print(f"   survived: {result['survived']}; {result['log']}", flush=True)
-            results.append(result)
-            tracebacks += result['tracebacks']
-            max_rss = max(max_rss, result['max_rss_mb'])
-        print('== a running node: save, parameters, stamps, CDR, budgets, flood', flush=True)
-        live, live_tracebacks, live_rss = live_breaks(model_path, data, domain, log_dir,
-                                                      folder, args.flood_minutes)
-        results += live
-        tracebacks += live_tracebacks
-        max_rss = max(max_rss, live_rss)
-    flood = next(r for r in live if r['break'].startswith('100,000'))
+        if 'earlier' in groups:
+            from rkgnn_ros.identification.model_file import save_model_file
+            model_path = os.path.join(folder, 'model.yaml')
+            assert save_model_file(model_path, model)[0]
+            for name, path in bad_model_files(model, folder).items():
+                print(f'== model file: {name}', flush=True)
+                result = refused_file_break(name, path, domain, log_dir)
+                print(f"   survived: {result['survived']}; {result['log']}", flush=True)
+                results.append(result)
+                tracebacks += result['tracebacks']
+                max_rss = max(max_rss, result['max_rss_mb'])
+            print('== a running node: save, parameters, stamps, CDR, budgets, flood',
+                  flush=True)
+            live, live_tracebacks, live_rss = live_breaks(model_path, data, domain, log_dir,
+                                                          folder, args.flood_minutes)
+            results += live
+            tracebacks += live_tracebacks
+            max_rss = max(max_rss, live_rss)
+            flood = next(r for r in live if r['break'].startswith('100,000'))
+        probed, drop_burst = probe_breaks(groups, domain, log_dir, folder, data, args)
+    results += probed
+    tracebacks += sum(r['tracebacks'] for r in probed)
     summary = {
         'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
-        'load_average': round(os.getloadavg()[0], 1),
+        'load_average': round(os.getloadavg()[0], 1), 'groups': sorted(groups),
         'breaks_tested': len(results),
         'breaks_survived': sum(bool(r['survived']) for r in results),
-        'tracebacks': tracebacks, 'max_rss_mb': round(max_rss, 1),
-        'reference_flood_rss_growth_fraction': flood['rss_growth_fraction'],
-        'flood_minutes': args.flood_minutes,
-        'note': 'tracebacks: lines with Traceback in the identifier logs; max_rss_mb: the '
-                'largest resident memory sampled of any identifier process; the flood '
-                'fraction is RSS at its end over RSS after its first minute, minus one',
+        'tracebacks': tracebacks,
+        'drop_burst_tracebacks': None if drop_burst is None else drop_burst['tracebacks'],
+        'drop_burst_minutes': args.drop_burst_minutes if drop_burst else None,
+        'max_rss_mb': round(max_rss, 1),
+        'reference_flood_rss_growth_fraction': flood and flood['rss_growth_fraction'],
+        'flood_minutes': args.flood_minutes if flood else None,
+        'note': 'tracebacks: lines with Traceback in the output of every process fed a break '
+                '(identifier, sim_arm, identify_bag); max_rss_mb: the largest resident memory '
+                'sampled of any identifier process of the earlier rounds; the flood fraction '
+                'is RSS at its end over RSS after its first minute, minus one; '
+                'drop_burst_tracebacks: in the identifier fed 1 kHz streams with random '
+                'drops and bursts',
         'breaks': results,
     }
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, 'w', encoding='utf-8') as f:
-        json.dump(summary, f, indent=2)
+        json.dump(summary, f, indent=2, default=float)
     print(json.dumps({k: summary[k] for k in ('breaks_tested', 'breaks_survived', 'tracebacks',
-                                              'max_rss_mb',
+                                              'drop_burst_tracebacks', 'max_rss_mb',
                                               'reference_flood_rss_growth_fraction')},
                      indent=2), flush=True)
     return 0 if summary['breaks_survived'] == len(results) and not tracebacks else 1

@@ -295,9 +295,10 @@ def joint_state_cdr_to_arrays(
     reasons and results as :func:`joint_state_to_arrays` on the deserialized message (a
     property test holds the two equal).
 
-    Returns None when ``raw`` is not plain CDR this parser reads (another encoding, or
-    bytes that do not form a JointState); the caller then deserializes it the ordinary way
-    (``rclpy.serialization.deserialize_message``), which decides what it is. Bytes over
+    Returns None when ``raw`` is not plain CDR this parser reads (another encapsulation,
+    or bytes that do not form a JointState); the nodes refuse those as ``'malformed'``
+    (:func:`~rkgnn_ros.cdr.encapsulation_problem` says why), never handing them to rclpy's
+    deserializer, which prints a line on stderr for each malformed message. Bytes over
     :data:`MAX_STATE_BYTES` are ``'over_budget'`` without being read.
     """
     try:
@@ -414,8 +415,8 @@ def joint_trajectory_cdr_to_arrays(
     read from the message's first bytes (:func:`~rkgnn_ros.cdr.joint_trajectory_cdr_size`).
     Then the same rules, reasons and results as :func:`joint_trajectory_to_arrays` on the
     deserialized message (a property test holds the two equal). Plain CDR that does not
-    form a JointTrajectory is ``'malformed'``; None means another encoding, which the
-    caller deserializes the ordinary way (then checks the budgets on the message).
+    form a JointTrajectory is ``'malformed'``; None means another encapsulation, which the
+    nodes refuse too (:func:`~rkgnn_ros.cdr.encapsulation_problem`).
     """
     try:
         rejection = _bytes_rejection(raw, MAX_TRAJECTORY_BYTES, 'a JointTrajectory')

@@ -103,12 +103,14 @@ from rkgnn_ros.identification.model_file import (load_at_start, save_identified_
                                                  save_model_file)
 from rkgnn_ros.identification.parameters import ConfigurationError, IdentifierParameters
 from rkgnn_ros.identification.prediction import Prediction, Predictor
-from rkgnn_ros.identification.publishing import (create_publishers, EVOLUTION_LABELS, Outbox,
-                                                 Publishing, SCORE_LABELS)
+from rkgnn_ros.identification.publishing import (create_forward_publisher, create_publishers,
+                                                 EVOLUTION_LABELS, Outbox, Publishing,
+                                                 SCORE_LABELS)
 from rkgnn_ros.identification.subscriptions import (quiet_events, subscribe_description,
                                                     subscribe_streams)
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.parameters import Change
+from rkgnn_ros.sigint import Interrupt
 from rkgnn_ros.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 from std_srvs.srv import SetBool, Trigger
 
@@ -144,8 +146,7 @@ class IdentifierNode(Node):
         self.add_post_set_parameters_callback(self._after_set_parameters)
         config = self._params.config
 
-        publishers = create_publishers(self, quiet_events()[0],
-                                       config['feedforward.forward_topic'])
+        publishers = create_publishers(self, quiet_events()[0])
 
         self._outbox = Outbox()
         # every time rule on the node's clock (use_sim_time), never running backwards
@@ -183,6 +184,9 @@ class IdentifierNode(Node):
         self._prediction_timer = None
         self._make_prediction_timer()
         self.create_timer(1.0, self._publishing.publish_diagnostics)
+        if config['feedforward.forward_topic']:  # last: checked against every topic above
+            self._feedforward.forward_to(create_forward_publisher(
+                self, config['feedforward.forward_topic'], quiet_events()[0]))
         # /clock reset under use_sim_time: the buffered data belong to the old timeline
         self._clock_jumps = watch_clock_jumps(self, self._ingestion)
 
@@ -307,11 +311,14 @@ class IdentifierNode(Node):
 def main(args=None):
     """Run the identifier node until SIGINT or shutdown; return the exit code."""
     dump_stacks_on_sigusr1()
+    interrupt = Interrupt()
+    interrupt.install()                     # before rclpy.init: its handler chains to it
     rclpy.init(args=args)
     node = None
     code = 0
     try:
         node = IdentifierNode()
+        interrupt.arm()                     # a SIGINT now ends the spin, raises nothing
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

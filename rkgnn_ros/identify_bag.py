@@ -48,7 +48,6 @@ model and the report are written all the same, the report says so at its top, an
 exit code is :data:`EXIT_WORSE_THAN_BASELINE` (3).
 """
 
-import argparse
 import json
 import math
 import os
@@ -67,6 +66,10 @@ EXIT_WORSE_THAN_BASELINE = 3
 REPORT_SHARE = 0.1
 #: Seconds that must be left of the budget for the figures to be drawn.
 FIGURES_S = 3.0
+#: A joint whose θ spans less than this (rad) in the training part does not move.
+MIN_MOTION = 0.01
+#: Largest parameters file read (bytes); the node's own is about 10 kB.
+MAX_PARAMS_BYTES = 4 * 1024 * 1024
 
 
 class IdentifyError(Exception):
@@ -105,11 +108,15 @@ def read_parameters(path: str, node_name: str = NODE_NAME) -> Dict[str, object]:
     ``identifier``) are merged in file order. Raises IdentifyError naming the file.
     """
     import yaml
+    from rkgnn_ros.core.input_files import InputFileError, read_bounded
     try:
-        with open(os.path.expanduser(path), encoding='utf-8') as f:
-            tree = yaml.safe_load(f)
-    except OSError as error:
-        raise IdentifyError(f'{path}: cannot read the parameters file: {error.strerror}')
+        tree = yaml.safe_load(read_bounded(os.path.expanduser(path), MAX_PARAMS_BYTES)
+                              .decode('utf-8'))
+    except InputFileError as error:
+        raise IdentifyError(f'{path}: cannot read the parameters file: {error}')
+    except UnicodeDecodeError as error:
+        raise IdentifyError(f'{path}: the parameters file is not UTF-8 text (byte '
+                            f'{error.start})')
     except yaml.YAMLError as error:
         raise IdentifyError(f'{path}: not YAML: {" ".join(str(error).split())}')
     if not isinstance(tree, dict):
@@ -242,6 +249,25 @@ def _loop_of(model):
         return ClosedLoop(model, closed_loop(model, law), math.nan)
     except (TypeError, ValueError):  # a law that does not fold (Kp not > 0, wrong sizes)
         return None
+
+
+def _refuse_still_joints(bag: str, joints, segments) -> None:
+    """
+    Refuse a recording in which some joints never move (θ range below MIN_MOTION).
+
+    Their dynamics cannot be identified from it: the fit has nothing to go on, and the
+    held-out θ-NRMSE (normalised by each joint's range) of such a joint reached 1.2e11.
+    """
+    theta = np.vstack([seg.theta for seg in segments])
+    motion = theta.max(axis=0) - theta.min(axis=0)
+    still = [name for name, span in zip(joints, motion) if not span >= MIN_MOTION]
+    if still:
+        moving = [name for name in joints if name not in still]
+        raise IdentifyError(
+            f'{bag}: {len(still)} of {len(joints)} joints never move in the training part '
+            f'(θ range below {MIN_MOTION:g} rad): {still}; their dynamics cannot be '
+            f'identified from this recording: record them moving, or identify the others '
+            f'alone (joints: {moving} in the parameters file)')
 
 
 def _coverage(segments) -> dict:
@@ -416,6 +442,10 @@ def identify(args, started: Optional[float] = None) -> dict:
                             f'controller_state topic; the recording has '
                             f'{sorted(recording.types)}')
     heldout_s = max(0.0, float(args.heldout))
+    if heldout_s >= span:
+        recording.close()
+        raise IdentifyError(f'{args.bag}: --heldout {heldout_s:g} s leaves nothing to fit: '
+                            f'the states on {topics.states} span {span:.3g} s')
     split_ns = state_times[-1] - int(heldout_s * 1e9) if heldout_s > 0 else None
     log_lines: List[Tuple[str, str]] = []
 
@@ -444,6 +474,7 @@ def identify(args, started: Optional[float] = None) -> dict:
             + (f' for the joints {list(joints)}' if joints else '')
             + (f'; dropped: {drops}' if drops else '')
             + (f' ({truncated})' if truncated else ''))
+    _refuse_still_joints(args.bag, joints, train_segments)
     _say(args.quiet, f'{counts["states"]} states, {counts["commands"]} commands, '
                      f'{counts["controller_states"]} controller states; training part '
                      f'{sum(s.duration for s in train_segments):.1f} s, joints {list(joints)}'
@@ -523,52 +554,31 @@ def _json_default(value):
     return str(value)
 
 
-def parser() -> argparse.ArgumentParser:
-    """Return the command line parser."""
-    p = argparse.ArgumentParser(
-        prog='identify_bag', description='Identify an arm from a rosbag2 recording (MCAP or '
-        "sqlite3) with the identifier node's pipeline and parameters.")
-    p.add_argument('bag', help='the recording: a rosbag2 folder, an .mcap or a .db3 file')
-    p.add_argument('--params-file', default='',
-                   help="the identifier's parameters file (default: its defaults)")
-    p.add_argument('--node-name', default=NODE_NAME,
-                   help='the node whose entry of the parameters file applies')
-    p.add_argument('--out', default='', help='output folder (default: <bag>_identified)')
-    p.add_argument('--heldout', type=float, default=10.0,
-                   help='seconds at the end kept out of the fit and predicted (0: none)')
-    p.add_argument('--budget', type=float, default=90.0,
-                   help='wall-time budget of the whole run (s); exit code 3: the model is '
-                   'written but predicts the held-out part worse than a baseline')
-    p.add_argument('--max-generations', type=int, default=0,
-                   help='stop after this many generations (0: the budget decides)')
-    p.add_argument('--namespace', default='', help='take the topics under this namespace')
-    p.add_argument('--joint-states', default='', help='joint states topic')
-    p.add_argument('--joint-commands', default='', help='joint commands topic')
-    p.add_argument('--controller-state', default='',
-                   help="a joint_trajectory_controller's controller_state topic")
-    p.add_argument('--model-topic', default='',
-                   help="the online identifier's ~/model topic (compared on the held-out part)")
-    p.add_argument('--quiet', action='store_true', help='no progress lines')
-    return p
-
-
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """
     Run identify_bag; return the exit code.
 
-    0 done; 1 an error it explains; 3 (:data:`EXIT_WORSE_THAN_BASELINE`) the model and the
-    report are written, but the model predicts the held-out part worse than a baseline.
-    Run from the command line (``argv`` None), the budget counts from the process's start.
+    0 done; 1 an error it explains; 2 a bad command line; 3
+    (:data:`EXIT_WORSE_THAN_BASELINE`) the model and the report are written, but the model
+    predicts the held-out part worse than a baseline. Run from the command line (``argv``
+    None), the budget counts from the process's start.
     """
     from rkgnn_ros.core.fitting.budget import process_age
+    from rkgnn_ros.identify_bag_args import parser
     started = time.monotonic() - (process_age() if argv is None else 0.0)
-    args = parser().parse_args(argv)
+    args = parser(NODE_NAME).parse_args(argv)
     if not args.out:
         args.out = os.path.abspath(args.bag.rstrip('/')) + '_identified'
     try:
+        if os.path.exists(args.out) and not os.path.isdir(args.out):
+            raise IdentifyError(f'--out {args.out}: exists and is not a folder')
         report = identify(args, started)
     except IdentifyError as error:
         print(f'identify_bag: error: {error}', file=sys.stderr, flush=True)
+        return 1
+    except OSError as error:  # writing the results: a full disk, no permission
+        print(f'identify_bag: error: {error.filename or args.out}: '
+              f'{error.strerror or error}', file=sys.stderr, flush=True)
         return 1
     except KeyboardInterrupt:
         print('identify_bag: interrupted', file=sys.stderr, flush=True)

@@ -24,12 +24,15 @@ the reader interface :mod:`rkgnn_ros.recording` uses. ``broken`` says where and 
 stopped, if it did.
 """
 
+import mmap
 import struct
 from typing import Dict, Iterator, List, NamedTuple, Optional, Tuple
 
 __all__ = ['McapScan']
 
 MAGIC = b'\x89MCAP0\r\n'
+#: Largest chunk decompressed (bytes); ros2 bag writes chunks of about 1 MiB.
+MAX_CHUNK_BYTES = 256 * 1024 * 1024
 _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _FOOTER = 0x03, 0x04, 0x05, 0x06, 0x02
 
 
@@ -43,12 +46,14 @@ class Connection(NamedTuple):
     msgdef: str
 
 
-def _string(data: bytes, at: int) -> Tuple[str, int]:
+def _string(data, at: int) -> Tuple[str, int]:
     (size,) = struct.unpack_from('<I', data, at)
-    return data[at + 4:at + 4 + size].decode('utf-8'), at + 4 + size
+    return bytes(data[at + 4:at + 4 + size]).decode('utf-8'), at + 4 + size
 
 
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
+def _decompress(compression: str, data, size: int):
+    if size > MAX_CHUNK_BYTES:
+        raise ValueError(f'a chunk of {size} bytes, over the limit of {MAX_CHUNK_BYTES}')
     if compression == '':
         return data
     if compression == 'zstd':
@@ -80,15 +85,22 @@ class McapScan:
     """
 
     def __init__(self, path: str):
-        with open(path, 'rb') as f:
-            self._data = f.read()
-        if not self._data.startswith(MAGIC):
-            raise ValueError('not an MCAP file (no MCAP magic at its start)')
         self.broken = ''
         self._schemas: Dict[int, Tuple[str, str]] = {}
         self._channels: Dict[int, Tuple[str, int]] = {}
         self._messages: List[Tuple[int, int, bytes]] = []  # (channel, log_time, data)
-        self._scan(self._data, len(MAGIC), top=True)
+        with open(path, 'rb') as f:
+            if f.read(len(MAGIC)) != MAGIC:
+                raise ValueError('not an MCAP file (no MCAP magic at its start)')
+            # mapped, not read: what the scan does not reach is never loaded
+            mapped = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        try:
+            self._scan(memoryview(mapped), len(MAGIC), top=True)
+        finally:
+            try:
+                mapped.close()
+            except BufferError:  # a view still held (a traceback's frame): unmapped later
+                pass
         counts: Dict[int, int] = {}
         for channel, _, _ in self._messages:
             counts[channel] = counts.get(channel, 0) + 1
@@ -129,14 +141,15 @@ class McapScan:
             name, at = _string(body, 2)
             _, at = _string(body, at)                 # encoding
             (size,) = struct.unpack_from('<I', body, at)
-            self._schemas[sid] = (name, body[at + 4:at + 4 + size].decode('utf-8', 'replace'))
+            text = bytes(body[at + 4:at + 4 + size]).decode('utf-8', 'replace')
+            self._schemas[sid] = (name, text)
         elif opcode == _CHANNEL:
             cid, sid = struct.unpack_from('<HH', body, 0)
             topic, _ = _string(body, 4)
             self._channels[cid] = (topic, sid)
         elif opcode == _MESSAGE:
             cid, _, log_time, _ = struct.unpack_from('<HIQQ', body, 0)
-            self._messages.append((cid, log_time, body[22:]))
+            self._messages.append((cid, log_time, bytes(body[22:])))
         elif opcode == _CHUNK:
             _, _, size, _ = struct.unpack_from('<QQQI', body, 0)
             compression, at = _string(body, 28)

@@ -35,12 +35,16 @@ import os
 from pathlib import Path
 from typing import Dict, List, NamedTuple, Optional, Tuple
 
+from .core.input_files import file_problem
+
 __all__ = ['RecordingError', 'Topics', 'Message', 'Recording', 'RecordingWriter',
            'open_recording', 'find_topics', 'read_messages', 'JOINT_STATE',
            'CONTROLLER_STATES']
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 STRING = 'std_msgs/msg/String'
+#: Largest metadata.yaml read (bytes); ros2 bag writes a few kB.
+MAX_METADATA_BYTES = 16 * 1024 * 1024
 #: Controller state types whose reference (θd, θ̇d) can stand in for joint_commands.
 CONTROLLER_STATES = ('control_msgs/msg/JointTrajectoryControllerState',)
 
@@ -89,6 +93,35 @@ class Recording:
         return self.reader.deserialize(message.raw, self.types[message.topic])
 
 
+def _check_files(path: str, where: Path) -> None:
+    """
+    Refuse a recording whose files are not regular files, before anything opens them.
+
+    A FIFO would block its reader forever and a device never ends. A folder must hold a
+    ``metadata.yaml`` (what ``ros2 bag record`` writes) of at most
+    :data:`MAX_METADATA_BYTES`.
+    """
+    if not where.is_dir():
+        problem = file_problem(str(where))
+        if problem is not None:
+            raise RecordingError(f'{path}: {problem}')
+        return
+    metadata = where / 'metadata.yaml'
+    if not os.path.lexists(metadata):
+        inside = sorted(p.name for p in where.iterdir() if p.suffix in ('.mcap', '.db3'))
+        hint = f'; it holds {", ".join(inside[:3])}: give that file' if inside else ''
+        raise RecordingError(f'{path}: a folder without metadata.yaml is not a rosbag2 '
+                             f'recording{hint}')
+    problem = file_problem(str(metadata), MAX_METADATA_BYTES)
+    if problem is not None:
+        raise RecordingError(f'{path}: metadata.yaml: {problem}')
+    for entry in sorted(where.iterdir()):
+        if entry.suffix in ('.mcap', '.db3', '.zstd'):
+            problem = file_problem(str(entry))
+            if problem is not None:
+                raise RecordingError(f'{path}: {entry.name}: {problem}')
+
+
 def _storage_of(path: Path) -> str:
     if path.is_dir():
         metadata = path / 'metadata.yaml'
@@ -117,13 +150,14 @@ def open_recording(path: str) -> Recording:
     where = Path(os.path.expanduser(path))
     if not where.exists():
         raise RecordingError(f'{path}: no such file or folder')
+    _check_files(path, where)
     storage = _storage_of(where)
     if not where.is_dir() and where.suffix not in ('.mcap', '.db3'):
         raise RecordingError(f'{path}: unknown storage format {storage!r} (a rosbag2 folder, '
                              'an .mcap or a .db3 file)')
-    reader = AnyReader([where], default_typestore=get_typestore(Stores.ROS2_JAZZY))
     note = ''
     try:
+        reader = AnyReader([where], default_typestore=get_typestore(Stores.ROS2_JAZZY))
         reader.open()
     except Exception as error:  # noqa: B902 - rosbags and its storages raise many types
         reader, note = _scan_instead(where, storage, error)

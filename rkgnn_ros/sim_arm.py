@@ -19,8 +19,10 @@ The plant of :mod:`rkgnn_ros.core.sim.plant` (``PlanarArm``) tracks a reference 
 :mod:`rkgnn_ros.core.sim.trajectories` under the servo of :mod:`rkgnn_ros.core.sim.servo`:
 by default the paper's PD τ = Kp (θd - θ) + Kd (θ̇d - θ̇); with ``ki`` a PID (with
 back-calculation anti-windup, ``windup_time``), with ``gravity_compensation`` plus the
-arm's own gravity torque at θ or θd, with ``tau_limit`` saturating drives. It runs on the
-node's clock (``use_sim_time`` is honoured like in any node). What ``joint_states``
+arm's own gravity torque at θ or θd, with ``tau_limit`` saturating drives (by default at
+twice the arm's torque scale on its reference, :mod:`rkgnn_ros.core.sim.torque_scale`: a
+drive never applies an unbounded torque, and a feed-forward beyond it is refused). It runs
+on the node's clock (``use_sim_time`` is honoured like in any node). What ``joint_states``
 carries is what a driver publishes (:mod:`rkgnn_ros.core.sim.sensors`): ``sensors.*``.
 
 Topics (published)
@@ -92,7 +94,7 @@ except ``noise.theta_std`` and ``noise.theta_dot_std``, which can be changed at 
 import math
 import sys
 import traceback
-from typing import Optional
+from typing import NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -101,20 +103,20 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from trajectory_msgs.msg import JointTrajectory
 
-from .cdr import is_plain_cdr, joint_trajectory_cdr_size, parse_joint_trajectory_cdr
+from .cdr import encapsulation_problem, joint_trajectory_cdr_size, parse_trajectory_efforts_cdr
 from .conversions import (make_joint_state, make_joint_trajectory, MAX_MESSAGE_JOINTS,
                           MAX_NAME_BYTES, MAX_TRAJECTORY_BYTES, MAX_TRAJECTORY_POINTS)
 from .core.control.receiver import FeedforwardReceiver
 from .core.sim.arm_simulator import ArmSimulator, SimulationDiverged
 from .core.sim.plant import PlanarArm
 from .parameters import Change
+from .sigint import Interrupt
 from .sim_arm_parameters import build_config, BY_NAME, ConfigurationError, PARAMETERS
 from .stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 
@@ -138,28 +140,45 @@ def _over_budget(names, points: int) -> Optional[str]:
     return None
 
 
+class FeedforwardMessage(NamedTuple):
+    """The fields of a feed-forward JointTrajectory that ``sim_arm`` reads."""
+
+    stamp_ns: int                # header stamp (0: now)
+    names: Tuple[str, ...]
+    times: np.ndarray            # (K,) time_from_start (s)
+    efforts: Sequence            # (K, m) array, or K arrays: the efforts in the message's order
+
+
 def read_feedforward(raw: bytes):
     """
-    Return the JointTrajectory in ``raw`` (its serialized bytes), or ``(reason, message)``.
+    Return the :class:`FeedforwardMessage` in ``raw`` (CDR bytes), or ``(reason, message)``.
 
     The reason is ``'over_budget'`` (bytes, names or points over the budgets of
     :mod:`rkgnn_ros.conversions`, checked before anything is built from the points) or
-    ``'bad_shape'`` (plain CDR that does not form a JointTrajectory: never handed to
-    rclpy's deserializer, which prints on stderr for it).
+    ``'bad_shape'`` (plain CDR that does not form a JointTrajectory, or bytes of another
+    encapsulation than plain CDR). The bytes are read by :mod:`rkgnn_ros.cdr`, never by
+    rclpy: its deserializer prints on stderr for each malformed message, and building a
+    10,000-point message and its efforts took a third of a second, time the simulation
+    fell behind by (:func:`~rkgnn_ros.cdr.parse_trajectory_efforts_cdr`: milliseconds).
     """
     if len(raw) > MAX_TRAJECTORY_BYTES:
         return 'over_budget', f'{len(raw)} bytes, over the budget of {MAX_TRAJECTORY_BYTES}'
     raw = bytes(raw)
-    if is_plain_cdr(raw):
-        size = joint_trajectory_cdr_size(raw)
-        reason = None if size is None else _over_budget(*size)
-        if reason is not None:
-            return 'over_budget', reason
-        if parse_joint_trajectory_cdr(raw) is None:
-            return 'bad_shape', f'{len(raw)} bytes of CDR that do not form a JointTrajectory'
-    msg = deserialize_message(raw, JointTrajectory)
-    reason = _over_budget(msg.joint_names, len(msg.points))
-    return msg if reason is None else ('over_budget', reason)
+    problem = encapsulation_problem(raw, 'JointTrajectory')
+    if problem is not None:
+        return 'bad_shape', problem
+    size = joint_trajectory_cdr_size(raw)
+    reason = None if size is None else _over_budget(*size)
+    if reason is not None:
+        return 'over_budget', reason
+    parsed = parse_trajectory_efforts_cdr(raw)
+    if parsed is None:
+        return 'bad_shape', f'{len(raw)} bytes of CDR that do not form a JointTrajectory'
+    sec, nanosec, names, times, efforts = parsed
+    reason = _over_budget(names, len(times))
+    if reason is not None:
+        return 'over_budget', reason
+    return FeedforwardMessage(sec * _NANO + nanosec, names, times, efforts)
 
 
 class SimArm(Node):
@@ -249,7 +268,8 @@ class SimArm(Node):
             f'{len(self._names)} joints {self._names}, {arm}, '
             f'{control}, reference {config.reference_type!r}, publishing at '
             f'{self._rate:g} Hz ({published}), integration_step {config.integration_step:g} s '
-            f'(stable below {config.stable_step:.3g} s at the start state)')
+            f'(stable below {config.stable_step:.3g} s at the start state), drive limits '
+            f'{config.tau_limit_note}')
 
     # -- parameters -----------------------------------------------------------------------
 
@@ -396,16 +416,13 @@ class SimArm(Node):
         receiver = self._feedforward
         try:
             msg = read_feedforward(raw)
-            if isinstance(msg, tuple):
+            if not isinstance(msg, FeedforwardMessage):
                 event = receiver.refuse(*msg)
             elif self._origin_ns is None:
                 event = receiver.refuse('not_started', 'the simulation has not started')
             else:
-                stamp = msg.header.stamp.sec * _NANO + msg.header.stamp.nanosec
-                times = [p.time_from_start.sec + p.time_from_start.nanosec / _NANO
-                         for p in msg.points]
-                event = receiver.offer(self._origin_ns / _NANO + self.sim.t, stamp / _NANO,
-                                       msg.joint_names, times, [p.effort for p in msg.points])
+                event = receiver.offer(self._origin_ns / _NANO + self.sim.t,
+                                       msg.stamp_ns / _NANO, msg.names, msg.times, msg.efforts)
             self._feedforward_event(event)
         except Exception as error:  # nothing may escape a callback
             self._feedforward_event(receiver.refuse('bad_shape', f'unreadable ({error!r})'))
@@ -466,11 +483,14 @@ class SimArm(Node):
 def main(args=None) -> int:
     """Run the node until SIGINT, shutdown or ``duration``; return the exit code."""
     dump_stacks_on_sigusr1()
+    interrupt = Interrupt()
+    interrupt.install()                     # before rclpy.init: its handler chains to it
     rclpy.init(args=args)
     node = None
     exit_code = 0
     try:
         node = SimArm()
+        interrupt.arm()                     # a SIGINT now ends the spin, raises nothing
         rclpy.spin_until_future_complete(node, node.finished)
         exit_code = node.exit_code
     except ConfigurationError:

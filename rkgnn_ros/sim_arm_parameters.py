@@ -27,7 +27,7 @@ Nothing here touches a node, so the rules are tested on plain dictionaries of va
 
 from functools import partial
 import math
-from typing import List, NamedTuple, Optional, Tuple
+from typing import List, NamedTuple, Tuple
 
 import numpy as np
 
@@ -38,6 +38,7 @@ from .core.sim.plant import PlanarArm
 from .core.sim.sensors import SensorModel, VELOCITY_SOURCES
 from .core.sim.servo import DEFAULT_WINDUP_TIME, GRAVITY_MODES
 from .core.sim.stability import max_stable_rkg_step
+from .core.sim.torque_scale import DEFAULT_LIMIT_FACTOR, default_torque_limit
 from .core.sim.trajectories import (Chirp, hanging_pose, paper_reference, Reference, SumOfSines,
                                     Switched)
 from .parameters import Change, ParameterSpec
@@ -50,6 +51,9 @@ REFERENCE_TYPES = ('paper', 'sines', 'chirp')
 
 #: Most points in one reference_trajectory message.
 MAX_REFERENCE_POINTS = 100_000
+
+#: Longest span of the reference (s) the default torque limit is taken over.
+MAX_REFERENCE_SPAN = 3600.0
 
 
 class ConfigurationError(ValueError):
@@ -94,7 +98,9 @@ PARAMETERS = (
           constraints="'none', 'measured' or 'desired'"),
     _Spec('tau_limit', [0.0],
           'Torque limits of the drives (N m); the applied, published torque is clipped to '
-          '+-limit; 0 = no limit.', constraints='n values or one for every joint, each >= 0'),
+          '+-limit and a feed-forward beyond it is refused; 0 = the default: twice the '
+          "arm's torque scale on its reference (gravity, inertia, friction).",
+          constraints='n values or one for every joint, each >= 0'),
     _Spec('windup_time', DEFAULT_WINDUP_TIME,
           'Back-calculation anti-windup time constant of the integral term (s).',
           1e-4, 1e4),
@@ -192,7 +198,8 @@ class SimConfig(NamedTuple):
     kd: np.ndarray
     ki: np.ndarray
     gravity_compensation: str
-    tau_limit: Optional[np.ndarray]
+    tau_limit: np.ndarray            # (n,) N m, finite: given, or the arm's default
+    tau_limit_note: str              # how it was chosen, for the start log
     windup_time: float
     sensors: SensorModel
     reference: Reference
@@ -337,6 +344,10 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
         raise ConfigurationError(f'reference.*: {error}') from None
     if urdf is not None:
         warnings.append(reference_limit_warning(arm, reference) or '')
+    try:
+        default_limit = default_torque_limit(arm, reference, _reference_span(values))
+    except ValueError as error:     # an arm whose torque scale is not finite
+        raise ConfigurationError(f'tau_limit: no default: {error}') from None
 
     reference_dt = values['reference_dt']
     horizon = values['reference_horizon']
@@ -373,7 +384,8 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
         joint_names=names, arm=arm,
         robot_description='' if urdf is None else urdf.description, kp=kp, kd=kd, ki=ki,
         gravity_compensation=values['gravity_compensation'],
-        tau_limit=np.where(tau_limit > 0.0, tau_limit, np.inf) if np.any(tau_limit) else None,
+        tau_limit=np.where(tau_limit > 0.0, tau_limit, default_limit),
+        tau_limit_note=_limit_note(tau_limit, default_limit),
         windup_time=float(values['windup_time']), sensors=sensors, reference=reference,
         reference_type=values['reference.type'], seed=int(values['seed']),
         theta_std=float(values['noise.theta_std']),
@@ -388,6 +400,27 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
         drop_fraction=float(values['sensors.drop_fraction']),
         publish_commands=bool(values['sensors.commands']))
     return config, [warning for warning in warnings if warning]
+
+
+def _reference_span(values: dict) -> float:
+    """Return the seconds of the reference its default torque limit is taken over."""
+    span = 60.0
+    if values['reference.type'] == 'chirp':
+        span = max(span, values['reference.chirp_duration'] + 10.0)
+    if values['reference.switch_at']:
+        span = max(span, values['reference.switch_at'] + values['reference.switch_blend']
+                   + 60.0)
+    return min(span, MAX_REFERENCE_SPAN)
+
+
+def _limit_note(given: np.ndarray, default: np.ndarray) -> str:
+    """Return how the drive limits were chosen, e.g. 'default 247, 136, 19.2 N m'."""
+    values = np.where(given > 0.0, given, default)
+    text = ', '.join(f'{v:.3g}' for v in values)
+    if np.all(given > 0.0):
+        return f'{text} N m (tau_limit)'
+    return (f"{text} N m ({'default' if not np.any(given > 0.0) else 'tau_limit, 0: default'}"
+            f" = {DEFAULT_LIMIT_FACTOR:g}x the arm's torque scale on its reference)")
 
 
 def _planar_arm(values: dict, n: int, viscous, coulomb) -> PlanarArm:

@@ -1237,6 +1237,28 @@ def test_hostile_malformed_raw_cdr_prints_nothing_on_stderr(streams, capfd):
     assert 'sequence size' not in err and 'deserialize' not in err, err[:500]
 
 
+def test_hostile_another_cdr_encapsulation_is_refused_silently(streams, capfd):
+    good = serialize_message(_js(JOINTS, [0.1, 0.2, 0.3], [0, 0, 0], [1, 1, 1]))
+    malformed = good[:20] + b'\xff\xff\xff\x7f' + good[24:]  # a count beyond the end
+    reference = serialize_message(_trajectory([0.0, 0.1], [[0.1, 0.2, 0.3]] * 2))
+    capfd.readouterr()
+    before = streams.drops()['malformed']
+    raws = [code.to_bytes(2, 'big') + body[2:] for code in (3, 6, 7, 9, 11, 0x100)
+            for body in (good, malformed)]
+    for raw in raws * 5:  # XCDR2 (7) and the others, whole and malformed
+        streams.ingestion.handle_state(raw)
+        streams.ingestion.handle_command(raw)
+    for code in (3, 7):
+        streams.ingestion.handle_reference(code.to_bytes(2, 'big') + reference[2:], T0)
+    assert streams.drops()['malformed'] == before + 2 * len(raws) * 5 + 2
+    err = capfd.readouterr().err
+    assert 'sequence size' not in err and 'deserialize' not in err, err[:500]
+    streams.clock.now += 1.0  # past the log throttle of the previous fault
+    streams.log_lines()
+    streams.ingestion.handle_state(raws[4])  # XCDR2, little endian
+    assert streams.log_lines('joint_states', 'malformed', 'encapsulation 0x0007')
+
+
 @pytest.mark.parametrize('case', ['joints', 'name_bytes', 'state_bytes', 'points',
                                   'points_raw'])
 def test_hostile_over_budget_messages_are_rejected_and_counted(streams, case):

@@ -330,8 +330,10 @@ def test_duration_ends_the_run_with_exit_code_0(ros):
 
 def test_divergence_stops_the_node_with_exit_code_1(ros):
     context, executor = ros
-    # a digital PD at 100 Hz is far too slow for the rod arm (it needs ~700 Hz)
-    node = start(context, executor, mass_model='rod', control_rate=100.0)
+    # a digital PD at 100 Hz is far too slow for the rod arm (it needs ~700 Hz); drives
+    # far stronger than the default limit (twice the arm's torque scale, which holds the
+    # chatter within max_speed) let it diverge
+    node = start(context, executor, mass_model='rod', control_rate=100.0, tau_limit=[1e6])
     try:
         wait_for(node.finished.done, 60.0, 'the divergence to be caught')
         assert node.finished.result() == 1 and node.exit_code == 1

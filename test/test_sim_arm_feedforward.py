@@ -40,7 +40,7 @@ from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.servo import FeedforwardTrack, Servo
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.sim_arm import read_feedforward, SimArm
+from rkgnn_ros.sim_arm import FeedforwardMessage, read_feedforward, SimArm
 from ros_helpers import retire_node, Rosout, spinning_context, stamp_ns, wait_for
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -204,7 +204,7 @@ def trajectory(start_ns, efforts, dt=0.5, names=JOINTS):
 def test_the_size_budgets_are_checked_on_the_bytes():
     names = [f'j{i}' for i in range(3)]
     good = serialize_message(trajectory(5_000_000_000, [(1.0, 2.0, 3.0)] * 3, names=names))
-    assert isinstance(read_feedforward(good), JointTrajectory)
+    assert isinstance(read_feedforward(good), FeedforwardMessage)
     for msg, words in [
             (trajectory(0, [(0.0,)] * (MAX_TRAJECTORY_POINTS + 1), dt=1e-3, names=['j']),
              'points'),
@@ -216,6 +216,19 @@ def test_the_size_budgets_are_checked_on_the_bytes():
     assert reason == 'over_budget' and str(MAX_TRAJECTORY_BYTES) in message
     for cut in (10, 40, len(good) // 2):    # truncated: never deserialized
         assert read_feedforward(good[:cut])[0] == 'bad_shape'
+
+
+def test_another_encapsulation_is_refused_before_rclpy_prints_a_line(capfd):
+    good = serialize_message(trajectory(5_000_000_000, [(1.0, 2.0, 3.0)] * 3))
+    malformed = good[:20] + b'\xff\xff\xff\x7f' + good[24:]  # a count beyond the end
+    capfd.readouterr()
+    for code in (2, 3, 6, 7, 8, 9, 10, 11, 0x100):
+        head = code.to_bytes(2, 'big')
+        for raw in (head + good[2:], head + malformed[2:]):
+            reason, message = read_feedforward(raw)
+            assert reason == 'bad_shape' and f'0x{code:04x}' in message
+    err = capfd.readouterr().err
+    assert 'sequence size' not in err and 'Fast CDR' not in err, err[:500]
 
 
 def test_the_node_applies_a_feedforward_and_falls_back_on_bad_ones(ros):

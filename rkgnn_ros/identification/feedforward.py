@@ -166,6 +166,10 @@ class FeedforwardSender:
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
 
+    def forward_to(self, publisher) -> None:
+        """Also publish on ``publisher`` (``feedforward.forward_topic``); before :meth:`start`."""
+        self._publishers.append(publisher)
+
     def _now(self) -> float:
         return self._node.get_clock().now().nanoseconds * 1e-9
 
@@ -280,7 +284,7 @@ class FeedforwardSender:
         try:
             model = self._fit(train, cfg.case, cfg['kp'] or None, cfg['kd'] or None)
             rollout = rollout_error(model, validation, cfg.case)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        except (ValueError, ArithmeticError, MemoryError, np.linalg.LinAlgError) as exc:
             gate.switch_off(f'the model could not be fitted: {exc}')
             self._model = None
             return

@@ -47,20 +47,19 @@ from typing import Callable, Dict, NamedTuple, Optional, Tuple
 import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
-from rclpy.serialization import deserialize_message
-from rkgnn_ros.cdr import is_plain_cdr
+from rkgnn_ros.cdr import encapsulation_problem
 from rkgnn_ros.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
                                    parse_joint_state_cdr, Rejection, REJECTION_REASONS)
 from rkgnn_ros.identification.parameters import MAX_JOINTS
+from rkgnn_ros.identification.plausibility import PLAUSIBILITY_REASONS, PlausibilityFilter
 from rkgnn_ros.identification.sources import read_joint_state, Sources
 from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
-from sensor_msgs.msg import JointState
-from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['NODE_REASONS', 'INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'StateSample']
 
 #: Drop reasons the node adds to the buffer's and the conversions' own.
-NODE_REASONS = ('no_joints', 'internal_error', 'prediction_non_finite', 'worker_error')
+NODE_REASONS = ('no_joints', 'internal_error', 'prediction_non_finite',
+                'worker_error') + PLAUSIBILITY_REASONS
 
 DRAIN_LIMIT = 100        # queued stream messages taken per stream and pass
 FEED_LIMIT = 20000       # states and commands kept for the self-check (at 1 kHz: 10 s)
@@ -101,16 +100,12 @@ def received_ns(info) -> int:
 
 
 def _read_trajectory(msg, joints, now: float):
-    """Read a reference (CDR bytes or a message): our CDR reader, else rclpy's."""
+    """Read a reference (CDR bytes or a message): our CDR reader, never rclpy's."""
     if not isinstance(msg, (bytes, bytearray, memoryview)):
         return joint_trajectory_to_arrays(msg, joints, now=now)
     sample = joint_trajectory_cdr_to_arrays(msg, joints, now=now)
-    if sample is None:  # another encoding (within the byte budget): rclpy decides
-        try:
-            msg = deserialize_message(bytes(msg), JointTrajectory)
-        except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
-            return Rejection('malformed', f'cannot read JointTrajectory: {error!r}')
-        sample = joint_trajectory_to_arrays(msg, joints, now=now)
+    if sample is None:  # another encapsulation: refused before rclpy prints on stderr
+        return Rejection('malformed', encapsulation_problem(bytes(msg), 'JointTrajectory'))
     return sample
 
 
@@ -118,11 +113,7 @@ def _message_names(raw: bytes):
     """Return the joint names of a raw JointState, or None if it has none readable."""
     try:
         parsed = parse_joint_state_cdr(raw)
-        if parsed is not None:
-            return parsed[2]
-        if is_plain_cdr(raw):
-            return None  # malformed: the sample's own reading says so
-        return tuple(deserialize_message(raw, JointState).name)
+        return None if parsed is None else parsed[2]  # None: its own reading says why
     except Exception:  # noqa: B902 - the sample's own reading reports why
         return None
 
@@ -213,6 +204,8 @@ class Ingestion:
         self._counts_lock = threading.Lock()
         self._joints: Optional[Tuple[str, ...]] = None
         self._buffer: Optional[StreamBuffer] = None
+        # per stream: what no arm could produce is dropped before the buffer
+        self._plausible = {stream: PlausibilityFilter(()) for stream in ('state', 'command')}
         self._retired_drops: Dict[str, int] = {}
         self._extra_drops: Dict[str, int] = {}
         self._log_times: Dict[Tuple[str, str], float] = {}
@@ -306,6 +299,8 @@ class Ingestion:
                                       cfg['gap_threshold'], need_tau=case == 'torque',
                                       need_desired=case != 'torque',
                                       max_rate_hz=cfg['max_rate_hz'])
+            self._plausible = {stream: PlausibilityFilter(joints or ())
+                               for stream in ('state', 'command')}
             with self._counts_lock:
                 old = self._buffer
                 if old is not None:
@@ -326,6 +321,9 @@ class Ingestion:
     def clear(self) -> None:
         """Forget every buffered sample and the reference (``~/reset``); counters stay."""
         buffer = self._buffer
+        with self.lock:
+            for plausible in self._plausible.values():
+                plausible.reset()
         if buffer is not None:
             buffer.clear()
 
@@ -453,6 +451,16 @@ class Ingestion:
             self.reject('joint_states', 'state', 'missing_effort',
                         f'effort is empty or NaN (case torque, {sources.case_reason})')
             return
+        passed, dropped = self._plausible['state'].offer(
+            (sample, effort, received), sample.stamp, sample.position, sample.velocity, effort)
+        for _, reason, why in dropped:
+            self.reject('joint_states', 'state', reason, f'{why}: no arm does that')
+        for item in passed:
+            self._take_state(*item)
+
+    def _take_state(self, sample, effort, received: int) -> None:
+        """Buffer a plausible joint_states sample; keep it as the newest state."""
+        cfg, sources, joints = self._config, self.sources, self._joints
         theta_dot, estimated = sources.velocity(sample.stamp, sample.position,
                                                 sample.velocity)
         result = self._buffer.add_state(
@@ -536,6 +544,15 @@ class Ingestion:
             self.reject('joint_commands', 'command', 'missing_velocity',
                         'velocity (θ̇d) is empty or NaN')
             return
+        passed, dropped = self._plausible['command'].offer(
+            sample, sample.stamp, sample.position, sample.velocity)
+        for _, reason, why in dropped:
+            self.reject('joint_commands', 'command', reason, f'{why}: no servo is asked that')
+        for item in passed:
+            self._take_command(item)
+
+    def _take_command(self, sample) -> None:
+        """Buffer a plausible joint_commands sample; keep it as the newest command."""
         result = self._buffer.add_command(sample.stamp, sample.position, sample.velocity)
         if result.clock_jump:
             self._warn_jump('joint_commands', sample.stamp)

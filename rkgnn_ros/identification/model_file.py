@@ -55,6 +55,7 @@ import stat
 from typing import Callable, List, Optional, Tuple
 
 from rkgnn_ros.conversions import MAX_NAME_BYTES
+from rkgnn_ros.core.input_files import file_kind, InputFileError, read_bounded
 from rkgnn_ros.core.model.files import remove_stale_temp_files, save_text_atomic
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.identification.parameters import MAX_GAIN, MAX_JOINTS, network_specs, PARAMETERS
@@ -80,9 +81,6 @@ _MAX_GENOME = 1e6         # genome elements are normalised, of order 1
 _MAX_SCALE = 1e9          # scales: rad, rad/s, rad/s^2, N m (positive ones at least 1e-9)
 _MAX_COUNT = 10 ** 12     # info generation and evaluations
 _LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)  # libyaml when built with it
-_KINDS = {stat.S_IFIFO: 'a FIFO', stat.S_IFCHR: 'a character device',
-          stat.S_IFBLK: 'a block device', stat.S_IFDIR: 'a directory',
-          stat.S_IFSOCK: 'a socket', stat.S_IFLNK: 'a symbolic link'}
 
 
 class ModelFileError(ValueError):
@@ -97,44 +95,21 @@ class LoadWork:
         self.events = 0
 
 
-def _kind(mode: int) -> str:
-    return _KINDS.get(stat.S_IFMT(mode), f'not a regular file (mode {oct(mode)})')
-
-
 def read_model_text(path: str, work: Optional[LoadWork] = None) -> str:
     """
     Return the text of the regular file ``path``, or raise :class:`ModelFileError`.
 
-    Never blocks on a FIFO and never reads more than ``MAX_MODEL_BYTES + 1`` bytes.
+    Never blocks on a FIFO and never reads more than ``MAX_MODEL_BYTES + 1`` bytes
+    (:func:`~rkgnn_ros.core.input_files.read_bounded`).
     """
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
-    except OSError as exc:
-        raise ModelFileError(f'cannot open it: {exc.strerror or exc}') from None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise ModelFileError(f'it is {_kind(info.st_mode)}, not a regular file')
-        if info.st_size > MAX_MODEL_BYTES:
-            raise ModelFileError(f'it has {info.st_size} bytes, more than the limit of '
-                                 f'{MAX_MODEL_BYTES}')
-        chunks, size = [], 0
-        while size <= MAX_MODEL_BYTES:
-            chunk = os.read(fd, MAX_MODEL_BYTES + 1 - size)
-            if not chunk:
-                break
-            chunks.append(chunk)
-            size += len(chunk)
-    except OSError as exc:
-        raise ModelFileError(f'cannot read it: {exc.strerror or exc}') from None
-    finally:
-        os.close(fd)
+        data = read_bounded(path, MAX_MODEL_BYTES)
+    except InputFileError as exc:
+        raise ModelFileError(str(exc)) from None
     if work is not None:
-        work.bytes += size
-    if size > MAX_MODEL_BYTES:
-        raise ModelFileError(f'it grew past the limit of {MAX_MODEL_BYTES} bytes while read')
+        work.bytes += len(data)
     try:
-        return b''.join(chunks).decode('utf-8')
+        return data.decode('utf-8')
     except UnicodeDecodeError as exc:
         raise ModelFileError(f'it is not UTF-8 text (byte {exc.start})') from None
 
@@ -435,7 +410,7 @@ def _writable_target(path: str) -> Optional[str]:
     except OSError as exc:
         return f'cannot inspect it: {exc.strerror or exc}'
     if not stat.S_ISREG(info.st_mode):
-        return f'it is {_kind(info.st_mode)}, not a regular file; nothing was replaced'
+        return f'it is {file_kind(info.st_mode)}, not a regular file; nothing was replaced'
     if not os.access(path, os.W_OK):
         return 'the node may not write it (permission); nothing was replaced'
     return None

@@ -44,7 +44,7 @@ from std_msgs.msg import Float64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ModelMessage', 'Outbox', 'Publishing',
-           'create_publishers']
+           'create_forward_publisher', 'create_publishers']
 
 #: Field names of ``~/evolution`` (the layout label of its one dimension).
 EVOLUTION_LABELS = GenerationStats._fields
@@ -59,7 +59,8 @@ def create_publishers(node, events, forward_topic: str = '') -> dict:
     ``~/model`` is reliable, transient local, depth 1 (a late subscriber gets the last
     model at once); the others are volatile, depth 10. ``feedforward`` is ``~/feedforward``
     (:mod:`~rkgnn_ros.identification.feedforward`), ``feedforward_forward`` the same on
-    ``forward_topic`` when it is not empty.
+    ``forward_topic`` when it is not empty (:func:`create_forward_publisher`; the node makes
+    that one itself, after its subscriptions).
     """
     model_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                            reliability=ReliabilityPolicy.RELIABLE,
@@ -72,10 +73,51 @@ def create_publishers(node, events, forward_topic: str = '') -> dict:
               'evolution': (Float64MultiArray, '~/evolution', 10),
               'diagnostics': (DiagnosticArray, '/diagnostics', 10),
               'feedforward': (JointTrajectory, '~/feedforward', 10)}
+    publishers = {key: node.create_publisher(kind, topic, qos, event_callbacks=events)
+                  for key, (kind, topic, qos) in topics.items()}
     if forward_topic:
-        topics['feedforward_forward'] = (JointTrajectory, forward_topic, 10)
-    return {key: node.create_publisher(kind, topic, qos, event_callbacks=events)
-            for key, (kind, topic, qos) in topics.items()}
+        publishers['feedforward_forward'] = create_forward_publisher(node, forward_topic,
+                                                                     events)
+    return publishers
+
+
+def _type_name(msg_type) -> str:
+    """Return 'package/msg/Name' of a message class."""
+    return f"{msg_type.__module__.split('.')[0]}/msg/{msg_type.__name__}"
+
+
+def create_forward_publisher(node, topic: str, events=None):
+    """
+    Return the JointTrajectory publisher on ``feedforward.forward_topic``.
+
+    Create it after the node's other publishers and subscriptions: a topic the node uses
+    with another type (``/diagnostics``, ``joint_states``, ``/rosout``, ...) cannot carry
+    JointTrajectory in the same process (rmw refuses it with an exception), and raises
+    :class:`~.parameters.ConfigurationError` naming the parameter, the topic and its type,
+    so the node refuses to start with that one line.
+    """
+    from rclpy.exceptions import InvalidTopicNameException
+    from rkgnn_ros.identification.parameters import ConfigurationError
+    try:
+        name = node.resolve_topic_name(topic)
+    except (InvalidTopicNameException, RuntimeError, ValueError) as exc:
+        raise ConfigurationError(f'feedforward.forward_topic {topic!r} is not a topic name: '
+                                 f'{exc}') from None
+    used = {'/rosout': 'rcl_interfaces/msg/Log'}
+    for entity in list(node.publishers) + list(node.subscriptions):
+        used.setdefault(entity.topic_name, _type_name(entity.msg_type))
+    other = used.get(name)
+    if other is not None and other != _type_name(JointTrajectory):
+        raise ConfigurationError(
+            f'feedforward.forward_topic {topic!r} is {name}, which this node uses as '
+            f'{other}: it cannot carry trajectory_msgs/msg/JointTrajectory; choose another '
+            'topic')
+    try:
+        return node.create_publisher(JointTrajectory, topic, 10, event_callbacks=events)
+    except Exception as exc:  # noqa: B902 - rclpy's RCLError: say which and why, no traceback
+        raise ConfigurationError(f'feedforward.forward_topic {topic!r}: cannot publish '
+                                 f"JointTrajectory there: {' '.join(str(exc).split())}") \
+            from None
 
 
 class ModelMessage(NamedTuple):

@@ -38,6 +38,7 @@ from typing import Callable, Mapping, Optional
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.serialization import deserialize_message, serialize_message
+from rkgnn_ros.cdr import encapsulation_problem
 from rkgnn_ros.controller_state import (control_msgs_available, CONTROL_MSGS_REASON,
                                         controller_state_to_joint_state)
 from rkgnn_ros.conversions import MAX_STATE_BYTES, Rejection
@@ -126,6 +127,10 @@ def subscribe_controller_state(node, topic: str, ingestion, qos) -> Optional[obj
                 ingestion.reject(topic, 'command', 'over_budget',
                                  f'a controller state of {len(raw)} bytes is over the budget '
                                  f'of {MAX_CONTROLLER_STATE_BYTES}')
+                return
+            problem = encapsulation_problem(raw, 'JointTrajectoryControllerState')
+            if problem is not None:  # rclpy would print a line on stderr for each
+                ingestion.reject(topic, 'command', 'malformed', problem)
                 return
             msg = deserialize_message(raw, JointTrajectoryControllerState)
             command = controller_state_to_joint_state(msg)

@@ -55,13 +55,10 @@ from collections import deque
 from typing import Dict, Optional, Tuple
 
 import numpy as np
-from rclpy.serialization import deserialize_message
-from rkgnn_ros.cdr import is_plain_cdr
-from rkgnn_ros.conversions import (IF_PRESENT, joint_state_cdr_to_arrays, joint_state_to_arrays,
-                                   Rejection)
+from rkgnn_ros.cdr import encapsulation_problem
+from rkgnn_ros.conversions import IF_PRESENT, joint_state_cdr_to_arrays, Rejection
 from rkgnn_ros.core.differentiate import CAUSAL_ORDER, causal_slope, CAUSAL_WINDOW
 from rkgnn_ros.identification.parameters import auto_case
-from sensor_msgs.msg import JointState
 
 __all__ = ['AUTO_SWITCH_MESSAGES', 'AUTO_SWITCH_S', 'MIN_HISTORY', 'Sources',
            'read_joint_state']
@@ -208,19 +205,18 @@ class Sources:
 
 
 def _read(raw: bytes, joints, need_velocity: bool, need_effort: bool):
-    """Read a raw JointState: the CDR fast path, else rclpy's deserialization."""
+    """
+    Read a raw JointState (CDR bytes): our reader, never rclpy's deserializer.
+
+    Plain CDR our reader refuses and bytes of another encapsulation are ``'malformed'``:
+    rclpy's deserializer would print a line on stderr for each malformed message.
+    """
     sample = joint_state_cdr_to_arrays(raw, joints, need_velocity, need_effort)
-    if sample is None and is_plain_cdr(raw):
-        # plain CDR our reader refuses is malformed (rclpy's deserializer would print a line
-        # on stderr for each such message); only another encoding goes to rclpy
-        return Rejection('malformed', f'{len(raw)} bytes of CDR that do not form a JointState')
-    if sample is None:  # not plain CDR: let rclpy decide what it is
-        try:
-            msg = deserialize_message(raw, JointState)
-        except Exception as error:  # noqa: B902 - bad bytes are bad input, not a fault
-            return Rejection('malformed', f'cannot read JointState: {error!r}')
-        sample = joint_state_to_arrays(msg, joints, need_velocity, need_effort)
-    return sample
+    if sample is not None:
+        return sample
+    problem = encapsulation_problem(raw, 'JointState')
+    return Rejection('malformed', problem or f'{len(raw)} bytes of CDR that do not form a '
+                                             'JointState')
 
 
 def read_joint_state(raw: bytes, joints, need_effort: bool):

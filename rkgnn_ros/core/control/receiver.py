@@ -130,17 +130,23 @@ class FeedforwardReceiver:
         if len(times) != len(efforts) or len(times) < 2:
             return self._refuse('bad_shape', f'{len(times)} times and {len(efforts)} points; '
                                              'at least 2 points are needed')
-        rows = []
-        for k, effort in enumerate(efforts):
-            if len(effort) == 0:
+        try:
+            if isinstance(efforts, np.ndarray) and efforts.ndim == 2:
+                sizes = np.full(len(efforts), efforts.shape[1])
+            else:
+                sizes = np.fromiter(map(len, efforts), dtype=np.int64, count=len(efforts))
+        except TypeError as exc:
+            return self._refuse('bad_shape', f'a point without an effort list ({exc})')
+        wrong = np.flatnonzero(sizes != len(names))
+        if wrong.size:
+            k = int(wrong[0])
+            if sizes[k] == 0:
                 return self._refuse('no_effort', f'point {k} has no effort')
-            if len(effort) != len(names):
-                return self._refuse('bad_shape', f'point {k} has {len(effort)} efforts for '
-                                                 f'{len(names)} joints')
-            rows.append(effort)
+            return self._refuse('bad_shape', f'point {k} has {sizes[k]} efforts for '
+                                             f'{len(names)} joints')
         try:
             order = [names.index(name) for name in self.joint_names]
-            effort = np.asarray(rows, dtype=float)[:, order]
+            effort = np.array(efforts, dtype=float).reshape(len(efforts), len(names))[:, order]
             t = np.asarray(times, dtype=float)
             start = float(now if not start else start)
         except (TypeError, ValueError) as exc:

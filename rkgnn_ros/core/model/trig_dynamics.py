@@ -48,7 +48,13 @@ from .trig import TrigBasis
 from ..integration.inputs import stage_inputs
 from ..integration.rkg import choose_substeps, rkg_step
 
-__all__ = ['Layout', 'regressor', 'TrigDynamics', 'unpack_mass']
+__all__ = ['Layout', 'MAX_SUBSTEPS', 'regressor', 'TrigDynamics', 'unpack_mass']
+
+#: Most RKG steps per interval a rollout takes on its own (the integration.substeps bound of
+#: a model file): a model stiffer than that is rolled out at it and diverges, which its
+#: caller sees (NaN rows); the stiffness of a model fitted to garbage (10^10 1/s) asked for
+#: 5 * 10^7 and an allocation of 37 GiB.
+MAX_SUBSTEPS = 64
 
 
 class Layout(NamedTuple):
@@ -392,7 +398,7 @@ class TrigDynamics:
             Closed loop: desired samples instead of ``reference``.
         substeps : int, optional
             RKG steps per interval; default from the stiffness at ``x0`` (half the
-            stability limit).
+            stability limit), at most :data:`MAX_SUBSTEPS`.
 
         Returns
         -------
@@ -411,7 +417,9 @@ class TrigDynamics:
         if closed and self.kp_ is None:
             raise ValueError('pass tau (open loop) or fit a case with a controller')
         if substeps is None:
-            substeps = choose_substeps(dt, self.stiffness(x[:n]))
+            stiffness = self.stiffness(x[:n]) if np.all(np.isfinite(x)) else np.inf
+            substeps = (MAX_SUBSTEPS if not np.isfinite(stiffness)
+                        else min(MAX_SUBSTEPS, choose_substeps(dt, stiffness)))
         u = stage_inputs('pd_gains' if closed else 'torque', t, substeps, tau, theta_d,
                          theta_d_dot, reference, 'linear')
 

@@ -36,7 +36,9 @@ with ``inverse_dynamics = Y @ parameter_vector()`` (Pinocchio's, ten inertial pa
 per body, with the two friction columns per joint).
 
 A URDF that does not parse, names joints that do not exist, moves a joint that is not a
-revolute joint with limits, or whose moving joints carry no inertia is refused with a
+revolute joint with limits, has an ``<inertial>`` no rigid body has (NaN or inf in it, a
+negative mass) or whose moving joints carry no
+inertia is refused with a
 :class:`UrdfError` naming the source and the problem. Gravity acts along -z of the root
 link, as URDFs are drawn.
 """
@@ -50,6 +52,7 @@ import xml.etree.ElementTree as ElementTree
 import numpy as np
 
 from .stability import ClosedLoopAnalysis
+from ..input_files import InputFileError, read_bounded
 
 __all__ = ['UrdfArm', 'UrdfError', 'example_robot_urdf', 'read_description', 'reduce_urdf']
 
@@ -62,6 +65,10 @@ EXAMPLE_ROBOT_PREFIX = 'example-robot-data:'
 #: A moving joint whose inertia (the diagonal of M at the home pose) is below this
 #: (kg m^2) moves no mass: the URDF lacks <inertial> elements beyond it.
 MIN_JOINT_INERTIA = 1e-9
+
+#: Largest URDF read (bytes): example-robot-data's largest (a two-armed mobile robot) has
+#: about 0.2 MB.
+MAX_URDF_BYTES = 16 * 1024 * 1024
 
 _MOVABLE = ('revolute', 'continuous', 'prismatic')
 
@@ -102,28 +109,31 @@ def read_description(description: str) -> Tuple[str, str]:
     Return ``(xml, source)`` of a ``robot_description`` value.
 
     The value is the URDF's XML itself (it starts with ``<``), a file path, or
-    ``example-robot-data:<path under robots/>``; ``source`` names it for messages.
+    ``example-robot-data:<path under robots/>``; ``source`` names it for messages. A file
+    must be a regular file (a FIFO is refused, not waited on) of at most
+    :data:`MAX_URDF_BYTES`, read no further than that.
 
     Raises
     ------
     UrdfError
-        If the value is empty or the file cannot be read.
+        If the value is empty, too long, or the file cannot be read.
 
     """
     text = (description or '').strip()
     if not text:
         raise UrdfError('robot_description is empty')
     if text.startswith('<'):
+        if len(text) > MAX_URDF_BYTES:
+            raise UrdfError(f'robot_description (XML) has {len(text)} characters, more than '
+                            f'the limit of {MAX_URDF_BYTES}')
         return text, 'robot_description (XML)'
     path = text
     if text.startswith(EXAMPLE_ROBOT_PREFIX):
         path = example_robot_urdf(text[len(EXAMPLE_ROBOT_PREFIX):])
     try:
-        with open(os.path.expanduser(path), encoding='utf-8') as f:
-            return f.read(), path
-    except (OSError, UnicodeDecodeError) as error:
-        raise UrdfError(f'robot_description: cannot read {path!r}: '
-                        f'{error.strerror if isinstance(error, OSError) else error}') from None
+        return read_bounded(os.path.expanduser(path), MAX_URDF_BYTES).decode('utf-8'), path
+    except (InputFileError, UnicodeDecodeError) as error:
+        raise UrdfError(f'robot_description: cannot read {path!r}: {error}') from None
 
 
 def _floats(text: Optional[str], count: int, default: float, where: str) -> np.ndarray:
@@ -136,6 +146,34 @@ def _floats(text: Optional[str], count: int, default: float, where: str) -> np.n
     if values.shape != (count,) or not np.all(np.isfinite(values)):
         raise UrdfError(f'{where}: {text!r} is not {count} finite numbers')
     return values
+
+
+def _check_inertials(root, source: str) -> None:
+    """
+    Refuse an ``<inertial>`` no rigid body has: NaN or inf in it, a negative mass.
+
+    Checked here because urdfdom, which Pinocchio parses with, prints an error for such an
+    element and drops it: the arm simulated would silently miss that body.
+    """
+    for link in root.findall('link'):
+        inertial = link.find('inertial')
+        if inertial is None:
+            continue
+        where = f"{source}: link {link.get('name')!r}"
+        mass = inertial.find('mass')
+        value = _floats(None if mass is None else mass.get('value'), 1, 0.0,
+                        f'{where}: <mass value>')[0]
+        if value < 0.0:
+            raise UrdfError(f'{where}: <mass value> {value:g} is negative')
+        origin = inertial.find('origin')
+        if origin is not None:
+            _floats(origin.get('xyz'), 3, 0.0, f'{where}: inertial <origin xyz>')
+            _floats(origin.get('rpy'), 3, 0.0, f'{where}: inertial <origin rpy>')
+        tensor = inertial.find('inertia')
+        if tensor is None:
+            continue
+        for key in ('ixx', 'ixy', 'ixz', 'iyy', 'iyz', 'izz'):
+            _floats(tensor.get(key, '0'), 1, 0.0, f'{where}: <inertia {key}>')
 
 
 def _rotation(rpy: np.ndarray) -> np.ndarray:
@@ -232,9 +270,9 @@ def reduce_urdf(xml: str, joints: Optional[Sequence[str]] = None,
     Raises
     ------
     UrdfError
-        If the XML does not parse, is not a URDF, a moving joint does not exist, is not
-        revolute or has no limits, a locked position names an unknown or fixed joint or
-        is not finite.
+        If the XML does not parse, is not a URDF, an ``<inertial>`` is not a rigid body's, a
+        moving joint does not exist, is not revolute or has no limits, a locked position
+        names an unknown or fixed joint or is not finite.
 
     """
     try:
@@ -243,6 +281,7 @@ def reduce_urdf(xml: str, joints: Optional[Sequence[str]] = None,
         raise UrdfError(f'{source}: not valid XML ({error})') from None
     if root.tag != 'robot':
         raise UrdfError(f'{source}: not a URDF (root element <{root.tag}>, not <robot>)')
+    _check_inertials(root, source)
     by_name = {joint.get('name'): joint for joint in root.findall('joint')}
     movable = [name for name, joint in by_name.items() if joint.get('type') in _MOVABLE]
     if joints is None or len(joints) == 0:
