@@ -34,7 +34,6 @@ import sys
 import time
 
 import numpy as np
-import scipy.linalg  # noqa: F401 - loaded before the thread limit, so the limit reaches it
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
@@ -50,6 +49,7 @@ from rkgnn_ros.core.sim.servo import Servo  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import SumOfSines  # noqa: E402
 from rkgnn_ros.core.sim.urdf_arm import UrdfArm  # noqa: E402
+import scipy.linalg  # noqa: E402,F401 - loaded before the BLAS thread limit, which then reaches it
 from threadpoolctl import threadpool_limits  # noqa: E402
 import yaml  # noqa: E402
 

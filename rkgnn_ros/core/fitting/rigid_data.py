@@ -128,10 +128,9 @@ def choose_sigma(segments: Sequence[Dataset]) -> float:
 
     White noise σ_θ through the second derivative of a Gaussian of σ leaves
     σ_θ √(3 dt / (8 √π σ⁵)) on θ̈ (dt the sample interval); θ̈'s RMS is taken through the
-    longest σ, for the median joint. Noise in θ̈ dilutes the inertial parameters' estimates (by the squared
-    share) and hides the model's error in its held-out score, so the filter is widened
-    until the noise is a small share: 1e-4 rad at 100 Hz needs about 0.05 s on arms
-    moving below 1 Hz.
+    longest σ, for the median joint. Noise in θ̈ dilutes the inertial parameters'
+    estimates (by the squared share) and hides the model's error in its held-out score, so
+    the filter is widened until the noise is a small share.
     """
     usable = [seg for seg in segments if seg.n_samples >= 20]
     if not usable:
