@@ -57,6 +57,8 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from rkgnn_ros.identify_bag_report import markdown, write_figures
+
 __all__ = ['main', 'IdentifyError', 'read_parameters', 'EXIT_WORSE_THAN_BASELINE']
 
 NODE_NAME = 'identifier'
@@ -287,113 +289,27 @@ def _coverage(segments) -> dict:
 # -- the report -------------------------------------------------------------------------------
 
 
-def _figures(out: str, joints, heldout, predicted, online_predicted, history, train,
-             validation) -> List[str]:
-    """Write the three figures; return their file names ([] without matplotlib)."""
-    try:
-        import matplotlib
-        matplotlib.use('Agg')
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return []
-    n = len(joints)
-    written = []
-    if heldout and predicted:
-        fig, axes = plt.subplots(n, 1, figsize=(9, 1.8 * n + 0.6), sharex=True, squeeze=False)
-        for j, ax in enumerate(axes[:, 0]):
-            for k, seg in enumerate(heldout):
-                ax.plot(seg.t, seg.theta[:, j], 'k', lw=1.2, label='measured' if k == 0 else None)
-                ax.plot(seg.t, predicted[k][:, j], 'C0--', lw=1.0,
-                        label='identify_bag' if k == 0 else None)
-                if online_predicted:
-                    ax.plot(seg.t, online_predicted[k][:, j], 'C1:', lw=1.0,
-                            label='online identifier' if k == 0 else None)
-            ax.set_ylabel(f'{joints[j]}\n[rad]', fontsize=7)
-        axes[0, 0].legend(fontsize=7, loc='upper right')
-        axes[-1, 0].set_xlabel('t [s], held-out part')
-        fig.suptitle('held-out part: measured vs predicted θ from its first state')
-        fig.tight_layout()
-        fig.savefig(os.path.join(out, 'heldout.png'), dpi=90)
-        plt.close(fig)
-        written.append('heldout.png')
-    if history:
-        rows = np.array([[h.generation, h.best_cost, h.validation_nrmse] for h in history])
-        fig, ax = plt.subplots(figsize=(7, 3.2))
-        ax.semilogy(rows[:, 0], rows[:, 1], label='best cost J')
-        finite = np.isfinite(rows[:, 2])
-        if finite.any():
-            ax.semilogy(rows[finite, 0], rows[finite, 2], label='validation θ-NRMSE')
-        ax.set_xlabel('generation')
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(os.path.join(out, 'evolution.png'), dpi=90)
-        plt.close(fig)
-        written.append('evolution.png')
-    if train:
-        fig, axes = plt.subplots(1, n, figsize=(2.2 * n + 1, 2.6), squeeze=False)
-        parts = (('training', train), ('held out', heldout or []))
-        for j, ax in enumerate(axes[0]):
-            for label, segs in parts:
-                if segs:
-                    values = np.concatenate([seg.theta[:, j] for seg in segs])
-                    still = np.ptp(values) <= 1e-9 * max(1.0, float(np.abs(values).max()))
-                    ax.hist(values, bins=1 if still else 30, alpha=0.6, label=label)
-            ax.set_title(joints[j], fontsize=7)
-            ax.set_xlabel('θ [rad]', fontsize=7)
-        axes[0, 0].legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(os.path.join(out, 'coverage.png'), dpi=90)
-        plt.close(fig)
-        written.append('coverage.png')
-    return written
+def _structure(args, config, joints, log):
+    """
+    Return the robot description's structure of ``joints`` (None: no description given).
 
-
-def _markdown(report: dict) -> str:
-    fit, data = report['fit'], report['data']
-    lines = [f'# identify_bag: {report["recording"]}', '',
-             f'- storage: {report["storage"]}; topics: {report["topics"]}',
-             f'- joints: {report["joints"]}; case: {report["case"]}',
-             f'- read: {data["messages"]}'
-             + (f'; **{data["truncated"]}**' if data['truncated'] else ''),
-             f'- drops (the node\'s rules): {data["drops"] or "none"}',
-             f'- training: {data["training"]["seconds"]:.1f} s in '
-             f'{data["training"]["segments"]} segment(s); held out: '
-             f'{data["heldout"]["seconds"]:.1f} s', '',
-             '## Fit', '',
-             f'- {fit["generations"]} generations in {fit["seconds"]:.1f} s '
-             f'(budget {fit["budget_s"]:g} s), final state {fit["state"]!r}',
-             f'- best cost J {fit["cost"]:.4g}, validation θ-NRMSE (newest '
-             f'{report["validation_fraction"]:.0%} of the training part) '
-             f'{fit["validation_nrmse"]:.4g}',
-             '', '## Held out', '',
-             f'- identify_bag\'s model: θ-NRMSE {report["heldout"]["nrmse"]:.4g} '
-             f'({report["heldout"]["how"]})']
-    lines += [f'- {name.replace("_", " ")} (no model): θ-NRMSE {value:.4g}'
-              for name, value in report['heldout']['baselines'].items()]
-    verdict = report['verdict']
-    lines.append(f'- verdict: {verdict["text"]}')
-    if verdict['worse']:  # at the top
-        lines[2:2] = [f'**Warning: {verdict["text"]}. The model is written but should not '
-                      'be used.**', '']
-    online = report['heldout'].get('online_nrmse')
-    if online is not None:
-        lines.append(f"- the online identifier's model recorded in the bag (last before the "
-                     f'held-out part): θ-NRMSE {online:.4g}')
-    lines += ['', '## Coverage (training part)', '', '| joint | θ min | θ max | θ std | θ̇ std |',
-              '|---|---|---|---|---|']
-    cov = data['training']
-    for j, name in enumerate(report['joints']):
-        lines.append(f'| {name} | {cov["theta_min"][j]:.3f} | {cov["theta_max"][j]:.3f} | '
-                     f'{cov["theta_std"][j]:.3f} | {cov["theta_dot_std"][j]:.3f} |')
-    lines += ['', '## Log', ''] + [f'- {level}: {text}' for level, text in report['log']]
-    if report['figures']:
-        lines += ['', '## Figures', ''] + [f'![{name}]({name})' for name in report['figures']]
-    elif report['figures_skipped']:
-        lines += ['', f'Figures skipped: {report["figures_skipped"]}.']
-    return '\n'.join(lines) + '\n'
-
-
-# -- the run ----------------------------------------------------------------------------------
+    From ``--robot-description``, else the parameters file's ``robot_description``; refused
+    descriptions stop the run with their reason (a user who names one wants it used).
+    """
+    text = args.robot_description or config['robot_description']
+    if not text:
+        return None
+    from rkgnn_ros.identification.description import RobotDescription
+    lines = []
+    description = RobotDescription(lambda level, line: lines.append((level, line)))
+    description.configure(text, config['urdf.locked_joints'], config['urdf.locked_positions'],
+                          config['gravity'])
+    structure = description.structure(joints)
+    for level, line in lines:
+        log(level, line)
+    if structure is None:
+        raise IdentifyError(f'{args.bag}: {description.status}')
+    return structure
 
 
 def _say(quiet: bool, text: str) -> None:
@@ -486,9 +402,12 @@ def identify(args, started: Optional[float] = None) -> dict:
                          f'{status.best_cost:.4g}, validation θ-NRMSE '
                          f'{status.validation_nrmse:.4g}')
 
-    _say(args.quiet, f'fitting (case {config.case}, budget {budget:.0f} s)')
+    structure = _structure(args, config, joints, log)
+    _say(args.quiet, f'fitting (case {config.case}, budget {budget:.0f} s'
+                     + (f', the rigid body of {structure.describe()})' if structure else ')'))
     result = identify_offline(config.settings, capture, joints, budget_s=budget,
-                              max_generations=args.max_generations, progress=progress)
+                              max_generations=args.max_generations, progress=progress,
+                              structure=structure)
     log_lines += [(line.level, line.text) for line in result.log]
     if result.model is None:
         raise IdentifyError(f'{args.bag}: no finite model after {result.generations} '
@@ -509,8 +428,8 @@ def identify(args, started: Optional[float] = None) -> dict:
     os.makedirs(args.out, exist_ok=True)
     result.model.save(os.path.join(args.out, 'model.yaml'))
     drawn = float(args.budget) - (time.monotonic() - started) >= FIGURES_S
-    figures = _figures(args.out, joints, heldout_segments, predicted, online_predicted,
-                       result.history, train_segments, None) if drawn else []
+    figures = write_figures(args.out, joints, heldout_segments, predicted, online_predicted,
+                            result.history, train_segments, None) if drawn else []
     update = result.update
     report = {
         'recording': args.bag, 'storage': recording.storage, 'topics': topics._asdict(),
@@ -536,7 +455,7 @@ def identify(args, started: Optional[float] = None) -> dict:
     with open(os.path.join(args.out, 'report.json'), 'w', encoding='utf-8') as f:
         json.dump(report, f, indent=1, default=_json_default)
     with open(os.path.join(args.out, 'report.md'), 'w', encoding='utf-8') as f:
-        f.write(_markdown(report))
+        f.write(markdown(report))
     _say(args.quiet, f'held-out {heldout_s:g} s θ-NRMSE {nrmse:.4g} ({how})'
                      + (f'; the online model recorded in the bag: {online_nrmse:.4g}'
                         if online_nrmse is not None else '') + f'; {verdict.text}')

@@ -81,5 +81,9 @@ def parser(node_name: str = 'identifier') -> argparse.ArgumentParser:
                    help="a joint_trajectory_controller's controller_state topic")
     p.add_argument('--model-topic', default='',
                    help="the online identifier's ~/model topic (compared on the held-out part)")
+    p.add_argument('--robot-description', default='',
+                   help="the arm's URDF (a path, example-robot-data:<path> or the XML): its "
+                   'rigid body is fitted in closed form (default: robot_description of the '
+                   'parameters file, else none)')
     p.add_argument('--quiet', action='store_true', help='no progress lines')
     return p

@@ -76,7 +76,8 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
                      budget_s: float = 90.0, max_generations: int = 0,
                      progress: Optional[Callable[[Status, float], None]] = None,
                      progress_period_s: float = 2.0,
-                     wall: Callable[[], float] = time.monotonic) -> OfflineResult:
+                     wall: Callable[[], float] = time.monotonic,
+                     structure=None) -> OfflineResult:
     """
     Run the online policy on a capture of recorded streams until the budget is spent.
 
@@ -99,6 +100,9 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
         Seconds between two calls of ``progress``.
     wall : callable
         The wall clock of the budget (tests pass a fake one).
+    structure : RigidStructure, optional
+        A robot description's structure of ``joints``: its rigid body is fitted in closed
+        form instead of a search (:mod:`.rigid_online`), once, on the whole capture.
 
     Returns
     -------
@@ -127,7 +131,8 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
         began = wall()
         try:  # once a model is published, the budget's end interrupts a generation
             with budget.interrupting() if update is not None else _nothing():
-                result = policy.step(Observation(settings, joints, received, data=data))
+                result = policy.step(Observation(settings, joints, received, data=data,
+                                                 structure=structure))
         except Interrupted:
             break
         step_s = wall() - began
@@ -149,7 +154,8 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
             break
         if max_generations and policy.generation >= max_generations:
             # one more step publishes the best of the last generation
-            result = policy.step(Observation(settings, joints, received))
+            result = policy.step(Observation(settings, joints, received,
+                                             structure=structure))
             for event in result.events:
                 if isinstance(event, ModelUpdate):
                     update, loop = event, event.loop
@@ -197,8 +203,10 @@ def heldout_prediction(model: RKGNNModel, segments: Sequence[Dataset],
         if loop is not None and seg.theta_d is not None:
             how = 'closed loop with the fitted controller law, recorded θd'
             states = loop.loop.simulate(seg.state[0], seg.t, seg.theta_d, seg.theta_d_dot)
-        else:
+        elif hasattr(model, 'predict'):
             states = model.predict(seg)
+        else:    # a rigid-body model predicts only closed with its servo law
+            return math.nan, [], 'no servo law to close the loop with'
         predicted.append(np.asarray(states)[:, :n])
         measured.append(seg.theta)
     if not predicted:

@@ -161,6 +161,11 @@ class RigidModel:
             'controller_law': None if self.law is None else self.law.to_dict(),
             'info': self.info})
 
+    def save(self, path) -> None:
+        """Write :meth:`to_yaml` atomically (temp file in the same folder, fsync, replace)."""
+        from ..model.files import save_text_atomic
+        save_text_atomic(path, self.to_yaml())
+
     def to_yaml(self) -> str:
         """Return the YAML text of :meth:`to_dict`."""
         return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None,
