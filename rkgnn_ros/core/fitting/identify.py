@@ -251,7 +251,8 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
              theta_units=None, equation_nfev=500, equation_fraction=0.3,
              max_generations: Optional[int] = None, basis: str = 'trig',
              validation_fraction: float = 0.2, max_evaluations: Optional[int] = None,
-             clock: Callable[[], float] = time.perf_counter, **evolution_kw) -> FitResult:
+             clock: Callable[[], float] = time.perf_counter, structure=None,
+             **evolution_kw) -> FitResult:
     """
     Identify with our best pipeline inside a wall-time budget.
 
@@ -304,9 +305,21 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     (it became the result), ``best_cost`` (the pipeline's best J so far, never increasing),
     ``evaluations`` (rollouts so far; the equation-error stage needs none) and ``wall_s``;
     CMA-ES entries also carry :meth:`Evolution.step`'s statistics.
+
+    With ``structure`` (the :class:`~rkgnn_ros.core.rigid.structure.RigidStructure` of a
+    robot description) the arm's rigid body is fitted in closed form instead
+    (:func:`.rigid_online.fit_rigid`, a second or less, whatever the budget):
+    ``model`` is a :class:`~.rigid_model.RigidModel`, ``final_cost`` its held-out error.
     """
     from dataclasses import replace
     from . import global_fit
+    if structure is not None:
+        from .rigid_online import fit_rigid
+        start = clock()
+        model = fit_rigid(datasets, normalize_case(case), structure, kp, kd,
+                          validation_fraction)
+        return FitResult(model, [{'phase': 'rigid', 'cost': model.info['held_out_error']}],
+                         wall_s=clock() - start, final_cost=model.info['held_out_error'])
     from .budget import Budget
     budget = Budget(float('inf') if time_budget is None else time_budget, clock)
     # default θ units per case: chosen on held-out data of the paper's arm (README)

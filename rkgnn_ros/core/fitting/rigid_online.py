@@ -51,7 +51,7 @@ from ..data import Dataset
 from ..rigid.structure import RigidStructure
 
 __all__ = ['FORMS_EVERY_S', 'MAX_ERROR', 'MIN_DATA_S', 'REFRESH_S', 'RigidKeeper', 'RigidPolicy',
-           'RigidUpdate', 'refresh_events']
+           'RigidUpdate', 'fit_rigid', 'refresh_events']
 
 #: A fit predicts while its held-out error (worst joint) is at most this.
 MAX_ERROR = 0.5
@@ -266,3 +266,21 @@ class RigidPolicy:
                                         f'{error:.3g}', generation=keeper.refits,
                          best_cost=error)
         return False
+
+
+def fit_rigid(datasets, case: str, structure: RigidStructure, kp=None, kd=None,
+              validation_fraction: float = 0.2) -> RigidModel:
+    """
+    Return the rigid body of ``structure`` fitted on ``datasets`` once (offline).
+
+    What one refresh of :class:`RigidKeeper` does on them (module docstring); raises
+    ValueError with too few data or a fit that fails.
+    """
+    datasets = [datasets] if isinstance(datasets, Dataset) else list(datasets)
+    update = RigidKeeper(structure, case).refresh(case, datasets, validation_fraction, 0.0,
+                                                  0.0, kp, kd)
+    if update is None:
+        raise ValueError(f'the rigid body could not be fitted in case {case!r}: too few '
+                         f'data ({sum(seg.duration for seg in datasets):.1f} s, at least '
+                         f'{MIN_DATA_S} s) or what the case needs is missing')
+    return update.model
