@@ -93,6 +93,7 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rkgnn_ros.core.control.model import feedforward_model
 from rkgnn_ros.core.fitting.identify import precompile
 from rkgnn_ros.core.fitting.online import model_update, OnlineIdentification
 from rkgnn_ros.identification.clock import NodeSeconds, watch_clock_jumps
@@ -169,6 +170,7 @@ class IdentifierNode(Node):
         # the case in effect (``case: auto`` follows the streams) decides the feed-forward
         self._feedforward = FeedforwardSender(self, self._ingestion,
                                               lambda: self._ingestion.view()[0],
+                                              model=self._feedforward_model,
                                               publishers=publishers)
         if model is not None:
             self._publishing.publish_model(model_update(model))
@@ -232,6 +234,11 @@ class IdentifierNode(Node):
             self._configure_description()
         except Exception:  # noqa: B902 - a callback must never raise
             self._ingestion.internal_error('parameters')
+
+    def _feedforward_model(self, train, case, kp, kd):
+        """The feed-forward's model: the robot description's rigid body where there is one."""
+        structure = self._description.structure(self._ingestion.joints)
+        return feedforward_model(train, case, kp, kd, structure)
 
     def _configure_description(self) -> None:
         config = self._params.config

@@ -150,3 +150,19 @@ def test_identify_bag_refuses_a_description_that_does_not_fit_the_joints(ur5, tm
                  'example-robot-data:panda_description/urdf/panda.urdf', '--quiet'])
     err = capsys.readouterr().err
     assert code == 1 and "no joint named 'shoulder_pan_joint'" in err and 'Traceback' not in err
+
+
+@pytest.mark.parametrize('case', ['torque', 'pd_gains'])
+def test_the_feedforward_model_of_a_description_is_its_rigid_body(ur5, case):
+    from rkgnn_ros.core.control.model import feedforward_model
+    from rkgnn_ros.core.fitting.rigid_fit import RigidArm
+    arm, structure, data, held = ur5
+    model = feedforward_model([data], case, KP, KD, structure)
+    assert isinstance(model, RigidArm)
+    # the plan's torque on motion it never saw: within 1 % of the arm's own inverse dynamics
+    theta, theta_dot = held.theta_d, held.theta_d_dot
+    theta_ddot = np.gradient(theta_dot, held.dt, axis=0)
+    truth = arm.inverse_dynamics(theta, theta_dot, theta_ddot)
+    error = np.sqrt(np.mean((model.inverse_dynamics(theta, theta_dot, theta_ddot) - truth) ** 2,
+                            axis=0))
+    assert np.all(error <= 0.01 * np.std(truth, axis=0) + 0.02)

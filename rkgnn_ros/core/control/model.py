@@ -38,6 +38,8 @@ thread takes from the node's other threads.
 
 from typing import Optional, Sequence
 
+import numpy as np
+
 from ..data import Dataset
 from ..fitting.linear import LinearDynamics
 from ..model.trig import TrigBasis
@@ -46,8 +48,8 @@ from ..model.trig import TrigBasis
 FEEDFORWARD_CASES = ('torque', 'pd_gains')
 
 
-def feedforward_model(train: Sequence[Dataset], case: str, kp=None,
-                      kd=None) -> LinearDynamics:
+def feedforward_model(train: Sequence[Dataset], case: str, kp=None, kd=None,
+                      structure=None) -> LinearDynamics:
     """
     Return the model for the feed-forward, fitted on ``train``.
 
@@ -59,12 +61,15 @@ def feedforward_model(train: Sequence[Dataset], case: str, kp=None,
         What gives the torque: the measured effort, or the known PD law.
     kp, kd : array_like, shape (n,), optional
         The known gains (case ``'pd_gains'``).
+    structure : RigidStructure, optional
+        A robot description's: its rigid body is the model (global on any arm, physically
+        consistent), fitted in closed form (:mod:`rkgnn_ros.core.fitting.rigid_fit`).
 
     Returns
     -------
-    LinearDynamics
-        Fitted on the tied planar trigonometric basis (any model with
-        ``inverse_dynamics`` and ``n_joints`` would do for the callers).
+    LinearDynamics or RigidArm
+        Fitted on the tied planar trigonometric basis, or the rigid body (any model with
+        ``inverse_dynamics``, ``simulate`` and ``n_joints`` would do for the callers).
 
     Raises
     ------
@@ -78,6 +83,19 @@ def feedforward_model(train: Sequence[Dataset], case: str, kp=None,
     segments = list(train)
     if not segments:
         raise ValueError('no training data')
+    if structure is not None:
+        from ..fitting.rigid_fit import fit_closed, fit_torque
+        if case == 'torque':
+            fit = fit_torque(structure, segments)
+        else:
+            fit = fit_closed(structure, segments, kp=np.asarray(kp, dtype=float),
+                             kd=np.asarray(kd, dtype=float))
+        if fit is None:
+            raise ValueError('too few data for the rigid-body fit')
+        arm = fit.arm
+        if case == 'pd_gains':
+            arm.kp, arm.kd = np.asarray(kp, dtype=float), np.asarray(kd, dtype=float)
+        return arm
     basis = TrigBasis(segments[0].n_joints, planar=True, tied=True)
     gains: Optional[tuple] = (kp, kd) if case == 'pd_gains' else (None, None)
     return LinearDynamics(basis, certify=False).fit(segments, case, *gains)

@@ -136,6 +136,52 @@ class RigidArm:
         """Return whether every body is realizable (J ⪰ 0, to rounding)."""
         return bool(np.all(consistency.realizable(self.bodies(), 1e-9)))
 
+    def simulate(self, x0, t, tau=None, theta_d=None, theta_d_dot=None,
+                 substeps: int = 4) -> np.ndarray:
+        """
+        Roll the arm out from ``x0`` (2n,) over the times ``t`` (K,) by Runge-Kutta-Gill.
+
+        Open loop under ``tau`` (K, n), held over each interval, or closed with the PD of
+        :attr:`kp`, :attr:`kd` (set by a case-2 fit) along ``theta_d``, ``theta_d_dot``
+        (K, n), linear between samples. Returns the states (K, 2n), NaN from a divergence on.
+        """
+        from ..integration.rkg import rkg_step
+        n = self.n_joints
+        t = np.asarray(t, dtype=float)
+        closed = tau is None
+        if closed and getattr(self, 'kp', None) is None:
+            raise ValueError('a closed-loop rollout needs the gains kp, kd')
+        out = np.full((t.size, 2 * n), np.nan)
+        x = np.asarray(x0, dtype=float).copy()
+        out[0] = x
+
+        def rate(state, u):
+            torque = u if not closed else (self.kp * (u[:n] - state[:n])
+                                           + self.kd * (u[n:] - state[n:]))
+            acc = self.structure.accelerations(self.parameters, state[None, :n],
+                                               state[None, n:], torque[None])[0]
+            return np.concatenate([state[n:], acc])
+
+        for k in range(t.size - 1):
+            h = (t[k + 1] - t[k]) / substeps
+            for s in range(substeps):
+                if closed:
+                    a, b = s / substeps, (s + 0.5) / substeps
+                    u0 = np.concatenate([(1 - a) * theta_d[k] + a * theta_d[k + 1],
+                                         (1 - a) * theta_d_dot[k] + a * theta_d_dot[k + 1]])
+                    uh = np.concatenate([(1 - b) * theta_d[k] + b * theta_d[k + 1],
+                                         (1 - b) * theta_d_dot[k] + b * theta_d_dot[k + 1]])
+                    c = (s + 1) / substeps
+                    u1 = np.concatenate([(1 - c) * theta_d[k] + c * theta_d[k + 1],
+                                         (1 - c) * theta_d_dot[k] + c * theta_d_dot[k + 1]])
+                else:
+                    u0 = uh = u1 = np.asarray(tau[k], dtype=float)
+                x = rkg_step(rate, x, h, u0, uh, u1)
+            if not np.all(np.isfinite(x)) or np.max(np.abs(x)) > 1e6:
+                break
+            out[k + 1] = x
+        return out
+
     def scaled(self, factor: float) -> 'RigidArm':
         """Return the arm with every parameter multiplied by ``factor`` > 0."""
         return RigidArm(self.structure, self.parameters * float(factor), self.info)
