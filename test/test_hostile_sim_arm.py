@@ -49,7 +49,8 @@ from rkgnn_ros.core.sim.parameters import ArmParameters  # noqa: E402
 from rkgnn_ros.core.sim.plant import PlanarArm  # noqa: E402
 from rkgnn_ros.core.sim.torque_scale import torque_scale  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import SumOfSines  # noqa: E402
-from rkgnn_ros.core.sim.urdf_arm import MAX_URDF_BYTES, UrdfArm, UrdfError  # noqa: E402
+from rkgnn_ros.core.rigid.urdf import MAX_URDF_BYTES  # noqa: E402
+from rkgnn_ros.core.sim.urdf_arm import UrdfArm, UrdfError  # noqa: E402
 from rkgnn_ros.sim_arm_parameters import build_config, ConfigurationError  # noqa: E402
 from rkgnn_ros.sim_arm_parameters import PARAMETERS  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
@@ -231,14 +232,15 @@ def test_a_10000_point_feedforward_is_read_from_its_bytes_at_once(monkeypatch):
 
 
 _FLOAT = st.floats(allow_nan=False, allow_infinity=False, width=64)
+#: CDR strings end at their NUL: a name with one in it is no name rclpy and DDS agree on
+_NAME = st.text(alphabet=st.characters(blacklist_characters='\x00'), min_size=1, max_size=4)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck))
 @given(st.integers(0, 9), st.lists(st.integers(0, 3), min_size=4, max_size=4),
        st.booleans(), st.data())
 def test_efforts_read_from_the_bytes_equal_rclpys_reading(points, sizes, alike, data):
-    msg = JointTrajectory(joint_names=data.draw(st.lists(st.text(min_size=1, max_size=4),
-                                                         max_size=3)))
+    msg = JointTrajectory(joint_names=data.draw(st.lists(_NAME, max_size=3)))
     msg.header.frame_id = data.draw(st.text(max_size=4))
     for _ in range(points):
         shape = sizes if alike else data.draw(st.lists(st.integers(0, 3), min_size=4,

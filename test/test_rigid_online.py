@@ -119,8 +119,8 @@ def test_each_case_publishes_the_rigid_body_and_predicts_new_motion(ur5, case):
 
 
 @pytest.mark.parametrize('effort', [True, False])
-def test_identify_bag_fits_the_rigid_body_of_a_given_description(ur5, tmp_path, capsys,
-                                                                    effort):
+def test_identify_bag_fits_the_rigid_body_of_a_given_description(
+        ur5, tmp_path, capsys, effort):
     from bag_helpers import write_run
     from rkgnn_ros.identify_bag import main
     arm, structure, data, _ = ur5
@@ -140,8 +140,8 @@ def test_identify_bag_fits_the_rigid_body_of_a_given_description(ur5, tmp_path, 
     assert report['verdict']['worse'] is False
 
 
-def test_identify_bag_refuses_a_description_that_does_not_fit_the_joints(ur5, tmp_path,
-                                                                           capsys):
+def test_identify_bag_refuses_a_description_that_does_not_fit_the_joints(
+        ur5, tmp_path, capsys):
     from bag_helpers import write_run
     from rkgnn_ros.identify_bag import main
     arm, _, data, _ = ur5

@@ -38,7 +38,7 @@ import threading
 from typing import Callable, Optional, Sequence, Tuple
 
 from rkgnn_ros.core.rigid.structure import DescriptionError, RigidStructure
-from rkgnn_ros.core.sim.urdf_arm import read_description, reduce_urdf, UrdfError
+from rkgnn_ros.core.rigid.urdf import read_description, reduce_urdf, UrdfError
 
 __all__ = ['MAX_DESCRIPTION_BYTES', 'RobotDescription', 'description_text']
 
