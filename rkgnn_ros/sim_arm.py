@@ -107,6 +107,7 @@ from rclpy.task import Future
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
+from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory
 
 from .cdr import encapsulation_problem, joint_trajectory_cdr_size, parse_trajectory_efforts_cdr
@@ -256,6 +257,8 @@ class SimArm(Node):
             self._description_pub.publish(String(data=config.robot_description))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
+        self._payload_on = False
+        self.create_service(SetBool, '~/payload', self._on_payload)
         self._timer = self.create_timer(1.0 / self._rate, self._on_timer)
         servo = self.sim.servo.describe()
         control = (f'digital {servo} at {config.control_rate:g} Hz' if config.control_rate
@@ -403,11 +406,42 @@ class SimArm(Node):
             self._next_ref_index = self._index + 1
             due = self._index + 1
         for index in range(self._index + 1, due + 1):
+            self._timed_payload(index / self._rate)
             origin = self._origin_ns / _NANO
             self._feedforward_event(self._feedforward.expire(origin + self.sim.t))
             self.sim.feedforward = self._feedforward.track(origin)
             self.sim.advance(index / self._rate)
             self._publish_sample(index)
+
+    # -- payload ---------------------------------------------------------------------------
+
+    def _set_payload(self, on: bool, why: str) -> str:
+        mass, com = self.config.payload[0], self.config.payload[1]
+        if on and mass <= 0.0:
+            return 'payload.mass is 0: nothing to attach'
+        self._payload_on = on
+        self.sim.set_payload(mass if on else 0.0, com)
+        text = (f'payload of {mass:g} kg at {list(com)} m attached ({why}), at simulation time '
+                f'{self.sim.t:.3f} s' if on else
+                f'payload released ({why}), at simulation time {self.sim.t:.3f} s')
+        self.get_logger().info(text)
+        return text
+
+    def _timed_payload(self, t: float) -> None:
+        """Attach or release the payload at payload.attach_at / detach_at (simulation s)."""
+        _, _, attach, detach = self.config.payload
+        if attach and not self._payload_on and self.sim.t < attach <= t:
+            self._set_payload(True, f'payload.attach_at {attach:g} s')
+        elif detach and self._payload_on and self.sim.t < detach <= t:
+            self._set_payload(False, f'payload.detach_at {detach:g} s')
+
+    def _on_payload(self, request, response):
+        try:
+            response.message = self._set_payload(bool(request.data), '~/payload')
+            response.success = bool(request.data) == self._payload_on
+        except Exception as error:  # nothing may escape a callback
+            response.success, response.message = False, f'payload not changed: {error}'
+        return response
 
     # -- feed-forward ---------------------------------------------------------------------
 

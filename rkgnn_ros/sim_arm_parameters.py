@@ -158,6 +158,17 @@ PARAMETERS = (
     _Spec('sensors.commands', True,
           'Publish joint_commands (θd, θ̇d); false: as a real driver, only the plan on '
           'reference_trajectory.'),
+    _Spec('payload.mass', 0.0,
+          'A payload picked up (kg): a point mass on the last link at payload.com, attached '
+          'at payload.attach_at or by ~/payload; the servo is not told.', 0.0, 1000.0),
+    _Spec('payload.com', [0.0, 0.0, 0.0],
+          "The payload's centre of mass (m) in the last moving joint's frame (URDF arm); the "
+          'planar arm carries it at the last link tip.', constraints='3 values'),
+    _Spec('payload.attach_at', 0.0,
+          'Simulation time (s) at which the payload is attached; 0: only by ~/payload.',
+          0.0, 1e9),
+    _Spec('payload.detach_at', 0.0,
+          'Simulation time (s) at which it is released; 0: never.', 0.0, 1e9),
     _Spec('seed', 0, 'Seed of the measurement noise generator.', 0, _MAX_INT),
     _Spec('publish_rate', 100.0, 'Rate of joint_states and joint_commands (Hz).',
           1.0, 10000.0),
@@ -216,6 +227,7 @@ class SimConfig(NamedTuple):
     reference_dt: float
     reference_rate: float
     duration: float
+    payload: tuple = (0.0, (0.0, 0.0, 0.0), 0.0, 0.0)   # mass, com, attach_at, detach_at
     stamp_jitter: float = 0.0        # s, uniform error of the joint_states stamps
     drop_fraction: float = 0.0       # share of joint_states not published
     publish_commands: bool = True    # joint_commands published
@@ -398,6 +410,7 @@ def build_config(values: dict) -> Tuple[SimConfig, List[str]]:
         stamp_jitter=min(float(values['sensors.stamp_jitter']),
                          0.25 / float(values['publish_rate'])),
         drop_fraction=float(values['sensors.drop_fraction']),
+        payload=_payload(values, arm),
         publish_commands=bool(values['sensors.commands']))
     return config, [warning for warning in warnings if warning]
 
@@ -421,6 +434,24 @@ def _limit_note(given: np.ndarray, default: np.ndarray) -> str:
         return f'{text} N m (tau_limit)'
     return (f"{text} N m ({'default' if not np.any(given > 0.0) else 'tau_limit, 0: default'}"
             f" = {DEFAULT_LIMIT_FACTOR:g}x the arm's torque scale on its reference)")
+
+
+def _payload(values: dict, arm) -> tuple:
+    """Return (mass, com, attach_at, detach_at) of the payload parameters, checked."""
+    from .core.sim.payload import with_payload
+    mass, com = float(values['payload.mass']), tuple(values['payload.com'])
+    if len(com) != 3:
+        raise ConfigurationError(f'payload.com must hold 3 values (m), got {list(com)}')
+    if mass > 0.0:
+        try:
+            with_payload(arm, mass, com)
+        except ValueError as error:
+            raise ConfigurationError(f'payload: {error}') from None
+    attach, detach = float(values['payload.attach_at']), float(values['payload.detach_at'])
+    if detach and attach and detach <= attach:
+        raise ConfigurationError(f'payload.detach_at ({detach} s) must come after '
+                                 f'payload.attach_at ({attach} s)')
+    return mass, com, attach, detach
 
 
 def _planar_arm(values: dict, n: int, viscous, coulomb) -> PlanarArm:

@@ -194,6 +194,21 @@ class ArmSimulator:
 
     # -- public ---------------------------------------------------------------------------
 
+    def set_payload(self, mass: float, com=(0.0, 0.0, 0.0)) -> None:
+        """
+        Carry a point mass ``mass`` (kg) at ``com`` (m) on the last link from now on (0: none).
+
+        The plant changes (:func:`.payload.with_payload` of the nominal arm); the servo's
+        gravity compensation keeps the nominal model, as a real servo's does.
+        """
+        from .payload import with_payload
+        nominal = getattr(self, '_nominal', None) or self.arm
+        self._nominal = nominal
+        self.arm = nominal if float(mass) == 0.0 else with_payload(nominal, mass, com)
+        if self.compiled:
+            self._constants = ((self.servo.constants(),)
+                               + tuple(self.arm.kernel_constants()))
+
     def sample(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """
         Return θ, θ̇, the applied torque τ, θd and θ̇d at the current time, each (n,).
