@@ -32,11 +32,13 @@ from collections import deque
 from typing import Callable, NamedTuple, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import InertiaStamped
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.conversions import make_float64_multiarray
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Status)
+from rkgnn_ros.core.fitting.online_records import DynamicsChange, PayloadEstimate
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.identification.prediction import Prediction, SCORE_LABELS, ScoreReport
 from sensor_msgs.msg import JointState
@@ -72,7 +74,9 @@ def create_publishers(node, events, forward_topic: str = '') -> dict:
               'prediction_scores': (Float64MultiArray, '~/prediction_scores', 10),
               'evolution': (Float64MultiArray, '~/evolution', 10),
               'diagnostics': (DiagnosticArray, '/diagnostics', 10),
-              'feedforward': (JointTrajectory, '~/feedforward', 10)}
+              'feedforward': (JointTrajectory, '~/feedforward', 10),
+              'change': (DiagnosticStatus, '~/change', model_qos),
+              'payload': (InertiaStamped, '~/payload', model_qos)}
     publishers = {key: node.create_publisher(kind, topic, qos, event_callbacks=events)
                   for key, (kind, topic, qos) in topics.items()}
     if forward_topic:
@@ -194,6 +198,8 @@ class Publishing:
                  ingestion, status: Callable[[], Status], description=None):
         self._node = node
         self._description = description   # its status joins /diagnostics
+        self.last_change: Optional[DynamicsChange] = None
+        self.last_payload: Optional[PayloadEstimate] = None
         self._outbox = outbox
         self._publishers = publishers
         self._parameters = parameters
@@ -244,6 +250,31 @@ class Publishing:
             self.publish_model(item.update, item.text)
         elif isinstance(item, LoopUpdate):
             self._predictor.update_loop(item.model, item.loop)
+        elif isinstance(item, (DynamicsChange, PayloadEstimate)):
+            self._publish_change(item)
+
+    def _publish_change(self, item) -> None:
+        """Publish a change on ``~/change`` or a payload on ``~/payload`` (and keep it)."""
+        if isinstance(item, DynamicsChange):
+            self.last_change = item
+            values = [('time', f'{item.time:.6f}'), ('joints', ','.join(item.joints))]
+            values += [(f'statistic.{i}', f'{v:.4g}') for i, v in enumerate(item.statistic)]
+            self._publishers['change'].publish(DiagnosticStatus(
+                level=DiagnosticStatus.WARN, name=f'{self._node.get_name()}: dynamics change',
+                message=f'the dynamics changed at {item.time:.3f} s on {list(item.joints)}',
+                hardware_id=self._node.get_fully_qualified_name(),
+                values=[KeyValue(key=k, value=v) for k, v in values]))
+            return
+        self.last_payload = item
+        msg = InertiaStamped()
+        sec, nanosec = divmod(int(round(item.time * 1e9)), 1_000_000_000)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        msg.header.frame_id = item.frame
+        msg.inertia.m = float(item.mass)
+        msg.inertia.com.x, msg.inertia.com.y, msg.inertia.com.z = map(float, item.com)
+        (msg.inertia.ixx, msg.inertia.iyy, msg.inertia.izz, msg.inertia.ixy,
+         msg.inertia.ixz, msg.inertia.iyz) = map(float, item.inertia)
+        self._publishers['payload'].publish(msg)
 
     def publish_model(self, update: ModelUpdate, text: Optional[str] = None) -> None:
         """Publish a model on ``~/model``, predict with it, set the ``identified.*`` outputs."""
@@ -300,6 +331,12 @@ class Publishing:
         pairs += list(ingestion.sources.describe().items())
         if self._description is not None:
             pairs.append(('robot_description', self._description.status))
+        if self.last_change is not None:
+            pairs += [('change.time', f'{self.last_change.time:.6f}'),
+                      ('change.joints', ','.join(self.last_change.joints))]
+        if self.last_payload is not None:
+            pairs += [('payload.mass_kg', f'{self.last_payload.mass:.4g}'),
+                      ('payload.com_m', ' '.join(f'{v:.4g}' for v in self.last_payload.com))]
         pairs += _selfcheck_pairs(self._predictor.report)
         pairs += [
             ('prediction_latency_p50_ms', _percentile_text(latencies, 50)),

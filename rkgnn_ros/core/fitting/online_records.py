@@ -195,6 +195,25 @@ class GenerationStats(NamedTuple):
     memory_samples: float = 0.0
 
 
+class DynamicsChange(NamedTuple):
+    """The arm's dynamics changed (a payload, a tool, wear): when and on which joints."""
+
+    time: float               # stamp time (s) of the change
+    joints: Tuple[str, ...]   # the joints whose residual showed it
+    statistic: Tuple[float, ...]  # per joint: the residual's mean square / its normal one
+
+
+class PayloadEstimate(NamedTuple):
+    """The last link's change since a :class:`DynamicsChange`, as a payload."""
+
+    time: float               # stamp time (s) of the change
+    mass: float               # kg
+    com: List[float]          # m, in ``frame``
+    inertia: List[float]      # kg m², about the centre of mass: xx, yy, zz, xy, xz, yz
+    frame: str
+    seconds: float            # of data after the change it was fitted on
+
+
 class LogLine(NamedTuple):
     """A line for the log: ``level`` is 'info', 'warning' or 'error'."""
 

@@ -75,6 +75,7 @@ class FilteredRows(NamedTuple):
     gravity: dict
     theta: np.ndarray
     segment: np.ndarray
+    time: Optional[np.ndarray] = None    # (K,) the kept samples' times (the segments' t)
 
     @property
     def n_samples(self) -> int:
@@ -88,7 +89,7 @@ class FilteredRows(NamedTuple):
         return FilteredRows(self.regressor[index], cut(self.tau), cut(self.error),
                             cut(self.error_rate), cut(self.integral),
                             {k: v[index] for k, v in self.gravity.items()}, self.theta[index],
-                            self.segment[index])
+                            self.segment[index], cut(self.time))
 
 
 def second_derivative_kernel(dt: float, sigma: float) -> np.ndarray:
@@ -225,6 +226,7 @@ def filtered_rows(segments: Sequence[Dataset], regressor: Callable,
         part = {'regressor': _chunked(regressor, theta, theta_dot, theta_ddot, h, stride)}
         kept = slice(m2, theta.shape[0] - m2, stride)
         part['theta'] = theta[kept]
+        part['time'] = seg.t[inner][kept]
         for name, value in (('tau', seg.tau), ('theta_d', seg.theta_d),
                             ('theta_d_dot', seg.theta_d_dot)):
             part[name] = None if value is None else value[inner]
@@ -256,4 +258,4 @@ def filtered_rows(segments: Sequence[Dataset], regressor: Callable,
     keys = set.intersection(*(set(p['gravity']) for p in parts))
     gravity = {k: np.concatenate([p['gravity'][k] for p in parts]) for k in keys}
     return FilteredRows(join('regressor'), join('tau'), join('error'), join('error_rate'),
-                        join('integral'), gravity, join('theta'), join('segment'))
+                        join('integral'), gravity, join('theta'), join('segment'), join('time'))

@@ -38,7 +38,7 @@ the arm a fit gives, with the model interface the gate and the feed-forward use.
 
 import dataclasses
 import math
-from typing import NamedTuple, Optional, Sequence
+from typing import NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -226,7 +226,7 @@ def _relative(residual: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 
 def _prepare(structure, train, validation, sigma, measured_velocity, features=None):
-    """Return the filtered rows of ``train`` and of ``validation`` (None: too short)."""
+    """Return the filtered rows of ``train`` and ``validation`` (None: too short), and σ."""
     def regressor(theta, theta_dot, theta_ddot):
         return structure.regressor(theta, theta_dot, theta_ddot)
 
@@ -236,8 +236,8 @@ def _prepare(structure, train, validation, sigma, measured_velocity, features=No
     held = (filtered_rows(validation, regressor, sigma, measured_velocity, features)
             if validation else None)
     if fit is None or fit.n_samples < 2:
-        return None, None
-    return fit, held
+        return None, None, sigma
+    return fit, held, sigma
 
 
 def fit_torque(structure: RigidStructure, train: Sequence[Dataset],
@@ -252,7 +252,7 @@ def fit_torque(structure: RigidStructure, train: Sequence[Dataset],
     """
     train = [seg for seg in train if seg.tau is not None]
     validation = [seg for seg in validation if seg.tau is not None]
-    fit, held = _prepare(structure, train, validation, sigma, measured_velocity)
+    fit, held, sigma = _prepare(structure, train, validation, sigma, measured_velocity)
     if fit is None or fit.n_samples < min_samples:
         return None
     weights = 1.0 / _rms(fit.tau)
@@ -260,9 +260,11 @@ def fit_torque(structure: RigidStructure, train: Sequence[Dataset],
     w = np.tile(weights, fit.n_samples)
     result = fit_consistent(structure, rows * w[:, None], fit.tau.reshape(-1) * w, prior=prior)
     arm = RigidArm(structure, result.parameters,
-                   {'case': 'torque', 'samples': int(fit.n_samples),
+                   {'case': 'torque', 'samples': int(fit.n_samples), 'sigma': sigma,
                     'rms_residual': result.rms_residual, 'evaluations': result.evaluations})
     errors = torque_errors(arm, held)
+    if held is not None and held.tau is not None:
+        _normal_level(arm, None, held)
     arm.info['torque_errors'] = errors.tolist()
     return RigidFit(arm, None, errors, int(fit.n_samples))
 
@@ -336,22 +338,52 @@ def _law_of(layout: dict, k: np.ndarray, n: int, kp, kd, features, gravity,
                          fit_ratio=np.zeros(n), samples=count)
 
 
+def servo_torque(law: ControllerLaw, samples: FilteredRows) -> np.ndarray:
+    """Return the law's torque on filtered samples (K, n); its integral from each start."""
+    servo = law.kp * samples.error + law.kd * samples.error_rate
+    if np.any(law.ki != 0.0):
+        servo = servo + law.ki * samples.integral
+    if law.theta_weights.size:
+        servo = servo + np.einsum('kif,if->ki', samples.gravity[law.theta_input],
+                                  law.theta_weights)
+    return servo
+
+
+def residual(arm: RigidArm, law: Optional[ControllerLaw],
+             samples: FilteredRows) -> Tuple[np.ndarray, np.ndarray]:
+    """
+    Return the model's residual (K, n) on filtered samples, and what it is judged against.
+
+    Without a law (case 1) the torque's: Y π − τ, against τ; with one (cases 2 and 3) the
+    closed loop's equation error: Y π − the servo's torque, against that torque (an
+    integral's unknown value at the samples' start removed as each joint's mean).
+    """
+    if law is None:
+        return samples.regressor @ arm.parameters - samples.tau, samples.tau
+    servo = servo_torque(law, samples)
+    out = samples.regressor @ arm.parameters - servo
+    if np.any(law.ki != 0.0):
+        out = out - out.mean(axis=0)
+    return out, servo
+
+
 def _equation_errors(arm: RigidArm, law: ControllerLaw, samples: Optional[FilteredRows],
                      gravity) -> np.ndarray:
     """Return the closed loop's equation error per joint on ``samples`` (inf: none)."""
     n = arm.n_joints
     if samples is None or samples.n_samples < 2 or samples.error is None:
         return np.full(n, math.inf)
-    servo = law.kp * samples.error + law.kd * samples.error_rate
-    integrating = bool(np.any(law.ki != 0.0))
-    if integrating:
-        servo = servo + law.ki * samples.integral
-    if law.theta_weights.size:
-        servo = servo + np.einsum('kif,if->ki', samples.gravity[gravity], law.theta_weights)
-    residual = samples.regressor @ arm.parameters - servo
-    if integrating:   # the integral's value at the held-out start is not judged
-        residual = residual - residual.mean(axis=0)
-    return _relative(residual, servo)
+    out, servo = residual(arm, law, samples)
+    return _relative(out, servo)
+
+
+def _normal_level(arm: RigidArm, law, samples: Optional[FilteredRows]) -> None:
+    """Keep the held-out residual's RMS and the judged torque's spread in ``arm.info``."""
+    if samples is None or samples.n_samples < 2:
+        return
+    out, reference = residual(arm, law, samples)
+    arm.info['residual_rms'] = np.sqrt(np.mean(out ** 2, axis=0)).tolist()
+    arm.info['torque_spread'] = np.std(reference, axis=0).tolist()
 
 
 def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
@@ -371,8 +403,8 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
     validation = [seg for seg in validation if all(getattr(seg, k) is not None for k in need)]
     if features is None and gravity is not None:
         features = GravityFeatures(structure)
-    fit, held = _prepare(structure, train, validation, sigma, measured_velocity,
-                         features if gravity is not None else None)
+    fit, held, sigma = _prepare(structure, train, validation, sigma, measured_velocity,
+                                features if gravity is not None else None)
     if fit is None or fit.n_samples < min_samples:
         return None
     n = structure.n_joints
@@ -407,12 +439,14 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
             bias=law.bias / scale, integral_term=law.integral_term / scale,
             theta_weights=law.theta_weights / scale)
     arm = RigidArm(structure, parameters,
-                   {'case': 'unknown' if kp is None else 'pd_gains',
+                   {'case': 'unknown' if kp is None else 'pd_gains', 'sigma': sigma,
                     'samples': int(fit.n_samples), 'rms_residual': result.rms_residual,
                     'evaluations': result.evaluations, 'form': law.describe(),
                     'mean_kp_unit_in_newton_metres': 1.0 / scale,
                     'scale_from': 'robot_description' if kp is None else 'gains'})
     errors = _equation_errors(arm, law, held, gravity)
+    if held is not None and held.error is not None:
+        _normal_level(arm, law, held)
     arm.info['equation_errors'] = errors.tolist()
     return RigidFit(arm, law, errors, int(fit.n_samples))
 
@@ -456,7 +490,7 @@ def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
                      validation: Sequence[Dataset], kp=None, kd=None,
                      features: Optional[GravityFeatures] = None,
                      sigma: Optional[float] = None,
-                     measured_velocity: bool = False) -> Optional[RigidFit]:
+                     measured_velocity: bool = False, prior=None) -> Optional[RigidFit]:
     """
     Return the closed-loop fit of the form the held-out data support best.
 
@@ -469,7 +503,7 @@ def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
 
     def attempt(integral, gravity):
         return fit_closed(structure, train, validation, kp, kd, integral, gravity, features,
-                          sigma=sigma, measured_velocity=measured_velocity)
+                          prior=prior, sigma=sigma, measured_velocity=measured_velocity)
 
     best = attempt(False, None)
     for integral, gravity in ((False, 'measured'), (False, 'desired'), (True, None),

@@ -40,8 +40,11 @@ from typing import List, NamedTuple, Optional, Sequence, Tuple
 import numpy as np
 
 from .case_one import fit_law, MAX_LAW_FIT_RATIO
-from .online_records import ClosedLoop, GenerationStats, LogLine, model_update
+from .change import Change, ChangeDetector
+from .online_records import (ClosedLoop, DynamicsChange, GenerationStats, LogLine,
+                             model_update, PayloadEstimate)
 from .online_rules import stale_stream
+from .rigid_change import fit_last_body, newest_residual, payload_of, since
 from .rigid_fit import fit_closed, fit_closed_forms, fit_torque, RigidFit
 from .rigid_law import GravityFeatures
 from .rigid_loop import RigidLoop
@@ -65,6 +68,17 @@ FORMS_EVERY_S = 10.0
 #: Seconds between two refits (at most).
 REFRESH_S = 1.0
 
+#: Seconds of data a fit needs before its residual's level is trusted to judge changes.
+DETECT_MIN_S = 6.0
+#: Seconds between two checks for a change of the dynamics (at most).
+CHECK_EVERY_S = 0.25
+#: Newest seconds of data a check judges.
+CHECK_S = 1.0
+#: Seconds of data after a change before the last body is refitted ...
+PAYLOAD_MIN_S = 1.0
+#: ... and before the whole model is (from then on, only data after the change).
+FULL_REFIT_S = 8.0
+
 
 class RigidUpdate(NamedTuple):
     """What one refresh gave: the model to publish, its closed loop (None: none), log lines."""
@@ -72,6 +86,8 @@ class RigidUpdate(NamedTuple):
     model: RigidModel
     loop: Optional[ClosedLoop]
     lines: List[Tuple[str, str]]
+    #: the payload the first seconds after a change show (:func:`.rigid_change.payload_of`)
+    payload: Optional[dict] = None
 
 
 def _integral_to_end(law, segments: Sequence[Dataset]):
@@ -105,6 +121,38 @@ class RigidKeeper:
         self._form_time = -math.inf
         self.refits = 0
         self._predicting = False
+        self.detector = ChangeDetector()
+        self.since = -math.inf       # stamp (s) from which on the data are the arm's now
+        self.change: Optional[Change] = None   # the newest change (its stamp time)
+        self.before = None           # the arm in use when it came
+        self.payload: Optional[dict] = None
+
+    def check(self, segments: Sequence[Dataset], origin: float) -> Optional[Change]:
+        """
+        Judge the newest :data:`CHECK_S` of ``segments`` with the model in use.
+
+        A change (:mod:`.change`, its time in stamp seconds) is kept: the data before it are
+        no longer fitted, the last body is re-identified first (:meth:`refresh`).
+        """
+        fit = self.fit
+        if fit is None or self.detector.level is None or not segments:
+            return None
+        end = origin + float(segments[-1].t[-1])
+        newest = since(segments, origin, max(self.since, end - CHECK_S))
+        law = None if self.case == 'torque' else fit.law
+        found = newest_residual(fit.arm, law, newest, fit.arm.info.get('sigma') or 0.02)
+        if found is None:
+            return None
+        residual, times = found
+        change = self.detector.check(residual, origin + times)
+        if change is None:
+            return None
+        sigma = fit.arm.info.get('sigma') or 0.02
+        self.change, self.before, self.payload = change, fit.arm, None
+        self._latest = fit.arm
+        self.since = change.time + 2.0 * sigma
+        self.detector = ChangeDetector()       # re-armed by the first full refit after it
+        return change
 
     def refresh(self, case: str, segments: Sequence[Dataset], validation_fraction: float,
                 origin: float, now: float, kp=None, kd=None) -> Optional[RigidUpdate]:
@@ -114,20 +162,32 @@ class RigidKeeper:
         ``kp``, ``kd``: the known gains of case 'pd_gains'. Returns None when there are
         too few data or the fit fails.
         """
-        segments = [seg for seg in segments if seg.n_samples >= MIN_SEGMENT_SAMPLES]
-        if sum(seg.duration for seg in segments) < MIN_DATA_S:
+        segments = [seg for seg in since(segments, origin, self.since)
+                    if seg.n_samples >= MIN_SEGMENT_SAMPLES]
+        span = sum(seg.duration for seg in segments)
+        if self.change is not None and span < FULL_REFIT_S:
+            return self._after_change(case, segments, origin, span)
+        if span < MIN_DATA_S:
             return None
         train, validation, _ = split_validation(segments, validation_fraction,
                                                 MIN_SEGMENT_SAMPLES)
         lines: List[Tuple[str, str]] = []
+        prior = None if self.change is None else self._latest.parameters
         if case == 'torque':
-            fit, law = self._torque(segments, train, validation, lines)
+            fit, law = self._torque(segments, train, validation, lines, prior)
         else:
-            fit = self._closed(case, train, validation, now, kp, kd)
+            fit = self._closed(case, train, validation, now, kp, kd, prior)
             law = None if fit is None else _integral_to_end(fit.law, segments)
         if fit is None:
             return None
+        if self.change is not None:
+            lines.append(('info', f'the whole model refitted on the {span:.1f} s since the '
+                                  'change'))
+            self.change = None
         self.fit = fit
+        info = fit.arm.info
+        if 'residual_rms' in info and span >= DETECT_MIN_S:
+            self.detector.set_normal(info['residual_rms'], info['torque_spread'])
         self.refits += 1
         error = fit.error
         model = RigidModel(fit.arm, law, case, segments[-1].dt,
@@ -153,7 +213,37 @@ class RigidKeeper:
                                      'is not determined by the data yet'))
         return RigidUpdate(model, loop, lines)
 
-    def _torque(self, segments, train, validation, lines):
+    def _after_change(self, case, segments, origin, span) -> Optional[RigidUpdate]:
+        """The first seconds after a change: only the last body is refitted (module doc)."""
+        if span < PAYLOAD_MIN_S or self.before is None:
+            return None
+        law = self.law if case == 'torque' else self.fit.law
+        sigma = self.before.info.get('sigma') or 0.02
+        arm = fit_last_body(self.before, None if case == 'torque' else law, segments, sigma)
+        if arm is None:
+            return None
+        self.payload = dict(payload_of(self.before, arm), time=self.change.time,
+                            seconds=span)
+        self.refits += 1
+        self._latest = arm
+        model = RigidModel(arm, law, case, segments[-1].dt,
+                           {'refits': self.refits, 'generation': self.refits,
+                            'held_out_error': math.nan, 'window_s': span,
+                            'payload': self.payload,
+                            'phase': 'last body refitted after a change'})
+        loop = None
+        if law is not None:
+            if case == 'torque':
+                law = _integral_to_end(law, segments)
+            loop = ClosedLoop(model, RigidLoop(arm, law), origin + float(segments[-1].t[-1]))
+        p = self.payload
+        com = np.round(p['com'], 4).tolist()
+        line = ('info', f'payload after the change at {self.change.time:.3f} s: '
+                        f"{p['mass']:.3f} kg at {com} m in the frame of {p['frame']} "
+                        f'({span:.1f} s of data)')
+        return RigidUpdate(model, loop, [line], self.payload)
+
+    def _torque(self, segments, train, validation, lines, prior=None):
         paired = [seg for seg in segments if seg.tau is not None and seg.theta_d is not None]
         law = fit_law(paired, features=self.features) if paired else None
         if law is not None and law.usable(MAX_LAW_FIT_RATIO):
@@ -164,16 +254,17 @@ class RigidKeeper:
             self.law = _integral_to_end(law, paired)
         elif self.law is not None:
             self.law = _integral_to_end(self.law, paired) if paired else self.law
-        fit = fit_torque(self.structure, train, validation)
+        fit = fit_torque(self.structure, train, validation, prior=prior)
         return fit, self.law
 
-    def _closed(self, case, train, validation, now, kp, kd) -> Optional[RigidFit]:
+    def _closed(self, case, train, validation, now, kp, kd, prior=None) -> Optional[RigidFit]:
         if case == 'pd_gains':
             kp, kd = np.asarray(kp, dtype=float), np.asarray(kd, dtype=float)
         else:
             kp = kd = None
         if self.form is None or now - self._form_time >= FORMS_EVERY_S:
-            fit = fit_closed_forms(self.structure, train, validation, kp, kd, self.features)
+            fit = fit_closed_forms(self.structure, train, validation, kp, kd, self.features,
+                                   prior=prior)
             if fit is not None:
                 self._form_time = now
                 law = fit.law
@@ -182,7 +273,7 @@ class RigidKeeper:
             return fit
         integral, gravity = self.form
         return fit_closed(self.structure, train, validation, kp, kd, integral, gravity,
-                          self.features)
+                          self.features, prior=prior)
 
 
 def refresh_events(keeper: RigidKeeper, settings, capture, now: float, publish: bool):
@@ -228,10 +319,12 @@ class RigidPolicy:
         self.model: Optional[RigidModel] = None
         self._last_refresh = -math.inf
         self._last_publish = -math.inf
+        self._last_check = -math.inf
 
     def data_due(self, obs, now: float) -> bool:
-        """Return whether the next :meth:`step` refits (it then wants a capture)."""
-        return stale_stream(obs, now) is None and now - self._last_refresh >= REFRESH_S
+        """Return whether the next :meth:`step` refits or checks (it then wants a capture)."""
+        return stale_stream(obs, now) is None and (
+            now - self._last_refresh >= REFRESH_S or now - self._last_check >= CHECK_EVERY_S)
 
     def step(self, obs) -> bool:
         """Refit if due; return False (no generation of a search ran)."""
@@ -248,8 +341,12 @@ class RigidPolicy:
                              'paused' if obs.paused else 'no joint_states yet')
             return False
         if (not self._staleness.fresh(obs, now, lambda level, text: self._emit(
-                LogLine(level, text)), self._set_status)
-                or obs.data is None or now - self._last_refresh < REFRESH_S):
+                LogLine(level, text)), self._set_status) or obs.data is None):
+            return False
+        if now - self._last_check >= CHECK_EVERY_S:
+            self._last_check = now
+            self._check(keeper, obs)
+        if now - self._last_refresh < REFRESH_S:
             return False
         self._last_refresh = now
         publish = now - self._last_publish >= settings.model_publish_period
@@ -261,11 +358,28 @@ class RigidPolicy:
             return False
         if publish:
             self.model, self._last_publish = update.model, now
+        if update.payload is not None:
+            self._emit(PayloadEstimate(**{k: update.payload[k] for k in PayloadEstimate._fields}))
         error = float(update.model.info['held_out_error'])
         self._set_status('identifying', f'rigid-body fit {keeper.refits}, held-out error '
                                         f'{error:.3g}', generation=keeper.refits,
                          best_cost=error)
         return False
+
+    def _check(self, keeper: RigidKeeper, obs) -> None:
+        """Judge the newest data with the model in use; say a change (events, log)."""
+        capture = obs.data
+        change = keeper.check(capture.segments(MIN_SEGMENT_SAMPLES, keeper.case != 'torque'),
+                              capture.time_origin)
+        if change is None:
+            return
+        names = tuple(keeper.structure.joint_names[j] for j in change.joints)
+        statistic = tuple(float(v) for v in change.statistic)
+        self._emit(DynamicsChange(change.time, names, statistic))
+        self._emit(LogLine('warning', f'the dynamics changed at {change.time:.3f} s (joints '
+                                      f'{list(names)}: residual {max(statistic):.3g} times its '
+                                      'normal square): the data before it are dropped, the '
+                                      'last body is refitted first'))
 
 
 def fit_rigid(datasets, case: str, structure: RigidStructure, kp=None, kd=None,

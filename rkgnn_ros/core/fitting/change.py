@@ -1,0 +1,96 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+A change of the arm's dynamics, told from the residual of the model in use.
+
+When the arm picks up a payload, swaps a tool or wears, the model that explained its
+torque (or its closed loop's equation) stops explaining it, at once and on the joints that
+carry the change. :class:`ChangeDetector` tests the model's residual on the newest filtered
+samples against the residual's normal level per joint, measured where the model was fitted
+(its held-out RMS residual, floored at :data:`RELATIVE_FLOOR` of the joint's torque spread:
+a model fitted to rounding would otherwise call any rounding a change). The test is a
+generalised likelihood ratio for a jump of the residual's scale in a block of new
+samples: the block's mean squared normalised residual, about 1 while nothing changed;
+a change is declared when it exceeds :data:`ALARM` on a joint over at least
+:data:`MIN_ROWS` samples (the residual's RMS :data:`ALARM`^½ times its normal level). The
+residual's normal level is measured on the model's own held-out data, with the encoders'
+noise in it, and the rigid-body model is global, so new motion does not raise it; a
+threshold this far above 1 keeps a model somewhat worse on motion it never saw from
+counting as a change. The time of the change is where the first sample of the block's
+run of large residuals (normalised above :data:`ONSET`) lies.
+"""
+
+import math
+from typing import NamedTuple, Optional, Sequence
+
+import numpy as np
+
+__all__ = ['ALARM', 'Change', 'ChangeDetector', 'MIN_ROWS', 'ONSET', 'RELATIVE_FLOOR']
+
+#: A block's mean squared normalised residual at or above which the dynamics changed.
+ALARM = 25.0
+#: Fewest new samples a block is judged on.
+MIN_ROWS = 5
+#: A normalised residual above this marks where the change began.
+ONSET = 3.0
+#: Smallest normal residual level, as a share of the joint's torque standard deviation.
+RELATIVE_FLOOR = 0.01
+
+
+class Change(NamedTuple):
+    """A change of the dynamics: when (s, in the samples' time), on which joints, how large."""
+
+    time: float
+    joints: tuple            # indices of the joints whose statistic passed
+    statistic: np.ndarray    # per joint: the block's mean squared normalised residual
+
+
+class ChangeDetector:
+    """Judges blocks of a model's residual against its normal level (module docstring)."""
+
+    def __init__(self):
+        self.level: Optional[np.ndarray] = None
+        self.last_time = -math.inf
+
+    def set_normal(self, residual_rms, spread) -> None:
+        """Take the model's normal residual (RMS per joint) and the torques' spread (n,)."""
+        residual_rms = np.asarray(residual_rms, dtype=float)
+        floor = RELATIVE_FLOOR * np.maximum(np.asarray(spread, dtype=float), 1e-9)
+        level = np.where(np.isfinite(residual_rms), residual_rms, np.inf)
+        self.level = np.maximum(level, floor)
+
+    def check(self, residual: np.ndarray, times: Sequence[float]) -> Optional[Change]:
+        """
+        Judge the samples of ``residual`` (K, n) at ``times`` (K,) after the last judged one.
+
+        Returns the :class:`Change` found, or None.
+        """
+        if self.level is None:
+            return None
+        times = np.asarray(times, dtype=float)
+        new = times > self.last_time
+        if int(new.sum()) < MIN_ROWS:
+            return None
+        self.last_time = float(times[new][-1])
+        normalised = np.asarray(residual, dtype=float)[new] / self.level
+        with np.errstate(all='ignore'):
+            statistic = np.mean(normalised ** 2, axis=0)
+        statistic = np.where(np.isfinite(statistic), statistic, 0.0)
+        joints = tuple(int(j) for j in np.flatnonzero(statistic >= ALARM))
+        if not joints:
+            return None
+        large = np.max(np.abs(normalised[:, list(joints)]), axis=1) > ONSET
+        first = int(np.argmax(large)) if np.any(large) else 0
+        return Change(float(times[new][first]), joints, statistic)

@@ -1,0 +1,109 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""A described arm picks up a payload: the change is seen, the payload identified."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip('pinocchio')
+
+from rkgnn_ros.core.fitting.change import ChangeDetector  # noqa: E402
+from rkgnn_ros.core.fitting.online import OnlineIdentification  # noqa: E402
+from rkgnn_ros.core.fitting.online_records import (DynamicsChange, ModelUpdate,  # noqa: E402
+                                                   Observation, OnlineSettings,
+                                                   PayloadEstimate)
+from rkgnn_ros.core.rigid.structure import RigidStructure  # noqa: E402
+from rkgnn_ros.core.sim.payload import with_payload  # noqa: E402
+from rkgnn_ros.core.sim.servo import Servo  # noqa: E402
+from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
+from rkgnn_ros.core.sim.trajectories import SumOfSines  # noqa: E402
+from rkgnn_ros.core.sim.urdf_arm import UrdfArm  # noqa: E402
+from rkgnn_ros.stream_buffer import StreamBuffer  # noqa: E402
+
+UR5 = 'example-robot-data:ur_description/urdf/ur5_robot.urdf'
+KP = np.array([400.0, 400.0, 200.0, 40.0, 40.0, 10.0])
+KD = np.array([40.0, 40.0, 20.0, 3.0, 3.0, 0.3])
+HOME = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
+AT, MASS, COM = 20.0, 3.0, np.array([0.0, 0.02, 0.05])
+T0 = 1000.0
+
+
+@pytest.fixture(scope='module')
+def picked_up():
+    """30 s of a UR5 under PD that picks up 3 kg at 20 s (its servo does not know)."""
+    arm = UrdfArm(UR5, viscous=[2, 2, 1, 0.3, 0.3, 0.1], coulomb=[1, 1, 0.5, 0.2, 0.2, 0.05])
+    servo = Servo(KP, KD)
+    ref = SumOfSines.random(6, np.random.default_rng(1), n_terms=3, amplitude=0.5,
+                            offsets=HOME)
+    before = simulate(arm, servo, ref, AT, rate=100.0, joint_names=arm.joint_names)
+    x0 = np.concatenate([before.theta[-1], before.theta_dot[-1]])
+    after = simulate(with_payload(arm, MASS, COM), servo, ref, 10.0, rate=100.0, x0=x0,
+                     t0=AT, joint_names=arm.joint_names)
+    return RigidStructure(arm.urdf, arm.joint_names), before, after
+
+
+def test_a_payload_is_detected_within_a_second_and_identified(picked_up):
+    structure, before, after = picked_up
+    joints = tuple(structure.joint_names)
+    buffer = StreamBuffer(joints, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+    clock = [100.0]
+    policy = OnlineIdentification(lambda: clock[0])
+    cfg = OnlineSettings(case='torque', min_window=2.0, validation_fraction=0.2,
+                         model_publish_period=0.5)
+    samples = [(d, k) for d in (before, after) for k in range(d.n_samples - (d is before))]
+    events, fed = [], 0
+    for step in range(int(29.9 / 0.05)):
+        now = step * 0.05                        # seconds of the arm's time
+        while fed < len(samples) and samples[fed][0].t[samples[fed][1]] <= now:
+            d, k = samples[fed]
+            buffer.add_state(T0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
+            buffer.add_command(T0 + d.t[k], d.theta_d[k], d.theta_d_dot[k])
+            fed += 1
+        clock[0] = 100.0 + now
+        obs = Observation(cfg, joints, {'state': clock[0], 'command': clock[0]},
+                          structure=structure)
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        for event in policy.step(obs).events:
+            events.append((now, event))
+    changes = [(now, e) for now, e in events if isinstance(e, DynamicsChange)]
+    assert len(changes) == 1, changes                 # no false alarm before, one after
+    said_at, change = changes[0]
+    assert AT - 0.05 <= change.time - T0 <= AT + 0.5 and said_at - AT <= 1.0
+    assert 'shoulder_lift_joint' in change.joints
+    payloads = [(now, e) for now, e in events if isinstance(e, PayloadEstimate)]
+    assert payloads and payloads[0][0] - AT <= 3.0
+    late = [e for now, e in payloads if now >= AT + 5.0]
+    assert late, payloads
+    assert late[-1].mass == pytest.approx(MASS, rel=0.05)
+    assert np.linalg.norm(np.array(late[-1].com) - COM) <= 0.01
+    # after 8 s of new data the whole model is refitted on them alone
+    updates = [e for now, e in events if isinstance(e, ModelUpdate) and now >= AT + 8.5]
+    assert updates and 'payload' not in updates[-1].model.info
+
+
+def test_a_residual_at_its_normal_level_is_no_change():
+    detector = ChangeDetector()
+    detector.set_normal([0.1, 0.2], [10.0, 10.0])
+    rng = np.random.default_rng(0)
+    for block in range(200):
+        times = block + np.arange(20) * 0.05
+        residual = rng.normal(0.0, [0.1, 0.2], (20, 2)) * 2.0   # twice as bad: new motion
+        assert detector.check(residual, times) is None
+    jump = rng.normal(0.0, [0.1, 0.2], (20, 2))
+    jump[8:, 1] += 2.0
+    change = detector.check(jump, 300.0 + np.arange(20) * 0.05)
+    assert change is not None and change.joints == (1,)
+    assert change.time == pytest.approx(300.4)
