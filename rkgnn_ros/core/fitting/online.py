@@ -78,6 +78,7 @@ from .online_rules import (auto_untried, EventLog, feed_memory, stale_stream, St
 from .rigid_online import RigidPolicy
 from .search_starts import (hand_over_settings, restart_around, rewarm, RewarmSchedule,
                             warm_start, WARM_START_NFEV, WARM_START_S)
+from .trig_change import TrigChangeMonitor
 from .trig_loop import YOUNG_DATA_S
 from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
 from ..data import Dataset
@@ -184,7 +185,6 @@ class OnlineIdentification:
         self._warm_start_nfev = int(warm_start_nfev)
         self._status = Status()
         self._out = EventLog(clock, LOG_THROTTLE_S)  # the events of the current step
-        # what is published
         self._model = published
         self._published_genome = None if published is None else published.genome.copy()
         self._last_model_pub = -math.inf if published is None else clock()
@@ -193,7 +193,6 @@ class OnlineIdentification:
         self._laws = LawKeeper()  # case 'torque': the law learned from torque and commands
         self._arm3 = ArmKeeper()  # case 'unknown': the linear closed loop on the trig basis
         self._loop: Optional[ClosedLoop] = None  # what the published model predicts with
-        # the search
         self._evo: Optional[Evolution] = None
         self._evo_version = -1
         self._evo_case = ''
@@ -212,6 +211,7 @@ class OnlineIdentification:
         self._last_stats = -math.inf
         self._staleness = Staleness()
         self._rigid = RigidPolicy(clock, self._out.append, self._set_status, self._staleness)
+        self._changes = TrigChangeMonitor()  # a change of the dynamics, without a description
         self._memory = MemoryFeed()  # samples that keep the linear fit's regressor rich
         self._had_finite = False
         self._failures = None  # (optimizer, its numerical failures) last seen
@@ -230,6 +230,8 @@ class OnlineIdentification:
         now = self._clock()
         if obs.structure is not None:   # the rigid body is refitted instead of searched
             return self._rigid.data_due(obs, now)
+        if obs.settings.case == 'torque' and self._changes.due(now):
+            return True
         if stale_stream(obs, now) is not None:
             return False
         since = now - self._last_refresh if searching or self._evo is None else math.inf
@@ -287,6 +289,14 @@ class OnlineIdentification:
             return False
         if not self._staleness.fresh(obs, self._clock(), self._out.log, self._set_status):
             return False
+        events = [] if obs.data is None or settings.case != 'torque' else \
+            self._changes.observe(obs.data, self._laws.trig, settings.validation_fraction,
+                                  self._clock(), obs.joints)
+        if events:   # the dynamics changed: what the old data built goes, the search anew
+            self._out.extend(events)
+            self._laws.trig, self._memory = None, MemoryFeed()
+            if self._evo is not None:
+                self._drop_search('the dynamics changed')
         since = self._clock() - self._last_refresh
         due = since >= DATA_REFRESH_S or (self._evo is None and since >= WAITING_REFRESH_S)
         if due and obs.data is not None:
@@ -314,9 +324,9 @@ class OnlineIdentification:
         self._last_refresh = self._clock()
         law = None
         fraction, fitted = settings.validation_fraction, (False, None)
-        if settings.case == 'torque':
-            paired = _with_velocity(capture.segments(MIN_SEGMENT_SAMPLES, True),
-                                    estimate_velocity)
+        if settings.case == 'torque':     # after a change of the dynamics: its data only
+            paired = _with_velocity(self._changes.recent(capture.segments(
+                MIN_SEGMENT_SAMPLES, True), capture.time_origin), estimate_velocity)
             self._feed_memory(settings, paired, capture.time_origin)
             law = self._update_law(paired, capture.time_origin) or self._laws.law
         if law is not None:  # the closed-loop search: θd shifted by the law's other terms

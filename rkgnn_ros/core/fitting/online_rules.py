@@ -125,6 +125,10 @@ class EventLog:
         """Queue an event."""
         self._events.append(event)
 
+    def extend(self, events) -> None:
+        """Queue events."""
+        self._events.extend(events)
+
     def log(self, level: str, text: str) -> None:
         """Queue a log line ('info', 'warning' or 'error')."""
         self._events.append(LogLine(level, text))

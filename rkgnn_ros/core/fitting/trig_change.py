@@ -1,0 +1,128 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+A change of the dynamics of an arm without a robot description (case 1).
+
+Where the planar trigonometric arm predicts (:meth:`.case_one.LawKeeper.fit_trig`), its
+torque residual on the newest data is what :class:`.change.ChangeDetector` judges: the
+measured torque against the arm's inverse dynamics at the measured states, θ̈ the centred
+derivative of θ̇ as the torque gate takes it (:func:`~..control.gate.paired_torques`), so the
+normal level (the residual's RMS on the held-out part of the fit, once the data span
+:data:`~.rigid_online.DETECT_MIN_S`) has the same noise in it. A change is said with its
+time; the policy then drops what the data before it built (:mod:`.online`).
+"""
+
+import math
+from typing import Optional, Sequence
+
+import numpy as np
+
+from .change import Change, ChangeDetector
+from .online_records import DynamicsChange, LogLine
+from .rigid_change import since
+from .rigid_online import CHECK_EVERY_S, CHECK_S, DETECT_MIN_S
+from .trig_loop import data_span
+from .validation import MIN_SEGMENT_SAMPLES, split_validation
+from ..data import Dataset
+from ..differentiate import centred_derivative, CENTRED_ORDER, CENTRED_WINDOW
+
+__all__ = ['TrigChangeMonitor']
+
+
+def _residual(arm, segments: Sequence[Dataset], origin: float):
+    """Return (residual (K, n), reference torque (K, n), stamp times (K,)), or None."""
+    parts = []
+    half = CENTRED_WINDOW // 2
+    for seg in segments:
+        if seg.tau is None or seg.n_samples < max(CENTRED_ORDER + 2, 2 * half + 2):
+            continue
+        acc = centred_derivative(seg.theta_dot, seg.dt)
+        keep = slice(half, seg.n_samples - half)
+        with np.errstate(all='ignore'):
+            predicted = arm.inverse_dynamics(seg.theta[keep], seg.theta_dot[keep], acc[keep])
+        parts.append((predicted - seg.tau[keep], seg.tau[keep], origin + seg.t[keep]))
+    if not parts:
+        return None
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
+class TrigChangeMonitor:
+    """Judges the trigonometric arm's residual (module docstring); keeps where data start."""
+
+    def __init__(self):
+        self.detector = ChangeDetector()
+        self.since = -math.inf
+        self._armed_by = None
+        self._last_check = -math.inf
+
+    def due(self, now: float) -> bool:
+        """Return whether a check is due at clock ``now`` (it needs a capture)."""
+        return self.detector.level is not None and now - self._last_check >= CHECK_EVERY_S
+
+    def recent(self, segments: Sequence[Dataset], origin: float):
+        """Return the parts of ``segments`` after the newest change."""
+        return since(segments, origin, self.since) if self.since > -math.inf else segments
+
+    def observe(self, capture, loop, fraction: float, now: float, joints):
+        """
+        Re-arm on ``loop`` and check the capture if due; return the events of a change.
+
+        Events: a :class:`~.online_records.DynamicsChange` and a log line; [] if none.
+        """
+        origin = capture.time_origin
+        segments = self.recent(capture.segments(MIN_SEGMENT_SAMPLES, True), origin)
+        _, validation, _ = split_validation(segments, fraction, MIN_SEGMENT_SAMPLES)
+        self.rearm(loop, validation, origin, data_span(segments))
+        if not self.due(now):
+            return []
+        self._last_check = now
+        change = self.check(loop, segments, origin)
+        if change is None:
+            return []
+        names = tuple(joints[j] for j in change.joints)
+        statistic = tuple(float(v) for v in change.statistic)
+        return [DynamicsChange(change.time, names, statistic),
+                LogLine('warning', f'the dynamics changed at {change.time:.3f} s (joints '
+                                   f'{list(names)}: residual {max(statistic):.3g} times its '
+                                   'normal square): the data before it are dropped and the '
+                                   'arm is fitted again on the data after it')]
+
+    def rearm(self, loop, validation: Sequence[Dataset], origin: float, span: float) -> None:
+        """Take the normal level of ``loop``'s arm from ``validation`` (once per loop)."""
+        if loop is None or loop is self._armed_by or span < DETECT_MIN_S:
+            return
+        found = _residual(loop.arm, validation, origin)
+        if found is None or found[0].shape[0] < 10:
+            return
+        residual, reference, _ = found
+        self.detector.set_normal(np.sqrt(np.mean(residual ** 2, axis=0)),
+                                 np.std(reference, axis=0))
+        self._armed_by = loop
+
+    def check(self, loop, segments: Sequence[Dataset], origin: float) -> Optional[Change]:
+        """Judge the newest :data:`CHECK_S` of ``segments`` with ``loop``'s arm."""
+        if loop is None or self.detector.level is None or not segments:
+            return None
+        end = origin + float(segments[-1].t[-1])
+        found = _residual(loop.arm, since(segments, origin, max(self.since, end - CHECK_S)),
+                          origin)
+        if found is None:
+            return None
+        change = self.detector.check(found[0], found[2])
+        if change is not None:
+            self.since = change.time + 0.05
+            self.detector = ChangeDetector()
+            self._armed_by = None
+        return change
