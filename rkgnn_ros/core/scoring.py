@@ -40,6 +40,7 @@ from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .noise import encoder_noise
 from .series import Series as _Series
 
 __all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'ahead_errors', 'nrmse', 'range_normalised_rmse',
@@ -455,8 +456,14 @@ class PredictionRecord:
         return out
 
     def _nrmse(self, errors: np.ndarray, rows: np.ndarray) -> float:
-        return range_normalised_rmse(errors[rows], self._range_at) if np.any(rows) \
-            else math.nan
+        return float(np.mean(self._per_joint(errors, rows)))
+
+    def _per_joint(self, errors: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Return the RMSE / θ range of each joint (n,) over ``rows`` (NaN: no rows)."""
+        if not np.any(rows):
+            return np.full(self.n, np.nan)
+        rmse = np.sqrt(np.mean(np.square(errors[rows]), axis=0))
+        return rmse / np.maximum(self._range_at, 1e-12)
 
     def scores(self) -> Dict[float, Dict[str, float]]:
         """
@@ -466,13 +473,26 @@ class PredictionRecord:
         ``published`` (what was actually published) and ``candidate`` (while one is
         scored); ``count`` and ``candidate_count`` are the numbers of scored predictions
         of the model and of the candidate at that horizon. The baselines are scored on the
-        model's targets once it has some. Empty for a horizon with nothing scored yet.
+        model's targets once it has some. Empty for a horizon with nothing scored yet. A
+        predictor's score is the mean over the joints of :meth:`joint_scores`.
         The result is shared until the scores are computed again: do not change it.
         """
-        return self._memo(('scores',), self._scores)
+        return self._memo(('scores',), lambda: {
+            h: {name: float(np.mean(v)) if isinstance(v, np.ndarray) else v
+                for name, v in row.items()}
+            for h, row in self.joint_scores().items()})
 
-    def _scores(self) -> Dict[float, Dict[str, float]]:
-        """See :meth:`scores`."""
+    def joint_scores(self) -> Dict[float, Dict[str, object]]:
+        """
+        Return horizon -> predictor -> windowed RMSE / θ range per joint, (n,) each.
+
+        The predictors, targets and counts of :meth:`scores` (which averages these over the
+        joints); shared until the scores are computed again: do not change it.
+        """
+        return self._memo(('joint_scores',), self._joint_scores)
+
+    def _joint_scores(self) -> Dict[float, Dict[str, object]]:
+        """See :meth:`joint_scores`."""
         out = {}
         for h, errors in self._table().items():
             if errors is None or not errors['hold_last'].shape[0]:
@@ -481,19 +501,30 @@ class PredictionRecord:
             has_model = finite_rows(errors['model'])
             count = int(has_model.sum())
             base = has_model if count else np.ones(has_model.shape, dtype=bool)
-            row = {'model': self._nrmse(errors['model'], has_model), 'count': count}
+            row = {'model': self._per_joint(errors['model'], has_model), 'count': count}
             for name in BASELINES:
                 rows = base & finite_rows(errors[name])
                 if np.any(rows):
-                    row[name] = self._nrmse(errors[name], rows)
-            shown = finite_rows(errors['published'])
-            row['published'] = self._nrmse(errors['published'], shown)
+                    row[name] = self._per_joint(errors[name], rows)
+            row['published'] = self._per_joint(errors['published'],
+                                               finite_rows(errors['published']))
             has_candidate = finite_rows(errors['candidate'])
             if np.any(has_candidate):
-                row['candidate'] = self._nrmse(errors['candidate'], has_candidate)
+                row['candidate'] = self._per_joint(errors['candidate'], has_candidate)
                 row['candidate_count'] = int(has_candidate.sum())
             out[h] = row
         return out
+
+    def noise(self) -> np.ndarray:
+        """
+        Return the std of the measurement noise on each joint's θ in rad, (n,), NaN if unknown.
+
+        :func:`~rkgnn_ros.core.noise.encoder_noise` over the newest recorded states, their
+        gaps longer than ``max_gap`` left out; computed again with the scores.
+        """
+        return self._memo(('noise',), lambda: encoder_noise(
+            self._states.t, self._states.rows, self.max_gap) if len(self._states) >= 2
+            else np.full(self.n, np.nan))
 
     def rmse(self, predictor: str = 'published') -> Dict[float, np.ndarray]:
         """Return horizon -> windowed RMSE per joint (rad) of one predictor (NaN if none)."""

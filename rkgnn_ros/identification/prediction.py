@@ -295,7 +295,7 @@ class Predictor:
         if latest is None or joints is None:
             return False
         cfg = self._config()
-        check = self._self_check(cfg, len(joints))
+        check = self._self_check(cfg, joints)
         horizon = self._horizon(cfg, latest.t)
         if horizon is None:
             return False
@@ -360,13 +360,14 @@ class Predictor:
             self._sigma = key + (check.uncertainty(t, source),)
         return self._sigma[3]
 
-    def _self_check(self, cfg, n: int) -> SelfCheck:
+    def _self_check(self, cfg, joints) -> SelfCheck:
         """Return the self-check for these settings (a new one if they changed), fed."""
         horizon = cfg['prediction.horizon']
         step = cfg['model_step']
         horizons = tuple(sorted({max(step, round(horizon * f / step) * step)
                                  for f in (0.25, 0.5, 1.0)}))
-        key = (n, horizons, cfg['selfcheck.window'], cfg['selfcheck.margin'],
+        n = len(joints)
+        key = (tuple(joints), horizons, cfg['selfcheck.window'], cfg['selfcheck.margin'],
                max(MIN_GAP_S, cfg['gap_threshold']))
         if self._check is None or key != self._check_key:
             self._check = self._new_check(key)
@@ -403,9 +404,9 @@ class Predictor:
 
     @staticmethod
     def _new_check(key) -> SelfCheck:
-        n, horizons, window, margin, max_gap = key
-        return SelfCheck(n, horizons, window=window, margin=margin, max_gap=max_gap,
-                         rescore_every=RESCORE_EVERY_S)
+        joints, horizons, window, margin, max_gap = key
+        return SelfCheck(len(joints), horizons, window=window, margin=margin, max_gap=max_gap,
+                         rescore_every=RESCORE_EVERY_S, joint_names=joints)
 
     def _horizon(self, cfg, t0: float) -> Optional[_Horizon]:
         """Return what a prediction from ``t0`` covers (None: nothing, see the module)."""
