@@ -55,6 +55,7 @@ from typing import Dict, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .band import band_width, Excursion, leaves_band
 from .scoring import (ahead_errors, BASELINES, finite_rows, HORIZONS, PredictionRecord,
                       range_normalised_rmse, rollout_spread, SOURCES)
 
@@ -158,6 +159,7 @@ class SelfCheck(PredictionRecord):
         self.min_scored = max(1, int(min_scored))
         self.recent = float(recent)
         self._on_model = False     # the model is published (it earned it and kept it)
+        self._withdrawn = (-math.inf, '')  # (held until this state time, why)
 
     # -- decisions ------------------------------------------------------------------------
 
@@ -182,6 +184,11 @@ class SelfCheck(PredictionRecord):
                             f'{self.min_scored} predictions at every horizon it reaches): '
                             f'publishing {best}', False, scores)
         best = _best_baseline(scores, allowed, reached)
+        if self.withdrawn():
+            self._on_model = False
+            return Decision(best, f'the model was withdrawn: {self._withdrawn[1]}; it is judged '
+                            'again once its predictions since are scored: publishing '
+                            f'{best}', True, scores)
         was_on_model = self._on_model
         limit = 1.0 if was_on_model else 1.0 - self.margin
         worse = self._worse_joints(reached, scored, limit)
@@ -199,6 +206,46 @@ class SelfCheck(PredictionRecord):
             + ('' if was_on_model else f' (it must be {self.margin:.0%} better)')
             + f': publishing {best}', True, scores)
 
+    def excursion(self, offsets, theta, theta0, theta_d,
+                  predictors: Sequence[str] = ('model',)) -> Optional[Excursion]:
+        """
+        Return where a prediction leaves the band the plan and the recent errors allow.
+
+        ``theta`` (K, n) at ``offsets`` (K,) from the state θ0 (n,), ``theta_d`` (K, n)
+        the plan there; the band (rad) is :mod:`rkgnn_ros.core.band`'s, with the recent
+        RMSE of the first of ``predictors`` that has been scored. None: inside, or nothing
+        scored to judge it by.
+        """
+        follow = self.rmse('follow_reference')
+        noise = self._noise_rad()
+        for name in predictors:
+            width = band_width(offsets, self.horizons, follow, self.rmse(name), noise)
+            if width is not None:
+                return leaves_band(offsets, theta, theta0, theta_d, width)
+        return None
+
+    def withdraw(self, now: float, why: str) -> bool:
+        """
+        Set the model aside on its own rollout's evidence, before any score of it comes.
+
+        It is not published until the newest state is ``now`` + the longest horizon +
+        ``recent`` (s): its predictions made since are scored by then, the short span's
+        only; a withdrawal while withdrawn extends it. Return whether it is a new one.
+        """
+        new = not self.withdrawn()
+        self._on_model = False
+        self._withdrawn = (float(now) + self.horizons[-1] + self.recent, str(why))
+        return new
+
+    def withdrawn(self) -> bool:
+        """Return whether the model is held back at the newest state by a withdrawal."""
+        latest = self._states.t[-1] if len(self._states) else -math.inf
+        return latest < self._withdrawn[0]
+
+    def _noise_rad(self) -> np.ndarray:
+        noise = self.noise()
+        return np.where(np.isfinite(noise), np.maximum(noise, MIN_NOISE_RAD), MIN_NOISE_RAD)
+
     def noise_floor(self) -> np.ndarray:
         """
         Return the score (RMSE / θ range) below which a joint's error is noise, (n,).
@@ -208,8 +255,7 @@ class SelfCheck(PredictionRecord):
         ``MIN_NOISE_RAD``), over the joint's θ range: a prediction is scored against a
         noisy measurement, so two predictors within that are not told apart.
         """
-        noise = self.noise()
-        noise = np.where(np.isfinite(noise), np.maximum(noise, MIN_NOISE_RAD), MIN_NOISE_RAD)
+        noise = self._noise_rad()
         self._table()
         return FLOOR_FACTOR * noise / np.maximum(self._range_at, 1e-12)
 
@@ -297,14 +343,16 @@ class SelfCheck(PredictionRecord):
         if not math.isfinite(model):
             return Verdict(True, candidate, math.nan)
         if candidate > model:
-            return Verdict(False, candidate, model, f'{candidate:.2%} of the range against '
-                           f'{model:.2%} for the model in use, over the joints')
+            return Verdict(False, candidate, model, f'{candidate:.2%} of the range on the '
+                           f'scored horizons against {model:.2%} for the model in use')
         floor = self.noise_floor()
         worse = (mine > (1.0 + self.margin) * theirs) & ~((mine <= floor) & (theirs <= floor))
         if np.any(worse):
             j = int(np.argmax(np.where(worse, mine / np.maximum(theirs, 1e-300), -np.inf)))
-            return Verdict(False, candidate, model, f'on {self.joint_names[j]} {mine[j]:.2%} '
-                           f'of the range against {theirs[j]:.2%} for the model in use')
+            return Verdict(False, candidate, model, f'on {self.joint_names[j]}, {mine[j]:.2%} '
+                           f'of the range on the scored horizons against {theirs[j]:.2%} for '
+                           f'the model in use (over the joints {candidate:.2%} against '
+                           f'{model:.2%})')
         return Verdict(True, candidate, model)
 
     def promote(self) -> None:
@@ -312,6 +360,7 @@ class SelfCheck(PredictionRecord):
         blocks = self._blocks()
         blocks['model'][:] = blocks['candidate']
         blocks['candidate'][:] = np.nan
+        self._withdrawn = (-math.inf, '')
         self._cache = None
 
     def discard_candidate(self) -> None:
@@ -323,6 +372,7 @@ class SelfCheck(PredictionRecord):
         """Forget the model's predictions (a model that replaced it untried)."""
         self._blocks()['model'][:] = np.nan
         self._on_model = False
+        self._withdrawn = (-math.inf, '')
         self._cache = None
 
     def uncertainty(self, offsets, predictor: str = 'published') -> np.ndarray:

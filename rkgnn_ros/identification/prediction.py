@@ -26,13 +26,19 @@ What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
 
 - Every prediction is scored against what the arm then did, beside following the reference
   (the plan) and holding the last state, per horizon (a quarter, half and all of
-  ``prediction.horizon``), over the last ``selfcheck.window`` seconds. Until the model is
-  ``selfcheck.margin`` better than each baseline, and as soon as it is worse than one, the
-  better baseline is published instead, and the switch is logged with its reason.
-- A new model from the search is a *candidate*: it predicts beside the model in use, and
-  replaces it only once its own scored predictions are at least as good on the same
-  targets (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.trial`). A model that the search
-  found worse never reaches ``~/prediction``.
+  ``prediction.horizon``) and per joint, over the last ``selfcheck.window`` seconds. Until
+  the model is ``selfcheck.margin`` better than the better baseline on every joint, and as
+  soon as it is worse on one, the better baseline is published instead, and the switch is
+  logged with its reason.
+- Every change of what rolls out (a new model from the search, a loop fitted again, a new
+  learned law) is a *candidate* (:mod:`rkgnn_ros.identification.candidates`): it predicts
+  beside the model in use, and replaces it only once its own scored predictions earned it
+  on the same targets (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.trial`). Nothing
+  reaches ``~/prediction`` unjudged.
+- A rollout that leaves the band the plan and the recent errors allow
+  (:mod:`rkgnn_ros.core.band`) is not believed: the model in use is withdrawn at once (a
+  baseline goes out instead of that very prediction) until its predictions since are
+  scored; a candidate is dropped.
 - Horizons: with ``prediction.beyond_plan: stop`` a prediction ends where the plan ends
   (no plan, no prediction); with 'hold' it goes on with the plan's last point (or the
   newest command) held, and says from where.
@@ -66,6 +72,7 @@ from rkgnn_ros.conversions import make_joint_state, serialize_joint_trajectory
 from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
+from rkgnn_ros.identification.candidates import describe, Models, Slot
 from sensor_msgs.msg import JointState
 
 __all__ = ['LATENCY_WINDOW', 'SCORE_LABELS', 'Prediction', 'Predictor', 'ScoreReport']
@@ -159,11 +166,6 @@ class ScoreReport(NamedTuple):
     table: np.ndarray  # (H, len(SCORE_LABELS))
 
 
-class _Slot(NamedTuple):
-    model: Optional[RKGNNModel]    # None: a closed loop predicts before any model (case 3)
-    loop: Optional[ClosedLoop]
-
-
 class _Horizon(NamedTuple):
     """The times a prediction covers, the commands over them and how far the plan goes."""
 
@@ -196,11 +198,7 @@ class Predictor:
         self._ingestion = ingestion
         self._publish = publish
         self._config = config
-        self._slots_lock = threading.Lock()
-        self._model: Optional[_Slot] = None       # in use
-        self._candidate: Optional[_Slot] = None   # on trial
-        self._pending: Optional[_Slot] = None     # the newest model, waiting for a trial
-        self._trial_start = math.nan
+        self._models = Models()  # in use, on trial, offered
         self._check: Optional[SelfCheck] = None
         self._check_key = None
         self._fed = -math.inf  # stamp of the newest state fed to the self-check
@@ -226,34 +224,22 @@ class Predictor:
 
     def set_model(self, model: RKGNNModel, loop: Optional[ClosedLoop] = None) -> None:
         """
-        Take a new model: in use at once if there is none, else a candidate for a trial.
+        Offer a new model (any thread): a candidate, or in use at once if nothing predicts.
 
         ``loop``: the model closed with a fitted servo law (case 1 predicts only so; case 3
-        with the linear closed loop where it holds).
+        with the linear closed loop where it holds). See
+        :mod:`rkgnn_ros.identification.candidates`.
         """
-        slot = _Slot(model, loop)
-        with self._slots_lock:
-            if self._model is None or self._model.model is None:
-                self._model = slot
-            else:
-                self._pending = slot
+        self._models.offer_model(model, loop)
 
-    def update_loop(self, model: RKGNNModel, loop: Optional[ClosedLoop]) -> None:
+    def update_loop(self, model: Optional[RKGNNModel], loop: Optional[ClosedLoop]) -> None:
         """
-        Predict ``model`` with ``loop`` (a new learned law) wherever it is held.
+        Offer ``model`` with ``loop`` (a loop fitted again, a new learned law): a candidate.
 
         ``model`` None: ``loop`` predicts until the first model arrives (case 3's linear
-        closed loop needs no searched model); ``loop`` None then withdraws it.
+        closed loop needs no searched model); ``loop`` None withdraws the loop at once.
         """
-        with self._slots_lock:
-            if model is None:
-                if self._model is None or self._model.model is None:
-                    self._model = None if loop is None else _Slot(None, loop)
-                return
-            for name in ('_model', '_candidate', '_pending'):
-                slot = getattr(self, name)
-                if slot is not None and slot.model is model:
-                    setattr(self, name, _Slot(model, loop))
+        self._models.offer_loop(model, loop)
 
     # ------------------------------------------------------------------ latency
 
@@ -300,16 +286,14 @@ class Predictor:
         if horizon is None:
             return False
         t = horizon.t
-        with self._slots_lock:
-            if self._candidate is None and self._pending is not None:
-                self._candidate, self._pending = self._pending, None
-                self._trial_start = latest.t
-                check.discard_candidate()
-            model, candidate = self._model, self._candidate
+        model, candidate = self._models.take(check, latest.t)
         x0 = np.concatenate([latest.theta, latest.theta_dot])
         mine = self._rollout(model, joints, x0, horizon, latest.t, check)
         publishable = ('follow_reference',) if horizon.theta_d is not None else ()
         decision = self._decision
+        if mine is not None and self._outside(check, latest, horizon, mine[0], joints):
+            self._decided_at = -math.inf   # withdrawn: this prediction is a baseline
+            decision = None
         if decision is None:
             decision = self._decide(check, latest.t, publishable)
         source = decision.source
@@ -342,10 +326,16 @@ class Predictor:
         if candidate_due:
             theirs = self._rollout(candidate, joints, x0, horizon, latest.t, check)
             self._candidate_at = latest.t if theirs is not None else -math.inf
+            if theirs is not None and self._outside(check, latest, horizon, theirs[0], joints,
+                                                    candidate=True):
+                theirs = None
         check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
                              None if theirs is None else theirs[0],
                              None if source == 'model' else positions, horizon.theta_d)
-        self._trial(check, latest.t, cfg)
+        line = self._models.judge(check, latest.t, cfg['selfcheck.window'])
+        if line is not None:
+            self._decided_at = -math.inf
+            self._publish(LogLine('info', line))
         if self._decide(check, latest.t, publishable) is not decision or \
                 self._sigma is None or self._sigma[0] != source:
             self._sigma = None  # the uncertainty with the new scores, for the next ones
@@ -373,6 +363,7 @@ class Predictor:
             self._check = self._new_check(key)
             self._check_key = key
             self._decided_at = -math.inf
+            self._models.restart_trial(self._fed)
         # taken in bulk: at 1 kHz, one call per sample cost the prediction thread more
         # than its rollouts
         feed = self._ingestion.feed
@@ -440,7 +431,7 @@ class Predictor:
         theta_d, theta_d_dot = reference.evaluate(t)
         return _Horizon(t, theta_d, theta_d_dot, reference, beyond, what)
 
-    def _rollout(self, slot: Optional[_Slot], joints, x0, horizon: _Horizon, t0: float,
+    def _rollout(self, slot: Optional[Slot], joints, x0, horizon: _Horizon, t0: float,
                  check: SelfCheck) -> Optional[Tuple[np.ndarray, np.ndarray]]:
         """Return ``(θ, θ̇)`` (K, n) of a model's prediction, None if it has none."""
         if slot is None or horizon.theta_d is None:
@@ -506,32 +497,29 @@ class Predictor:
                                              f'{decision.reason}'))
         return decision
 
-    def _trial(self, check: SelfCheck, now: float, cfg) -> None:
-        """Promote or drop the candidate once its trial has an answer."""
-        with self._slots_lock:
-            candidate = self._candidate
-            if candidate is None:
-                return
-            verdict = check.trial()
-            if verdict is None:
-                if now - self._trial_start <= cfg['selfcheck.window']:
-                    return
-                check.discard_candidate()  # never scored (the plan too short?): drop it
-                self._candidate = None
-                return
-            if verdict.better:
-                check.promote()
-                self._model, self._candidate = candidate, None
-                self._decided_at = -math.inf
-            else:
-                check.discard_candidate()
-                self._candidate = None
-        generation = candidate.model.info.get('generation', '?')
-        self._publish(LogLine('info', (
-            f'the model of generation {generation} ' + ('now predicts' if verdict.better
-                                                        else 'is not used') +
-            f': {verdict.candidate:.2%} of the range on the scored horizons against '
-            f'{verdict.model:.2%} for the model in use')))
+    def _outside(self, check: SelfCheck, latest, horizon: _Horizon, theta: np.ndarray, joints,
+                 candidate: bool = False) -> bool:
+        """
+        Return whether a rollout left the band the plan and the recent errors allow.
+
+        The model in use is then withdrawn (:meth:`SelfCheck.withdraw`, logged once per
+        withdrawal), the candidate dropped: on their own rollout's evidence, before any
+        score of it can come (:mod:`rkgnn_ros.core.band`).
+        """
+        excursion = check.excursion(horizon.t, theta, latest.theta, horizon.theta_d,
+                                    ('candidate', 'model') if candidate else ('model',))
+        if excursion is None:
+            return False
+        why = (f'its {excursion.offset:.2f} s-ahead prediction of {joints[excursion.joint]} '
+               f'left the band the plan and the recent errors allow, '
+               f'{excursion.outside:.3g} rad beyond the plan where the band is '
+               f'{excursion.width:.3g} rad')
+        if candidate:
+            dropped = self._models.drop_candidate(check)
+            self._publish(LogLine('info', f'{describe(dropped)} is not used: {why}'))
+        elif check.withdraw(latest.t, why):
+            self._publish(LogLine('warning', f'the model in use is withdrawn: {why}'))
+        return True
 
     def _report(self, check: SelfCheck, now: float) -> None:
         """Hand the scores to the executor every REPORT_EVERY_S."""
