@@ -32,7 +32,9 @@ from rclpy.serialization import deserialize_message
 from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.identification.ingest import StateSample
 from rkgnn_ros.identification.parameters import make_config
-from rkgnn_ros.identification.prediction import Prediction, Predictor
+from rkgnn_ros.identification.prediction import (Prediction, Predictor, SCORE_LABELS,
+                                                 score_labels)
+from rkgnn_ros.identification.publishing import _selfcheck_pairs
 from trajectory_msgs.msg import JointTrajectory
 
 JOINTS = tuple(f'j{k}' for k in range(1, 8))
@@ -306,3 +308,28 @@ def test_a_withdrawn_loop_stops_predictions_at_once(rig):
     rig.predictor.update_loop(None, None)
     rig.run(1.0)
     assert rig.since(t) and not _models(rig.since(t))
+
+
+def test_the_scores_are_reported_per_joint_beside_the_averages():
+    rig = Rig()
+    rig.predictor.update_loop(None, rig.loop(off(0.3, joint=6)))
+    rig.run(15.0)
+    assert rig.published[-1][1] == 'baseline:follow_reference'
+    report = rig.predictor.report
+    assert report.labels[:len(SCORE_LABELS)] == SCORE_LABELS     # the columns that were
+    assert report.labels == score_labels(JOINTS)
+    assert report.labels[len(SCORE_LABELS):len(SCORE_LABELS) + 5] == (
+        'model:j1', 'follow_reference:j1', 'hold_last:j1', 'published:j1', 'noise_floor:j1')
+    assert report.table.shape == (3, len(SCORE_LABELS) + 5 * N)
+    row = dict(zip(report.labels, report.table[-1]))             # 2 s ahead
+    assert row['horizon_s'] == pytest.approx(2.0)
+    assert row['model:j7'] > row['follow_reference:j7'] > 0.0
+    assert all(row[f'model:j{k}'] < 1e-9 for k in range(1, 7))
+    assert row['model'] == pytest.approx(np.mean([row[f'model:j{k}'] for k in range(1, 8)]))
+    assert row['published:j7'] == pytest.approx(row['follow_reference:j7'])
+    assert 0.0 < row['noise_floor:j7'] < 1e-5            # exact encoders: 2e-6 rad / range
+    pairs = dict(_selfcheck_pairs(report))
+    assert pairs['selfcheck.2s.j7'].startswith('model ') and 'noise floor' in \
+        pairs['selfcheck.2s.j7']
+    assert pairs['selfcheck.worst_joint'].startswith('j7 at ')
+    assert pairs['prediction_source_reason'].startswith('on j7, ')

@@ -75,7 +75,8 @@ from rkgnn_ros.core.selfcheck import SelfCheck
 from rkgnn_ros.identification.candidates import describe, Models, Slot
 from sensor_msgs.msg import JointState
 
-__all__ = ['LATENCY_WINDOW', 'SCORE_LABELS', 'Prediction', 'Predictor', 'ScoreReport']
+__all__ = ['LATENCY_WINDOW', 'JOINT_SCORE_COLUMNS', 'SCORE_LABELS', 'Prediction', 'Predictor',
+           'ScoreReport', 'score_labels']
 
 LATENCY_WINDOW = 1000  # predictions whose latency the diagnostics summarise
 MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's bound)
@@ -96,8 +97,25 @@ REPORT_EVERY_S = 1.0   # scores handed to the executor this often (stamp time)
 CLOCK_JUMP_S = 1.0     # a state this much older than the last restarts the self-check
 MIN_GAP_S = 0.25       # states further apart: the predictions over them are not scored
 
-#: Columns of ``~/prediction_scores`` (one row per scored horizon).
+#: The first columns of ``~/prediction_scores`` (one row per scored horizon): the scores
+#: averaged over the joints, and the model's count of scored predictions.
 SCORE_LABELS = ('horizon_s', 'model', 'follow_reference', 'hold_last', 'published', 'count')
+#: Then, per joint, these columns labelled ``<column>:<joint>`` (see :func:`score_labels`).
+JOINT_SCORE_COLUMNS = ('model', 'follow_reference', 'hold_last', 'published', 'noise_floor')
+
+
+def score_labels(joints) -> Tuple[str, ...]:
+    """
+    Return the column labels of ``~/prediction_scores`` for ``joints``.
+
+    :data:`SCORE_LABELS` (the scores averaged over the joints), then for each joint in turn
+    :data:`JOINT_SCORE_COLUMNS` as ``model:<joint>``, ... ``noise_floor:<joint>``: the
+    windowed RMSE / that joint's θ range of each predictor, and the score below which an
+    error is that joint's encoder noise (``SelfCheck.noise_floor``). A comma in a joint's
+    name becomes ';' (the layout's label is comma-separated).
+    """
+    return SCORE_LABELS + tuple(f"{column}:{str(joint).replace(',', ';')}"
+                                for joint in joints for column in JOINT_SCORE_COLUMNS)
 
 
 def _due(now: float, last: float, every: float) -> bool:
@@ -163,7 +181,8 @@ class ScoreReport(NamedTuple):
 
     source: str
     reason: str
-    table: np.ndarray  # (H, len(SCORE_LABELS))
+    table: np.ndarray  # (H, len(labels))
+    labels: Tuple[str, ...] = SCORE_LABELS  # the columns (:func:`score_labels`)
 
 
 class _Horizon(NamedTuple):
@@ -526,10 +545,16 @@ class Predictor:
         if self._decision is None or not _due(now, self._reported_at, REPORT_EVERY_S):
             return
         self._reported_at = now
-        scores = self._decision.scores
+        scores, joints, floor = self._decision.scores, check.joint_scores(), check.noise_floor()
+        nan = np.full(check.n, math.nan)
         table = np.array([[h] + [scores.get(h, {}).get(name, math.nan)
-                                 for name in SCORE_LABELS[1:]] for h in check.horizons])
-        self.report = ScoreReport(self._decision.source, self._decision.reason, table)
+                                 for name in SCORE_LABELS[1:]]
+                          + list(np.column_stack([joints.get(h, {}).get(name, nan)
+                                                  for name in JOINT_SCORE_COLUMNS[:-1]]
+                                                 + [floor]).ravel())
+                          for h in check.horizons])
+        self.report = ScoreReport(self._decision.source, self._decision.reason, table,
+                                  score_labels(check.joint_names))
         self._publish(self.report)
 
     # ------------------------------------------------------------------ the thread
