@@ -61,9 +61,12 @@ def _at_offsets(offsets: np.ndarray, horizons: Sequence[float],
     finite = np.all(np.isfinite(values), axis=1)
     if not np.any(finite):
         return None
-    knots = np.asarray(horizons, dtype=float)[finite]
-    return np.column_stack([np.interp(offsets, knots, values[finite, j])
-                            for j in range(values.shape[1])])
+    knots, values = np.asarray(horizons, dtype=float)[finite], values[finite]
+    at = np.interp(offsets, knots, np.arange(knots.size, dtype=float))  # (K,) knot index
+    low = np.minimum(at.astype(int), knots.size - 1)
+    high = np.minimum(low + 1, knots.size - 1)
+    share = (at - low)[:, None]
+    return (1.0 - share) * values[low] + share * values[high]
 
 
 def band_width(offsets, horizons: Sequence[float], follow: Dict[float, np.ndarray],

@@ -203,6 +203,7 @@ class PredictionRecord:
         self._memos = {}           # what was derived from that table (scores, rmse, ...)
         self._cache_at = -math.inf  # the newest state's time when it was computed
         self._stale = False        # data came since
+        self.hold = False          # True: the scores as they are, not computed again
         self._range_at = np.full(self.n, np.nan)
         #: per-reason counts of samples that were not taken
         self.rejected = {'non_finite': 0, 'out_of_order': 0, 'wrong_shape': 0}
@@ -395,10 +396,11 @@ class PredictionRecord:
 
         The rows are the predictions whose target lies in the window and whose start and
         target the measured states cover; a predictor without a value for a row has NaN
-        there (the model made none, no θd known, ...).
+        there (the model made none, no θd known, ...). While :attr:`hold` is set, the
+        table there is (if any) is kept, whatever came since.
         """
         latest = self._states.t[-1] if len(self._states) else -math.inf
-        if self._cache is None or self._stale and not (
+        if self._cache is None or self._stale and not self.hold and not (
                 0.0 <= latest - self._cache_at < self.rescore_every):
             self._cache = self._compute_table()
             self._memos = {}

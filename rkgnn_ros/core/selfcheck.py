@@ -214,15 +214,20 @@ class SelfCheck(PredictionRecord):
         ``theta`` (K, n) at ``offsets`` (K,) from the state θ0 (n,), ``theta_d`` (K, n)
         the plan there; the band (rad) is :mod:`rkgnn_ros.core.band`'s, with the recent
         RMSE of the first of ``predictors`` that has been scored. None: inside, or nothing
-        scored to judge it by.
+        scored to judge it by. Judged on the scores as they are (the prediction waits for
+        it: they are not computed again here).
         """
-        follow = self.rmse('follow_reference')
-        noise = self._noise_rad()
-        for name in predictors:
-            width = band_width(offsets, self.horizons, follow, self.rmse(name), noise)
-            if width is not None:
-                return leaves_band(offsets, theta, theta0, theta_d, width)
-        return None
+        held, self.hold = self.hold, True
+        try:
+            follow = self.rmse('follow_reference')
+            noise = self._noise_rad()
+            for name in predictors:
+                width = band_width(offsets, self.horizons, follow, self.rmse(name), noise)
+                if width is not None:
+                    return leaves_band(offsets, theta, theta0, theta_d, width)
+            return None
+        finally:
+            self.hold = held
 
     def withdraw(self, now: float, why: str) -> bool:
         """

@@ -401,6 +401,7 @@ class Predictor:
             if stamp < self._fed - CLOCK_JUMP_S:  # the clock went back: a new timeline
                 self._check = self._new_check(key)
                 self._decided_at = -math.inf
+                self._models.restart_trial(stamp)
                 for store in states + commands:
                     store.clear()
             self._fed = stamp
