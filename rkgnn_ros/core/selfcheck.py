@@ -217,12 +217,14 @@ class SelfCheck(PredictionRecord):
         scored to judge it by. Judged on the scores as they are (the prediction waits for
         it: they are not computed again here).
         """
+        offsets = np.asarray(offsets, dtype=float).reshape(-1)
+        grid = (offsets.size, float(offsets[0]), float(offsets[-1]))
         held, self.hold = self.hold, True
         try:
-            follow = self.rmse('follow_reference')
-            noise = self._noise_rad()
             for name in predictors:
-                width = band_width(offsets, self.horizons, follow, self.rmse(name), noise)
+                width = self._memo(('band', name) + grid, lambda: band_width(
+                    offsets, self.horizons, self.rmse('follow_reference'), self.rmse(name),
+                    self._noise_rad()))
                 if width is not None:
                     return leaves_band(offsets, theta, theta0, theta_d, width)
             return None
