@@ -333,3 +333,18 @@ def test_the_scores_are_reported_per_joint_beside_the_averages():
         pairs['selfcheck.2s.j7']
     assert pairs['selfcheck.worst_joint'].startswith('j7 at ')
     assert pairs['prediction_source_reason'].startswith('on j7, ')
+
+
+def test_refits_every_second_still_reach_use_after_their_trials():
+    # the policy refits a loop at every data refresh (1 s), each a new object; a trial
+    # takes 3 s (10 predictions scored 2 s ahead): the newest waits, none restarts the trial
+    rig = Rig()
+    rig.predictor.update_loop(None, rig.loop(off(0.004)))
+    rig.run(15.0)
+    t = rig.arm.now
+    for _ in range(12):
+        rig.predictor.update_loop(None, rig.loop(exact))
+        rig.run(1.0)
+    swapped = [p[0] for p in _models(rig.since(t)) if _error(p) < 1e-9]
+    assert swapped and swapped[0] - t <= 4.5
+    assert len(rig.lines('now predicts')) >= 2
