@@ -92,3 +92,18 @@ def test_a_withdrawn_model_is_published_again_only_once_its_predictions_since_ar
     assert held and 'withdrawn' in held[0].reason and 'it diverged' in held[0].reason
     # held for the longest horizon + the short span (2 + 2 s), then judged on its scores
     assert 3.9 <= len(held) * 0.1 <= 4.2 and decisions[-1].source == 'model'
+
+
+def test_a_model_scored_at_its_shortest_horizon_only_is_not_judged_by_the_band():
+    # 0.8 s of predictions: a few scored 0.5 s ahead, none 1 or 2 s ahead; what the error
+    # will be 2 s ahead is not known yet, so no band (the model is not published either)
+    def exact(t):
+        return np.sin(1.5 * (t + OFFSETS - 0.1))[:, None]
+
+    check = SelfCheck(1, joint_names=('j1',))
+    _feed(check, 0.0, 1.0, exact)
+    assert check.scores()[0.5]['count'] > 0 and not check.scores()[2.0]
+    t = 1.0
+    wild = exact(t) + 1e-3 * np.expm1(OFFSETS / 0.2)[:, None]
+    plan = np.sin(1.5 * (t + OFFSETS))[:, None]
+    assert check.excursion(OFFSETS, wild, [np.sin(1.5 * (t - 0.1))], plan) is None

@@ -213,9 +213,11 @@ class SelfCheck(PredictionRecord):
 
         ``theta`` (K, n) at ``offsets`` (K,) from the state θ0 (n,), ``theta_d`` (K, n)
         the plan there; the band (rad) is :mod:`rkgnn_ros.core.band`'s, with the recent
-        RMSE of the first of ``predictors`` that has been scored. None: inside, or nothing
-        scored to judge it by. Judged on the scores as they are (the prediction waits for
-        it: they are not computed again here).
+        RMSE of the first of ``predictors`` ('model' or 'candidate') that has
+        ``min_scored`` scored predictions at every horizon it reaches (as the model needs
+        to be published: a few scores at the shortest horizon say little of the longest).
+        None: inside, or nothing scored enough to judge it by. Judged on the scores as they
+        are (the prediction waits for it: they are not computed again here).
         """
         offsets = np.asarray(offsets, dtype=float).reshape(-1)
         grid = (offsets.size, float(offsets[0]), float(offsets[-1]))
@@ -224,12 +226,20 @@ class SelfCheck(PredictionRecord):
             for name in predictors:
                 width = self._memo(('band', name) + grid, lambda: band_width(
                     offsets, self.horizons, self.rmse('follow_reference'), self.rmse(name),
-                    self._noise_rad()))
+                    self._noise_rad()) if self._scored_enough(name) else None)
                 if width is not None:
                     return leaves_band(offsets, theta, theta0, theta_d, width)
             return None
         finally:
             self.hold = held
+
+    def _scored_enough(self, kind: str) -> bool:
+        """Return whether ``kind`` has ``min_scored`` scored predictions at every horizon."""
+        count = 'count' if kind == 'model' else f'{kind}_count'
+        reached = self._reached(kind)
+        table = self.joint_scores()
+        return bool(reached) and all(table[h].get(count, 0) >= self.min_scored
+                                     for h in reached)
 
     def withdraw(self, now: float, why: str) -> bool:
         """
