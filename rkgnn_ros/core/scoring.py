@@ -40,11 +40,10 @@ from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .noise import encoder_noise
 from .series import Series as _Series
 
 __all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'ahead_errors', 'nrmse', 'range_normalised_rmse',
-           'rollout_spread', 'finite_rows', 'PredictionRecord']
+           'rollout_spread', 'finite_rows', 'at_horizons', 'PredictionRecord']
 
 #: Default horizons (s) scored.
 HORIZONS = (0.5, 1.0, 2.0)
@@ -298,27 +297,6 @@ class PredictionRecord:
             return
         self._reference.replace_from(times, rows)
 
-    def _at_horizons(self, offsets: np.ndarray, theta) -> Optional[np.ndarray]:
-        """Return θ (K, n) at the horizons (H, n), NaN past its end; None if unusable."""
-        if theta is None:
-            return np.full((len(self.horizons), self.n), np.nan)
-        theta = np.asarray(theta, dtype=float)
-        if theta.shape != (offsets.size, self.n):
-            self.rejected['wrong_shape'] += 1
-            return None
-        if not np.all(np.isfinite(theta)):
-            self.rejected['non_finite'] += 1
-            return None
-        at = np.full((len(self.horizons), self.n), np.nan)
-        h = np.asarray(self.horizons)
-        inside = (h >= offsets[0] - 1e-9) & (h <= offsets[-1] + 1e-9)
-        if np.any(inside):   # linear between the offsets around each horizon (np.interp's)
-            h = np.clip(h[inside], offsets[0], offsets[-1])
-            right = np.clip(np.searchsorted(offsets, h, side='right'), 1, offsets.size - 1)
-            w = ((h - offsets[right - 1]) / (offsets[right] - offsets[right - 1]))[:, None]
-            at[inside] = (1.0 - w) * theta[right - 1] + w * theta[right]
-        return at
-
     def add_prediction(self, t0: float, offsets, theta, source: str = 'model',
                        candidate=None, published=None, follow=None) -> None:
         """
@@ -353,15 +331,16 @@ class PredictionRecord:
         if offsets.size < 2 or not math.isfinite(t0):
             self.rejected['wrong_shape' if offsets.size < 2 else 'non_finite'] += 1
             return
-        model = self._at_horizons(offsets, theta)
-        other = None if model is None else self._at_horizons(offsets, candidate)
-        plan = None if other is None else self._at_horizons(offsets, follow)
-        shown = (model.copy() if source == 'model' and model is not None
-                 else self._at_horizons(offsets, published))
-        if model is None or other is None or plan is None or shown is None:
-            return
-        row = np.concatenate([model.ravel(), other.ravel(), plan.ravel(), shown.ravel(),
-                              [SOURCES.index(source)]])
+        blocks = []   # the model's, the candidate's, the plan's, the published θ (H, n)
+        for value in (theta, candidate, follow, None if source == 'model' else published):
+            at, reason = at_horizons(self.horizons, self.n, offsets, value)
+            if reason:
+                self.rejected[reason] += 1
+                return
+            blocks.append(at)
+        if source == 'model':
+            blocks[3] = blocks[0]
+        row = np.concatenate([b.ravel() for b in blocks] + [[SOURCES.index(source)]])
         if not self._predictions.append(float(t0), row, strict=False):
             self.rejected['out_of_order'] += 1
             return
@@ -517,17 +496,6 @@ class PredictionRecord:
             out[h] = row
         return out
 
-    def noise(self) -> np.ndarray:
-        """
-        Return the std of the measurement noise on each joint's θ in rad, (n,), NaN if unknown.
-
-        :func:`~rkgnn_ros.core.noise.encoder_noise` over the newest recorded states, their
-        gaps longer than ``max_gap`` left out; computed again with the scores.
-        """
-        return self._memo(('noise',), lambda: encoder_noise(
-            self._states.t, self._states.rows, self.max_gap) if len(self._states) >= 2
-            else np.full(self.n, np.nan))
-
     def rmse(self, predictor: str = 'published') -> Dict[float, np.ndarray]:
         """Return horizon -> windowed RMSE per joint (rad) of one predictor (NaN if none)."""
         return self._memo(('rmse', predictor), lambda: self._rmse(predictor))
@@ -571,6 +539,31 @@ class PredictionRecord:
         if not np.all(np.isfinite(e)):
             return None
         return np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(times)[:, None], axis=0)
+
+
+def at_horizons(horizons, n: int, offsets: np.ndarray, theta):
+    """
+    Return a prediction's θ at the ``horizons``, (H, n), NaN past its end, and why not.
+
+    ``theta`` (K, n) at ``offsets`` (K,), linear in between (np.interp's); None gives NaN
+    throughout. Returns ``(None, reason)`` ('wrong_shape', 'non_finite') when unusable.
+    """
+    at = np.full((len(horizons), n), np.nan)
+    if theta is None:
+        return at, None
+    theta = np.asarray(theta, dtype=float)
+    if theta.shape != (offsets.size, n):
+        return None, 'wrong_shape'
+    if not np.all(np.isfinite(theta)):
+        return None, 'non_finite'
+    h = np.asarray(horizons)
+    inside = (h >= offsets[0] - 1e-9) & (h <= offsets[-1] + 1e-9)
+    if np.any(inside):
+        h = np.clip(h[inside], offsets[0], offsets[-1])
+        right = np.clip(np.searchsorted(offsets, h, side='right'), 1, offsets.size - 1)
+        w = ((h - offsets[right - 1]) / (offsets[right] - offsets[right - 1]))[:, None]
+        at[inside] = (1.0 - w) * theta[right - 1] + w * theta[right]
+    return at, None
 
 
 def finite_rows(errors: np.ndarray) -> np.ndarray:

@@ -56,6 +56,7 @@ from typing import Dict, NamedTuple, Optional, Sequence, Tuple
 import numpy as np
 
 from .band import band_width, Excursion, leaves_band
+from .noise import encoder_noise
 from .scoring import (ahead_errors, BASELINES, finite_rows, HORIZONS, PredictionRecord,
                       range_normalised_rmse, rollout_spread, SOURCES)
 
@@ -258,6 +259,17 @@ class SelfCheck(PredictionRecord):
         """Return whether the model is held back at the newest state by a withdrawal."""
         latest = self._states.t[-1] if len(self._states) else -math.inf
         return latest < self._withdrawn[0]
+
+    def noise(self) -> np.ndarray:
+        """
+        Return the std of the measurement noise on each joint's θ in rad, (n,), NaN if unknown.
+
+        :func:`~rkgnn_ros.core.noise.encoder_noise` over the newest recorded states, their
+        gaps longer than ``max_gap`` left out; computed again with the scores.
+        """
+        return self._memo(('noise',), lambda: encoder_noise(
+            self._states.t, self._states.rows, self.max_gap) if len(self._states) >= 2
+            else np.full(self.n, np.nan))
 
     def _noise_rad(self) -> np.ndarray:
         noise = self.noise()
