@@ -233,7 +233,7 @@ def torque_nrmse(arm, recorder, start, at=SCORED_AT):
         segments.append(Dataset(grid - grid[0], theta, np.zeros_like(theta), tau=tau))
     if not segments:
         return None
-    rows, _ = _prepare(structure, segments, [], TORQUE_SIGMA, False)
+    rows, _, _ = _prepare(structure, segments, [], TORQUE_SIGMA, False)
     return float(np.max(torque_errors(fitted, rows)))
 
 

@@ -55,7 +55,10 @@ Published
     ``~/predicted_state`` (sensor_msgs/JointState): with each prediction, its state
     ``prediction.lookahead`` s ahead, stamped at that time (plot it against joint_states).
     ``~/prediction_scores`` (std_msgs/Float64MultiArray, 1 Hz): a row per scored horizon,
-    columns :data:`SCORE_LABELS` (windowed RMSE / θ range; layout ``rows``, the labels).
+    columns :data:`SCORE_LABELS` (windowed RMSE / θ range, averaged over the joints), then
+    per joint ``model:<joint>``, ``follow_reference:<joint>``, ``hold_last:<joint>``,
+    ``published:<joint>`` and ``noise_floor:<joint>`` (:func:`score_labels`; layout
+    ``rows``, then the labels).
     ``~/evolution`` (std_msgs/Float64MultiArray, labels :data:`EVOLUTION_LABELS`): per
     generation, at most 20 Hz.
     ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, 1 Hz): the state, the search's
@@ -103,7 +106,7 @@ from rkgnn_ros.identification.ingest import Ingestion
 from rkgnn_ros.identification.model_file import (load_at_start, save_identified_urdf,
                                                  save_model_file)
 from rkgnn_ros.identification.parameters import ConfigurationError, IdentifierParameters
-from rkgnn_ros.identification.prediction import Prediction, Predictor
+from rkgnn_ros.identification.prediction import Prediction, Predictor, score_labels
 from rkgnn_ros.identification.publishing import (create_forward_publisher, create_publishers,
                                                  EVOLUTION_LABELS, Outbox, Publishing,
                                                  SCORE_LABELS)
@@ -115,7 +118,8 @@ from rkgnn_ros.sigint import Interrupt
 from rkgnn_ros.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 from std_srvs.srv import SetBool, Trigger
 
-__all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main']
+__all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main',
+           'score_labels']
 
 
 class IdentifierNode(Node):

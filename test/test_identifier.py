@@ -51,7 +51,7 @@ from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode
+from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode, SCORE_LABELS, score_labels
 from ros_helpers import retire_node, run_in_executor, Spinner, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
@@ -156,6 +156,9 @@ class Probe:
                                  lambda m: self._add(self.evolution, m), 100)
         node.create_subscription(JointTrajectory, f'{base}/prediction',
                                  lambda m: self._add(self.predictions, m), 100)
+        self.scores = []
+        node.create_subscription(Float64MultiArray, f'{base}/prediction_scores',
+                                 lambda m: self._add(self.scores, m), 10)
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 100)
         self.models = []
         node.create_subscription(String, f'{base}/model', lambda m: self._add(self.models, m),
@@ -557,6 +560,30 @@ def test_a_model_with_wrong_gravity_is_replaced_by_the_baseline_with_the_reason(
     finally:
         node.stop()
         retire_node(rig.executor, node)
+
+
+def test_prediction_scores_and_diagnostics_give_the_figures_per_joint(rig):
+    probe = rig.probe
+    t0 = time.monotonic()
+    values = probe.diagnostic(lambda s, v: v.get('selfcheck.0.5s.j3', '').startswith('model '),
+                              2 * PATIENCE)
+    assert values, 'no per-joint scores of the model in /diagnostics'
+    for joint in JOINTS:
+        assert 'follow reference' in values[f'selfcheck.0.5s.{joint}']
+        assert 'noise floor' in values[f'selfcheck.0.5s.{joint}']
+    assert values['selfcheck.worst_joint'].split(' at ')[0] in JOINTS
+    assert wait_for(lambda: probe.since(probe.scores, t0), PATIENCE)
+    msg = probe.since(probe.scores, t0)[-1]
+    rows, columns = msg.layout.dim
+    labels = tuple(columns.label.split(','))
+    # the columns there were, then five per joint
+    assert labels[:len(SCORE_LABELS)] == SCORE_LABELS and labels == score_labels(JOINTS)
+    assert rows.label == 'rows' and rows.size == 3
+    assert len(msg.data) == rows.size * columns.size == 3 * (len(SCORE_LABELS) + 5 * 3)
+    table = np.array(msg.data).reshape(rows.size, columns.size)
+    mean = table[:, labels.index('follow_reference')]
+    per_joint = table[:, [labels.index(f'follow_reference:{j}') for j in JOINTS]]
+    np.testing.assert_allclose(mean, per_joint.mean(axis=1), rtol=1e-9)
 
 
 def test_no_prediction_point_lies_past_the_plans_end_unless_marked(rig):

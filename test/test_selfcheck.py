@@ -265,3 +265,100 @@ def test_following_is_scored_as_the_plan_said_and_gaps_are_not_scored():
     spanning = np.sum((t0 < 7.0) & (t0 + 2.0 > 6.0 - 0.01) & (t0 + 2.0 >= 13.0 - 10.0))
     assert spanning > 0
     assert before == np.sum((t0 + 2.0 <= 12.99) & (t0 + 2.0 >= 2.99)) - spanning
+
+
+# ------------------------------------------------------------------ per joint (issue 31)
+
+SEVEN = tuple(f'j{k}' for k in range(1, 8))
+AMPLITUDE = np.linspace(0.6, 1.2, 7)
+OMEGA = np.linspace(0.8, 1.6, 7)
+
+
+def motion7(t, idle=()):
+    """Return the 7-joint arm's θ (..., 7): θd 0.1 s late; ``idle`` joints stay at 0.2."""
+    t = np.asarray(t, dtype=float)[..., None]
+    theta = AMPLITUDE * np.sin(OMEGA * (t - 0.1))
+    theta[..., list(idle)] = 0.2
+    return theta
+
+
+def desired7(t, idle=()):
+    """Return the 7-joint arm's θd (..., 7)."""
+    t = np.asarray(t, dtype=float)[..., None]
+    theta_d = AMPLITUDE * np.sin(OMEGA * t)
+    theta_d[..., list(idle)] = 0.2
+    return theta_d
+
+
+def run7(check, seconds, model, start=0.0, idle=(), noise=0.0, candidate=None, seed=0):
+    """Feed 7 joints at 100 Hz (θ with white ``noise``, rad) and a prediction every 0.1 s."""
+    rng = np.random.default_rng(seed)
+    decisions = []
+    for k in range(int(round(start * RATE)), int(round((start + seconds) * RATE))):
+        t = k / RATE
+        check.add_state(t, motion7(t, idle) + noise * rng.standard_normal(7))
+        check.add_reference(t, desired7(t, idle))
+        if k % 10 == 0:
+            decision = check.decide()
+            decisions.append(decision)
+            check.add_prediction(t, OFFSETS, model(t), decision.source,
+                                 candidate=None if candidate is None else candidate(t))
+    return decisions
+
+
+def test_a_model_broken_on_one_joint_of_seven_is_not_published():
+    def one_broken(t):   # exact on six joints, 0.3 rad off on the seventh
+        return motion7(t + OFFSETS) + 0.3 * (np.arange(7) == 6)
+
+    check = SelfCheck(7, joint_names=SEVEN)
+    decisions = run7(check, 15.0, one_broken)
+    scores, joints = check.scores(), check.joint_scores()
+    # averaged over the joints, it is far better than following the reference ...
+    assert scores[2.0]['model'] < 0.5 * scores[2.0]['follow_reference']
+    # ... but on j7 it is worse: it is never published, and the reason names the joint
+    assert joints[2.0]['model'][6] > 1.5 * joints[2.0]['follow_reference'][6]
+    assert np.all(joints[2.0]['model'][:6] < 1e-12)
+    assert all(d.source == 'follow_reference' for d in decisions)
+    last = decisions[-1]
+    assert last.scored and last.reason.startswith('on j7, ') and 'for follow_reference' in \
+        last.reason
+    # the same model without the broken joint is published
+    check = SelfCheck(7, joint_names=SEVEN)
+    assert run7(check, 15.0, lambda t: motion7(t + OFFSETS))[-1].source == 'model'
+
+
+def test_a_joint_where_both_are_at_the_noise_floor_does_not_hold_the_model_back():
+    # j7 stays still under 1e-4 rad of encoder noise: following the reference (θd is where
+    # it is) and the exact model both score the noise there; no predictor can be better
+    sigma = 1e-4
+    check = SelfCheck(7, joint_names=SEVEN)
+    decisions = run7(check, 15.0, lambda t: motion7(t + OFFSETS, idle=(6,)), idle=(6,),
+                     noise=sigma)
+    joints = check.joint_scores()[2.0]
+    assert joints['model'][6] > 0.8 * joints['follow_reference'][6]   # not 20 % better
+    floor = check.noise_floor()
+    assert floor.shape == (7,)
+    span = check.theta_range
+    np.testing.assert_allclose(floor * span, 2.0 * sigma, rtol=0.2)  # twice the noise (rad)
+    assert joints['model'][6] <= floor[6] and joints['follow_reference'][6] <= floor[6]
+    assert decisions[-1].source == 'model'
+    # a model that drifts 1 mrad (10 × the noise) on that joint is above the floor: refused
+    check = SelfCheck(7, joint_names=SEVEN)
+    drift = run7(check, 15.0, lambda t: motion7(t + OFFSETS, idle=(6,)) + 1e-3 * OFFSETS[:, None]
+                 * (np.arange(7) == 6), idle=(6,), noise=sigma)
+    assert drift[-1].source == 'follow_reference' and drift[-1].reason.startswith('on j7, ')
+
+
+def test_a_candidate_better_on_average_but_broken_on_one_joint_does_not_earn_the_swap():
+    def in_use(t):       # 0.05 rad off on every joint
+        return motion7(t + OFFSETS) + 0.05
+
+    def candidate(t):    # exact on six joints, 0.2 rad off on j7: better on average
+        return motion7(t + OFFSETS) + 0.2 * (np.arange(7) == 6)
+
+    check = SelfCheck(7, joint_names=SEVEN)
+    run7(check, 8.0, in_use)
+    run7(check, 6.0, in_use, start=8.0, candidate=candidate)
+    verdict = check.trial()
+    assert verdict is not None and verdict.candidate < verdict.model   # the mean says yes
+    assert not verdict.better and 'j7' in verdict.why

@@ -43,7 +43,7 @@ import numpy as np
 from .series import Series as _Series
 
 __all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'ahead_errors', 'nrmse', 'range_normalised_rmse',
-           'rollout_spread', 'finite_rows', 'PredictionRecord']
+           'rollout_spread', 'finite_rows', 'at_horizons', 'PredictionRecord']
 
 #: Default horizons (s) scored.
 HORIZONS = (0.5, 1.0, 2.0)
@@ -202,6 +202,7 @@ class PredictionRecord:
         self._memos = {}           # what was derived from that table (scores, rmse, ...)
         self._cache_at = -math.inf  # the newest state's time when it was computed
         self._stale = False        # data came since
+        self.hold = False          # True: the scores as they are, not computed again
         self._range_at = np.full(self.n, np.nan)
         #: per-reason counts of samples that were not taken
         self.rejected = {'non_finite': 0, 'out_of_order': 0, 'wrong_shape': 0}
@@ -296,27 +297,6 @@ class PredictionRecord:
             return
         self._reference.replace_from(times, rows)
 
-    def _at_horizons(self, offsets: np.ndarray, theta) -> Optional[np.ndarray]:
-        """Return θ (K, n) at the horizons (H, n), NaN past its end; None if unusable."""
-        if theta is None:
-            return np.full((len(self.horizons), self.n), np.nan)
-        theta = np.asarray(theta, dtype=float)
-        if theta.shape != (offsets.size, self.n):
-            self.rejected['wrong_shape'] += 1
-            return None
-        if not np.all(np.isfinite(theta)):
-            self.rejected['non_finite'] += 1
-            return None
-        at = np.full((len(self.horizons), self.n), np.nan)
-        h = np.asarray(self.horizons)
-        inside = (h >= offsets[0] - 1e-9) & (h <= offsets[-1] + 1e-9)
-        if np.any(inside):   # linear between the offsets around each horizon (np.interp's)
-            h = np.clip(h[inside], offsets[0], offsets[-1])
-            right = np.clip(np.searchsorted(offsets, h, side='right'), 1, offsets.size - 1)
-            w = ((h - offsets[right - 1]) / (offsets[right] - offsets[right - 1]))[:, None]
-            at[inside] = (1.0 - w) * theta[right - 1] + w * theta[right]
-        return at
-
     def add_prediction(self, t0: float, offsets, theta, source: str = 'model',
                        candidate=None, published=None, follow=None) -> None:
         """
@@ -351,15 +331,16 @@ class PredictionRecord:
         if offsets.size < 2 or not math.isfinite(t0):
             self.rejected['wrong_shape' if offsets.size < 2 else 'non_finite'] += 1
             return
-        model = self._at_horizons(offsets, theta)
-        other = None if model is None else self._at_horizons(offsets, candidate)
-        plan = None if other is None else self._at_horizons(offsets, follow)
-        shown = (model.copy() if source == 'model' and model is not None
-                 else self._at_horizons(offsets, published))
-        if model is None or other is None or plan is None or shown is None:
-            return
-        row = np.concatenate([model.ravel(), other.ravel(), plan.ravel(), shown.ravel(),
-                              [SOURCES.index(source)]])
+        blocks = []   # the model's, the candidate's, the plan's, the published θ (H, n)
+        for value in (theta, candidate, follow, None if source == 'model' else published):
+            at, reason = at_horizons(self.horizons, self.n, offsets, value)
+            if reason:
+                self.rejected[reason] += 1
+                return
+            blocks.append(at)
+        if source == 'model':
+            blocks[3] = blocks[0]
+        row = np.concatenate([b.ravel() for b in blocks] + [[SOURCES.index(source)]])
         if not self._predictions.append(float(t0), row, strict=False):
             self.rejected['out_of_order'] += 1
             return
@@ -394,10 +375,11 @@ class PredictionRecord:
 
         The rows are the predictions whose target lies in the window and whose start and
         target the measured states cover; a predictor without a value for a row has NaN
-        there (the model made none, no θd known, ...).
+        there (the model made none, no θd known, ...). While :attr:`hold` is set, the
+        table there is (if any) is kept, whatever came since.
         """
         latest = self._states.t[-1] if len(self._states) else -math.inf
-        if self._cache is None or self._stale and not (
+        if self._cache is None or self._stale and not self.hold and not (
                 0.0 <= latest - self._cache_at < self.rescore_every):
             self._cache = self._compute_table()
             self._memos = {}
@@ -455,8 +437,14 @@ class PredictionRecord:
         return out
 
     def _nrmse(self, errors: np.ndarray, rows: np.ndarray) -> float:
-        return range_normalised_rmse(errors[rows], self._range_at) if np.any(rows) \
-            else math.nan
+        return float(np.mean(self._per_joint(errors, rows)))
+
+    def _per_joint(self, errors: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Return the RMSE / θ range of each joint (n,) over ``rows`` (NaN: no rows)."""
+        if not np.any(rows):
+            return np.full(self.n, np.nan)
+        rmse = np.sqrt(np.mean(np.square(errors[rows]), axis=0))
+        return rmse / np.maximum(self._range_at, 1e-12)
 
     def scores(self) -> Dict[float, Dict[str, float]]:
         """
@@ -466,13 +454,26 @@ class PredictionRecord:
         ``published`` (what was actually published) and ``candidate`` (while one is
         scored); ``count`` and ``candidate_count`` are the numbers of scored predictions
         of the model and of the candidate at that horizon. The baselines are scored on the
-        model's targets once it has some. Empty for a horizon with nothing scored yet.
+        model's targets once it has some. Empty for a horizon with nothing scored yet. A
+        predictor's score is the mean over the joints of :meth:`joint_scores`.
         The result is shared until the scores are computed again: do not change it.
         """
-        return self._memo(('scores',), self._scores)
+        return self._memo(('scores',), lambda: {
+            h: {name: float(np.mean(v)) if isinstance(v, np.ndarray) else v
+                for name, v in row.items()}
+            for h, row in self.joint_scores().items()})
 
-    def _scores(self) -> Dict[float, Dict[str, float]]:
-        """See :meth:`scores`."""
+    def joint_scores(self) -> Dict[float, Dict[str, object]]:
+        """
+        Return horizon -> predictor -> windowed RMSE / θ range per joint, (n,) each.
+
+        The predictors, targets and counts of :meth:`scores` (which averages these over the
+        joints); shared until the scores are computed again: do not change it.
+        """
+        return self._memo(('joint_scores',), self._joint_scores)
+
+    def _joint_scores(self) -> Dict[float, Dict[str, object]]:
+        """See :meth:`joint_scores`."""
         out = {}
         for h, errors in self._table().items():
             if errors is None or not errors['hold_last'].shape[0]:
@@ -481,16 +482,16 @@ class PredictionRecord:
             has_model = finite_rows(errors['model'])
             count = int(has_model.sum())
             base = has_model if count else np.ones(has_model.shape, dtype=bool)
-            row = {'model': self._nrmse(errors['model'], has_model), 'count': count}
+            row = {'model': self._per_joint(errors['model'], has_model), 'count': count}
             for name in BASELINES:
                 rows = base & finite_rows(errors[name])
                 if np.any(rows):
-                    row[name] = self._nrmse(errors[name], rows)
-            shown = finite_rows(errors['published'])
-            row['published'] = self._nrmse(errors['published'], shown)
+                    row[name] = self._per_joint(errors[name], rows)
+            row['published'] = self._per_joint(errors['published'],
+                                               finite_rows(errors['published']))
             has_candidate = finite_rows(errors['candidate'])
             if np.any(has_candidate):
-                row['candidate'] = self._nrmse(errors['candidate'], has_candidate)
+                row['candidate'] = self._per_joint(errors['candidate'], has_candidate)
                 row['candidate_count'] = int(has_candidate.sum())
             out[h] = row
         return out
@@ -538,6 +539,31 @@ class PredictionRecord:
         if not np.all(np.isfinite(e)):
             return None
         return np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(times)[:, None], axis=0)
+
+
+def at_horizons(horizons, n: int, offsets: np.ndarray, theta):
+    """
+    Return a prediction's θ at the ``horizons``, (H, n), NaN past its end, and why not.
+
+    ``theta`` (K, n) at ``offsets`` (K,), linear in between (np.interp's); None gives NaN
+    throughout. Returns ``(None, reason)`` ('wrong_shape', 'non_finite') when unusable.
+    """
+    at = np.full((len(horizons), n), np.nan)
+    if theta is None:
+        return at, None
+    theta = np.asarray(theta, dtype=float)
+    if theta.shape != (offsets.size, n):
+        return None, 'wrong_shape'
+    if not np.all(np.isfinite(theta)):
+        return None, 'non_finite'
+    h = np.asarray(horizons)
+    inside = (h >= offsets[0] - 1e-9) & (h <= offsets[-1] + 1e-9)
+    if np.any(inside):
+        h = np.clip(h[inside], offsets[0], offsets[-1])
+        right = np.clip(np.searchsorted(offsets, h, side='right'), 1, offsets.size - 1)
+        w = ((h - offsets[right - 1]) / (offsets[right] - offsets[right - 1]))[:, None]
+        at[inside] = (1.0 - w) * theta[right - 1] + w * theta[right]
+    return at, None
 
 
 def finite_rows(errors: np.ndarray) -> np.ndarray:

@@ -24,9 +24,16 @@ with the reason). Trust is earned, never assumed, and lost at once:
 
 - until the model has ``min_scored`` scored predictions at every horizon it reaches, the
   best-scoring baseline is published;
-- the model is published once its error is at least ``margin`` below each baseline's at
-  every horizon, over the window and over its last ``recent`` seconds;
-- it is set aside as soon as it is worse than a baseline at any horizon, over either span.
+- the model is published once, **on every joint**, its error is at least ``margin`` below
+  the better baseline's on that joint at every horizon, over the window and over its last
+  ``recent`` seconds (a model good on six joints and bad on the seventh is not published:
+  an average over the joints would pass it);
+- it is set aside as soon as it is worse than the better baseline on any joint at any
+  horizon, over either span;
+- the noise floor: on a joint where both the model's and the better baseline's errors are
+  within :meth:`SelfCheck.noise_floor` (``FLOOR_FACTOR`` × the encoder noise the joint's
+  measured θ shows, :mod:`rkgnn_ros.core.noise`), neither can be better, and that joint
+  does not hold the model back (a joint that stays still under noisy encoders).
 
 A score can only come a horizon after the prediction, so a model that turns bad is
 published for at least that long; the short span and the margin keep such stretches short
@@ -48,11 +55,20 @@ from typing import Dict, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .band import band_width, Excursion, leaves_band
+from .noise import encoder_noise
 from .scoring import (ahead_errors, BASELINES, finite_rows, HORIZONS, PredictionRecord,
                       range_normalised_rmse, rollout_spread, SOURCES)
 
-__all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'Decision', 'Verdict', 'SelfCheck', 'baseline',
-           'ahead_errors', 'range_normalised_rmse', 'rollout_spread']
+__all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'FLOOR_FACTOR', 'MIN_NOISE_RAD', 'Decision',
+           'Verdict', 'SelfCheck', 'baseline', 'ahead_errors', 'range_normalised_rmse',
+           'rollout_spread']
+
+#: A joint's error within this many times the encoder noise its stream shows is noise.
+FLOOR_FACTOR = 2.0
+#: The least encoder noise assumed (rad): below any encoder's resolution (2^20 counts per
+#: turn is 6e-6 rad), so exact data and rounding do not make a floor of zero.
+MIN_NOISE_RAD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -88,9 +104,10 @@ class Decision:
 class Verdict(NamedTuple):
     """A candidate model's trial against the model in use, on the same targets."""
 
-    better: bool        # the candidate's error is at most the model's
-    candidate: float    # its windowed error, mean over the scored horizons
+    better: bool        # it earned the swap (:meth:`SelfCheck.trial`)
+    candidate: float    # its windowed error, mean over the scored horizons and the joints
     model: float        # the model's on the same targets (NaN: there was none)
+    why: str = ''       # why it did not earn the swap
 
 
 class SelfCheck(PredictionRecord):
@@ -120,21 +137,30 @@ class SelfCheck(PredictionRecord):
         (and in the last ``recent`` seconds, for that span to count).
     recent : float
         The short span (s) of the newest targets, judged beside the window.
+    joint_names : sequence of str, optional
+        The joints' names, for the reasons given (default 'joint 1', 'joint 2', ...).
 
     """
 
     def __init__(self, n_joints: int, horizons: Sequence[float] = HORIZONS,
                  window: float = 10.0, margin: float = 0.2, min_scored: int = 10,
-                 recent: float = 2.0, max_gap: float = 0.25, rescore_every: float = 0.0):
+                 recent: float = 2.0, max_gap: float = 0.25, rescore_every: float = 0.0,
+                 joint_names: Optional[Sequence[str]] = None):
         super().__init__(n_joints, horizons, window, max_gap, rescore_every)
         if not (math.isfinite(margin) and 0.0 <= margin < 1.0):
             raise ValueError(f'margin must be in [0, 1), got {margin}')
         if not (math.isfinite(recent) and 0.0 < recent <= window):
             raise ValueError(f'recent must be in (0, window], got {recent}')
+        names = tuple(f'joint {j + 1}' for j in range(self.n)) if joint_names is None \
+            else tuple(str(name) for name in joint_names)
+        if len(names) != self.n:
+            raise ValueError(f'{len(names)} joint names for {self.n} joints')
+        self.joint_names = names
         self.margin = float(margin)
         self.min_scored = max(1, int(min_scored))
         self.recent = float(recent)
         self._on_model = False     # the model is published (it earned it and kept it)
+        self._withdrawn = (-math.inf, '')  # (held until this state time, why)
 
     # -- decisions ------------------------------------------------------------------------
 
@@ -159,31 +185,138 @@ class SelfCheck(PredictionRecord):
                             f'{self.min_scored} predictions at every horizon it reaches): '
                             f'publishing {best}', False, scores)
         best = _best_baseline(scores, allowed, reached)
-        recent = self._recent_scores(reached)
-        checks = [(h, b, row['model'], row[b], span)
-                  for span, table in ((f'last {self.window:g} s', scores),
-                                      (f'last {self.recent:g} s', recent))
-                  for h, row in table.items() if h in reached
-                  for b in scored if b in row and math.isfinite(row.get('model', math.nan))]
+        if self.withdrawn():
+            self._on_model = False
+            return Decision(best, f'the model was withdrawn: {self._withdrawn[1]}; it is judged '
+                            'again once its predictions since are scored: publishing '
+                            f'{best}', True, scores)
         was_on_model = self._on_model
         limit = 1.0 if was_on_model else 1.0 - self.margin
-        worse = [c for c in checks if not c[2] <= limit * c[3]]
+        worse = self._worse_joints(reached, scored, limit)
         if not worse:
             self._on_model = True
-            why = ('the model is not worse than the baselines' if was_on_model else
-                   f'the model is at least {self.margin:.0%} better than the baselines at '
-                   'every horizon')
+            why = ('the model is not worse than the baselines on any joint' if was_on_model
+                   else f'the model is at least {self.margin:.0%} better than the baselines '
+                   'on every joint at every horizon')
             return Decision('model', why, True, scores)
         self._on_model = False
-        h, b, mine, theirs, span = max(worse, key=lambda c: c[2] / max(c[3], 1e-300))
+        _, h, j, b, mine, theirs, span = max(worse)
         return Decision(
-            best, f"the model's {h:g} s-ahead error over the {span} is {mine:.2%} of the "
-            f'range against {theirs:.2%} for {b}'
+            best, f"on {self.joint_names[j]}, the model's {h:g} s-ahead error over the {span} "
+            f'is {mine:.2%} of the range against {theirs:.2%} for {b}'
             + ('' if was_on_model else f' (it must be {self.margin:.0%} better)')
             + f': publishing {best}', True, scores)
 
+    def excursion(self, offsets, theta, theta0, theta_d,
+                  predictors: Sequence[str] = ('model',)) -> Optional[Excursion]:
+        """
+        Return where a prediction leaves the band the plan and the recent errors allow.
+
+        ``theta`` (K, n) at ``offsets`` (K,) from the state θ0 (n,), ``theta_d`` (K, n)
+        the plan there; the band (rad) is :mod:`rkgnn_ros.core.band`'s, with the recent
+        RMSE of the first of ``predictors`` ('model' or 'candidate') that has
+        ``min_scored`` scored predictions at every horizon it reaches (as the model needs
+        to be published: a few scores at the shortest horizon say little of the longest).
+        None: inside, or nothing scored enough to judge it by. Judged on the scores as they
+        are (the prediction waits for it: they are not computed again here).
+        """
+        offsets = np.asarray(offsets, dtype=float).reshape(-1)
+        grid = (offsets.size, float(offsets[0]), float(offsets[-1]))
+        held, self.hold = self.hold, True
+        try:
+            for name in predictors:
+                width = self._memo(('band', name) + grid, lambda: band_width(
+                    offsets, self.horizons, self.rmse('follow_reference'), self.rmse(name),
+                    self._noise_rad()) if self._scored_enough(name) else None)
+                if width is not None:
+                    return leaves_band(offsets, theta, theta0, theta_d, width)
+            return None
+        finally:
+            self.hold = held
+
+    def _scored_enough(self, kind: str) -> bool:
+        """Return whether ``kind`` has ``min_scored`` scored predictions at every horizon."""
+        count = 'count' if kind == 'model' else f'{kind}_count'
+        reached = self._reached(kind)
+        table = self.joint_scores()
+        return bool(reached) and all(table[h].get(count, 0) >= self.min_scored
+                                     for h in reached)
+
+    def withdraw(self, now: float, why: str) -> bool:
+        """
+        Set the model aside on its own rollout's evidence, before any score of it comes.
+
+        It is not published until the newest state is ``now`` + the longest horizon +
+        ``recent`` (s): its predictions made since are scored by then, the short span's
+        only; a withdrawal while withdrawn extends it. Return whether it is a new one.
+        """
+        new = not self.withdrawn()
+        self._on_model = False
+        self._withdrawn = (float(now) + self.horizons[-1] + self.recent, str(why))
+        return new
+
+    def withdrawn(self) -> bool:
+        """Return whether the model is held back at the newest state by a withdrawal."""
+        latest = self._states.t[-1] if len(self._states) else -math.inf
+        return latest < self._withdrawn[0]
+
+    def noise(self) -> np.ndarray:
+        """
+        Return the std of the measurement noise on each joint's θ in rad, (n,), NaN if unknown.
+
+        :func:`~rkgnn_ros.core.noise.encoder_noise` over the newest recorded states, their
+        gaps longer than ``max_gap`` left out; computed again with the scores.
+        """
+        return self._memo(('noise',), lambda: encoder_noise(
+            self._states.t, self._states.rows, self.max_gap) if len(self._states) >= 2
+            else np.full(self.n, np.nan))
+
+    def _noise_rad(self) -> np.ndarray:
+        noise = self.noise()
+        return np.where(np.isfinite(noise), np.maximum(noise, MIN_NOISE_RAD), MIN_NOISE_RAD)
+
+    def noise_floor(self) -> np.ndarray:
+        """
+        Return the score (RMSE / θ range) below which a joint's error is noise, (n,).
+
+        ``FLOOR_FACTOR`` × the encoder noise the joint's measured θ shows
+        (:meth:`~rkgnn_ros.core.scoring.PredictionRecord.noise`, at least
+        ``MIN_NOISE_RAD``), over the joint's θ range: a prediction is scored against a
+        noisy measurement, so two predictors within that are not told apart.
+        """
+        noise = self._noise_rad()
+        self._table()
+        return FLOOR_FACTOR * noise / np.maximum(self._range_at, 1e-12)
+
+    def _worse_joints(self, reached, scored, limit: float):
+        """
+        Return where the model fails the bar (empty: it passes; see the module docstring).
+
+        One tuple per failing joint, horizon and span (the window, the short span): the
+        ratio of the model's error to the better baseline's, the horizon, the joint's
+        index, that baseline, the two errors and the span's name.
+        """
+        floor = self.noise_floor()
+        out = []
+        for span, table in ((f'last {self.window:g} s', self.joint_scores()),
+                            (f'last {self.recent:g} s', self._recent_scores(reached))):
+            for h in reached:
+                row = table.get(h) or {}
+                mine = row.get('model')
+                bases = [b for b in scored if b in row]
+                if mine is None or not bases or not np.any(np.isfinite(mine)):
+                    continue
+                stack = np.vstack([row[b] for b in bases])                      # (B, n)
+                pick = np.argmin(np.where(np.isnan(stack), np.inf, stack), axis=0)
+                theirs = stack[pick, np.arange(self.n)]            # the better baseline
+                ok = (mine <= limit * theirs) | ((mine <= floor) & (theirs <= floor))
+                for j in np.flatnonzero(~ok):
+                    out.append((mine[j] / max(theirs[j], 1e-300), h, int(j), bases[pick[j]],
+                                float(mine[j]), float(theirs[j]), span))
+        return out
+
     def _recent_scores(self, horizons) -> Dict[float, Dict[str, float]]:
-        """Return the model's and the baselines' errors on the targets of the last ``recent`` s."""
+        """Return the model's and the baselines' errors per joint (n,) on the last ``recent`` s."""
         return self._memo(('recent', tuple(horizons)), lambda: self._recent(horizons))
 
     def _recent(self, horizons) -> Dict[float, Dict[str, float]]:
@@ -198,11 +331,11 @@ class SelfCheck(PredictionRecord):
             rows = finite_rows(errors['model']) & (errors['target'] >= since - 1e-9)
             if rows.sum() < self.min_scored:
                 continue
-            out[h] = {'model': self._nrmse(errors['model'], rows)}
+            out[h] = {'model': self._per_joint(errors['model'], rows)}
             for name in BASELINES:
                 both = rows & finite_rows(errors[name])
                 if np.any(both):
-                    out[h][name] = self._nrmse(errors[name], both)
+                    out[h][name] = self._per_joint(errors[name], both)
         return out
 
     def trial(self) -> Optional[Verdict]:
@@ -210,8 +343,11 @@ class SelfCheck(PredictionRecord):
         Return the candidate's verdict, or None while it has too few scored predictions.
 
         The candidate is judged once it has ``min_scored`` scored predictions at every
-        horizon it reaches: better when its error, averaged over those horizons, is at most
-        the model's on the same targets (always, when the model made no prediction there).
+        horizon it reaches, on the same targets as the model in use, with the errors
+        averaged over those horizons. It earns the swap when its error, averaged over the
+        joints too, is at most the model's, and on no joint it is more than ``margin``
+        worse than the model's (unless both are within the noise floor there); always when
+        the model made no prediction there.
         """
         return self._memo(('trial',), self._trial)
 
@@ -229,17 +365,31 @@ class SelfCheck(PredictionRecord):
             if has.sum() < self.min_scored:
                 return None
             common = has & finite_rows(errors['model'])
-            mine.append(self._nrmse(errors['candidate'], common if np.any(common) else has))
-            theirs.append(self._nrmse(errors['model'], common))
-        candidate = float(np.mean(mine))
-        model = float(np.mean(theirs)) if all(math.isfinite(v) for v in theirs) else math.nan
-        return Verdict(not candidate > model or not math.isfinite(model), candidate, model)
+            mine.append(self._per_joint(errors['candidate'], common if np.any(common) else has))
+            theirs.append(self._per_joint(errors['model'], common))
+        mine, theirs = np.mean(mine, axis=0), np.mean(theirs, axis=0)            # (n,)
+        candidate, model = float(np.mean(mine)), float(np.mean(theirs))
+        if not math.isfinite(model):
+            return Verdict(True, candidate, math.nan)
+        if candidate > model:
+            return Verdict(False, candidate, model, f'{candidate:.2%} of the range on the '
+                           f'scored horizons against {model:.2%} for the model in use')
+        floor = self.noise_floor()
+        worse = (mine > (1.0 + self.margin) * theirs) & ~((mine <= floor) & (theirs <= floor))
+        if np.any(worse):
+            j = int(np.argmax(np.where(worse, mine / np.maximum(theirs, 1e-300), -np.inf)))
+            return Verdict(False, candidate, model, f'on {self.joint_names[j]}, {mine[j]:.2%} '
+                           f'of the range on the scored horizons against {theirs[j]:.2%} for '
+                           f'the model in use (over the joints {candidate:.2%} against '
+                           f'{model:.2%})')
+        return Verdict(True, candidate, model)
 
     def promote(self) -> None:
         """Make the candidate the model: its recorded predictions replace the model's."""
         blocks = self._blocks()
         blocks['model'][:] = blocks['candidate']
         blocks['candidate'][:] = np.nan
+        self._withdrawn = (-math.inf, '')
         self._cache = None
 
     def discard_candidate(self) -> None:
@@ -251,6 +401,7 @@ class SelfCheck(PredictionRecord):
         """Forget the model's predictions (a model that replaced it untried)."""
         self._blocks()['model'][:] = np.nan
         self._on_model = False
+        self._withdrawn = (-math.inf, '')
         self._cache = None
 
     def uncertainty(self, offsets, predictor: str = 'published') -> np.ndarray:

@@ -26,13 +26,19 @@ What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
 
 - Every prediction is scored against what the arm then did, beside following the reference
   (the plan) and holding the last state, per horizon (a quarter, half and all of
-  ``prediction.horizon``), over the last ``selfcheck.window`` seconds. Until the model is
-  ``selfcheck.margin`` better than each baseline, and as soon as it is worse than one, the
-  better baseline is published instead, and the switch is logged with its reason.
-- A new model from the search is a *candidate*: it predicts beside the model in use, and
-  replaces it only once its own scored predictions are at least as good on the same
-  targets (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.trial`). A model that the search
-  found worse never reaches ``~/prediction``.
+  ``prediction.horizon``) and per joint, over the last ``selfcheck.window`` seconds. Until
+  the model is ``selfcheck.margin`` better than the better baseline on every joint, and as
+  soon as it is worse on one, the better baseline is published instead, and the switch is
+  logged with its reason.
+- Every change of what rolls out (a new model from the search, a loop fitted again, a new
+  learned law) is a *candidate* (:mod:`rkgnn_ros.identification.candidates`): it predicts
+  beside the model in use, and replaces it only once its own scored predictions earned it
+  on the same targets (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.trial`). Nothing
+  reaches ``~/prediction`` unjudged.
+- A rollout that leaves the band the plan and the recent errors allow
+  (:mod:`rkgnn_ros.core.band`) is not believed: the model in use is withdrawn at once (a
+  baseline goes out instead of that very prediction) until its predictions since are
+  scored; a candidate is dropped.
 - Horizons: with ``prediction.beyond_plan: stop`` a prediction ends where the plan ends
   (no plan, no prediction); with 'hold' it goes on with the plan's last point (or the
   newest command) held, and says from where.
@@ -66,9 +72,11 @@ from rkgnn_ros.conversions import make_joint_state, serialize_joint_trajectory
 from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
+from rkgnn_ros.identification.candidates import describe, Models, Slot
 from sensor_msgs.msg import JointState
 
-__all__ = ['LATENCY_WINDOW', 'SCORE_LABELS', 'Prediction', 'Predictor', 'ScoreReport']
+__all__ = ['LATENCY_WINDOW', 'JOINT_SCORE_COLUMNS', 'SCORE_LABELS', 'Prediction', 'Predictor',
+           'ScoreReport', 'score_labels']
 
 LATENCY_WINDOW = 1000  # predictions whose latency the diagnostics summarise
 MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's bound)
@@ -89,8 +97,25 @@ REPORT_EVERY_S = 1.0   # scores handed to the executor this often (stamp time)
 CLOCK_JUMP_S = 1.0     # a state this much older than the last restarts the self-check
 MIN_GAP_S = 0.25       # states further apart: the predictions over them are not scored
 
-#: Columns of ``~/prediction_scores`` (one row per scored horizon).
+#: The first columns of ``~/prediction_scores`` (one row per scored horizon): the scores
+#: averaged over the joints, and the model's count of scored predictions.
 SCORE_LABELS = ('horizon_s', 'model', 'follow_reference', 'hold_last', 'published', 'count')
+#: Then, per joint, these columns labelled ``<column>:<joint>`` (see :func:`score_labels`).
+JOINT_SCORE_COLUMNS = ('model', 'follow_reference', 'hold_last', 'published', 'noise_floor')
+
+
+def score_labels(joints) -> Tuple[str, ...]:
+    """
+    Return the column labels of ``~/prediction_scores`` for ``joints``.
+
+    :data:`SCORE_LABELS` (the scores averaged over the joints), then for each joint in turn
+    :data:`JOINT_SCORE_COLUMNS` as ``model:<joint>``, ... ``noise_floor:<joint>``: the
+    windowed RMSE / that joint's θ range of each predictor, and the score below which an
+    error is that joint's encoder noise (``SelfCheck.noise_floor``). A comma in a joint's
+    name becomes ';' (the layout's label is comma-separated).
+    """
+    return SCORE_LABELS + tuple(f"{column}:{str(joint).replace(',', ';')}"
+                                for joint in joints for column in JOINT_SCORE_COLUMNS)
 
 
 def _due(now: float, last: float, every: float) -> bool:
@@ -156,12 +181,8 @@ class ScoreReport(NamedTuple):
 
     source: str
     reason: str
-    table: np.ndarray  # (H, len(SCORE_LABELS))
-
-
-class _Slot(NamedTuple):
-    model: Optional[RKGNNModel]    # None: a closed loop predicts before any model (case 3)
-    loop: Optional[ClosedLoop]
+    table: np.ndarray  # (H, len(labels))
+    labels: Tuple[str, ...] = SCORE_LABELS  # the columns (:func:`score_labels`)
 
 
 class _Horizon(NamedTuple):
@@ -196,11 +217,7 @@ class Predictor:
         self._ingestion = ingestion
         self._publish = publish
         self._config = config
-        self._slots_lock = threading.Lock()
-        self._model: Optional[_Slot] = None       # in use
-        self._candidate: Optional[_Slot] = None   # on trial
-        self._pending: Optional[_Slot] = None     # the newest model, waiting for a trial
-        self._trial_start = math.nan
+        self._models = Models()  # in use, on trial, offered
         self._check: Optional[SelfCheck] = None
         self._check_key = None
         self._fed = -math.inf  # stamp of the newest state fed to the self-check
@@ -226,37 +243,22 @@ class Predictor:
 
     def set_model(self, model: RKGNNModel, loop: Optional[ClosedLoop] = None) -> None:
         """
-        Take a new model: in use at once if there is none, else a candidate for a trial.
+        Offer a new model (any thread): a candidate, or in use at once if nothing predicts.
 
         ``loop``: the model closed with a fitted servo law (case 1 predicts only so; case 3
-        with the linear closed loop where it holds).
+        with the linear closed loop where it holds). See
+        :mod:`rkgnn_ros.identification.candidates`.
         """
-        slot = _Slot(model, loop)
-        with self._slots_lock:
-            in_use = self._model
-            if (in_use is None or in_use.model is None
-                    or (in_use.loop is None and in_use.model.case == 'torque')):
-                # nothing predicts yet (a case-1 model predicts only closed with a law)
-                self._model = slot
-            else:
-                self._pending = slot
+        self._models.offer_model(model, loop)
 
-    def update_loop(self, model: RKGNNModel, loop: Optional[ClosedLoop]) -> None:
+    def update_loop(self, model: Optional[RKGNNModel], loop: Optional[ClosedLoop]) -> None:
         """
-        Predict ``model`` with ``loop`` (a new learned law) wherever it is held.
+        Offer ``model`` with ``loop`` (a loop fitted again, a new learned law): a candidate.
 
         ``model`` None: ``loop`` predicts until the first model arrives (case 3's linear
-        closed loop needs no searched model); ``loop`` None then withdraws it.
+        closed loop needs no searched model); ``loop`` None withdraws the loop at once.
         """
-        with self._slots_lock:
-            if model is None:
-                if self._model is None or self._model.model is None:
-                    self._model = None if loop is None else _Slot(None, loop)
-                return
-            for name in ('_model', '_candidate', '_pending'):
-                slot = getattr(self, name)
-                if slot is not None and slot.model is model:
-                    setattr(self, name, _Slot(model, loop))
+        self._models.offer_loop(model, loop)
 
     # ------------------------------------------------------------------ latency
 
@@ -302,21 +304,19 @@ class Predictor:
         if latest is None or joints is None:
             return False
         cfg = self._config()
-        check = self._self_check(cfg, len(joints))
+        check = self._self_check(cfg, joints)
         horizon = self._horizon(cfg, latest.t)
         if horizon is None:
             return False
         t = horizon.t
-        with self._slots_lock:
-            if self._candidate is None and self._pending is not None:
-                self._candidate, self._pending = self._pending, None
-                self._trial_start = latest.t
-                check.discard_candidate()
-            model, candidate = self._model, self._candidate
+        model, candidate = self._models.take(check, latest.t)
         x0 = np.concatenate([latest.theta, latest.theta_dot])
         mine = self._rollout(model, joints, x0, horizon, latest.t, check)
         publishable = ('follow_reference',) if horizon.theta_d is not None else ()
         decision = self._decision
+        if mine is not None and self._outside(check, latest, horizon, mine[0], joints):
+            self._decided_at = -math.inf   # withdrawn: this prediction is a baseline
+            decision = None
         if decision is None:
             decision = self._decide(check, latest.t, publishable)
         source = decision.source
@@ -349,10 +349,16 @@ class Predictor:
         if candidate_due:
             theirs = self._rollout(candidate, joints, x0, horizon, latest.t, check)
             self._candidate_at = latest.t if theirs is not None else -math.inf
+            if theirs is not None and self._outside(check, latest, horizon, theirs[0], joints,
+                                                    candidate=True):
+                theirs = None
         check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
                              None if theirs is None else theirs[0],
                              None if source == 'model' else positions, horizon.theta_d)
-        self._trial(check, latest.t, cfg)
+        line = self._models.judge(check, latest.t, cfg['selfcheck.window'])
+        if line is not None:
+            self._decided_at = -math.inf
+            self._publish(LogLine('info', line))
         if self._decide(check, latest.t, publishable) is not decision or \
                 self._sigma is None or self._sigma[0] != source:
             self._sigma = None  # the uncertainty with the new scores, for the next ones
@@ -367,18 +373,20 @@ class Predictor:
             self._sigma = key + (check.uncertainty(t, source),)
         return self._sigma[3]
 
-    def _self_check(self, cfg, n: int) -> SelfCheck:
+    def _self_check(self, cfg, joints) -> SelfCheck:
         """Return the self-check for these settings (a new one if they changed), fed."""
         horizon = cfg['prediction.horizon']
         step = cfg['model_step']
         horizons = tuple(sorted({max(step, round(horizon * f / step) * step)
                                  for f in (0.25, 0.5, 1.0)}))
-        key = (n, horizons, cfg['selfcheck.window'], cfg['selfcheck.margin'],
+        n = len(joints)
+        key = (tuple(joints), horizons, cfg['selfcheck.window'], cfg['selfcheck.margin'],
                max(MIN_GAP_S, cfg['gap_threshold']))
         if self._check is None or key != self._check_key:
             self._check = self._new_check(key)
             self._check_key = key
             self._decided_at = -math.inf
+            self._models.restart_trial(self._fed)
         # taken in bulk: at 1 kHz, one call per sample cost the prediction thread more
         # than its rollouts
         feed = self._ingestion.feed
@@ -397,6 +405,7 @@ class Predictor:
             if stamp < self._fed - CLOCK_JUMP_S:  # the clock went back: a new timeline
                 self._check = self._new_check(key)
                 self._decided_at = -math.inf
+                self._models.restart_trial(stamp)
                 for store in states + commands:
                     store.clear()
             self._fed = stamp
@@ -410,9 +419,9 @@ class Predictor:
 
     @staticmethod
     def _new_check(key) -> SelfCheck:
-        n, horizons, window, margin, max_gap = key
-        return SelfCheck(n, horizons, window=window, margin=margin, max_gap=max_gap,
-                         rescore_every=RESCORE_EVERY_S)
+        joints, horizons, window, margin, max_gap = key
+        return SelfCheck(len(joints), horizons, window=window, margin=margin, max_gap=max_gap,
+                         rescore_every=RESCORE_EVERY_S, joint_names=joints)
 
     def _horizon(self, cfg, t0: float) -> Optional[_Horizon]:
         """Return what a prediction from ``t0`` covers (None: nothing, see the module)."""
@@ -446,7 +455,7 @@ class Predictor:
         theta_d, theta_d_dot = reference.evaluate(t)
         return _Horizon(t, theta_d, theta_d_dot, reference, beyond, what)
 
-    def _rollout(self, slot: Optional[_Slot], joints, x0, horizon: _Horizon, t0: float,
+    def _rollout(self, slot: Optional[Slot], joints, x0, horizon: _Horizon, t0: float,
                  check: SelfCheck) -> Optional[Tuple[np.ndarray, np.ndarray]]:
         """Return ``(θ, θ̇)`` (K, n) of a model's prediction, None if it has none."""
         if slot is None or horizon.theta_d is None:
@@ -512,42 +521,45 @@ class Predictor:
                                              f'{decision.reason}'))
         return decision
 
-    def _trial(self, check: SelfCheck, now: float, cfg) -> None:
-        """Promote or drop the candidate once its trial has an answer."""
-        with self._slots_lock:
-            candidate = self._candidate
-            if candidate is None:
-                return
-            verdict = check.trial()
-            if verdict is None:
-                if now - self._trial_start <= cfg['selfcheck.window']:
-                    return
-                check.discard_candidate()  # never scored (the plan too short?): drop it
-                self._candidate = None
-                return
-            if verdict.better:
-                check.promote()
-                self._model, self._candidate = candidate, None
-                self._decided_at = -math.inf
-            else:
-                check.discard_candidate()
-                self._candidate = None
-        generation = candidate.model.info.get('generation', '?')
-        self._publish(LogLine('info', (
-            f'the model of generation {generation} ' + ('now predicts' if verdict.better
-                                                        else 'is not used') +
-            f': {verdict.candidate:.2%} of the range on the scored horizons against '
-            f'{verdict.model:.2%} for the model in use')))
+    def _outside(self, check: SelfCheck, latest, horizon: _Horizon, theta: np.ndarray, joints,
+                 candidate: bool = False) -> bool:
+        """
+        Return whether a rollout left the band the plan and the recent errors allow.
+
+        The model in use is then withdrawn (:meth:`SelfCheck.withdraw`, logged once per
+        withdrawal), the candidate dropped: on their own rollout's evidence, before any
+        score of it can come (:mod:`rkgnn_ros.core.band`).
+        """
+        excursion = check.excursion(horizon.t, theta, latest.theta, horizon.theta_d,
+                                    ('candidate', 'model') if candidate else ('model',))
+        if excursion is None:
+            return False
+        why = (f'its {excursion.offset:.2f} s-ahead prediction of {joints[excursion.joint]} '
+               f'left the band the plan and the recent errors allow, '
+               f'{excursion.outside:.3g} rad beyond the plan where the band is '
+               f'{excursion.width:.3g} rad')
+        if candidate:
+            dropped = self._models.drop_candidate(check)
+            self._publish(LogLine('info', f'{describe(dropped)} is not used: {why}'))
+        elif check.withdraw(latest.t, why):
+            self._publish(LogLine('warning', f'the model in use is withdrawn: {why}'))
+        return True
 
     def _report(self, check: SelfCheck, now: float) -> None:
         """Hand the scores to the executor every REPORT_EVERY_S."""
         if self._decision is None or not _due(now, self._reported_at, REPORT_EVERY_S):
             return
         self._reported_at = now
-        scores = self._decision.scores
+        scores, joints, floor = self._decision.scores, check.joint_scores(), check.noise_floor()
+        nan = np.full(check.n, math.nan)
         table = np.array([[h] + [scores.get(h, {}).get(name, math.nan)
-                                 for name in SCORE_LABELS[1:]] for h in check.horizons])
-        self.report = ScoreReport(self._decision.source, self._decision.reason, table)
+                                 for name in SCORE_LABELS[1:]]
+                          + list(np.column_stack([joints.get(h, {}).get(name, nan)
+                                                  for name in JOINT_SCORE_COLUMNS[:-1]]
+                                                 + [floor]).ravel())
+                          for h in check.horizons])
+        self.report = ScoreReport(self._decision.source, self._decision.reason, table,
+                                  score_labels(check.joint_names))
         self._publish(self.report)
 
     # ------------------------------------------------------------------ the thread

@@ -29,6 +29,7 @@ publishers, so the node and its tests agree on them.
 """
 
 from collections import deque
+import math
 from typing import Callable, NamedTuple, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -40,7 +41,8 @@ from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate,
                                            Status)
 from rkgnn_ros.core.fitting.online_records import DynamicsChange, PayloadEstimate
 from rkgnn_ros.core.model.model import RKGNNModel
-from rkgnn_ros.identification.prediction import Prediction, SCORE_LABELS, ScoreReport
+from rkgnn_ros.identification.prediction import (JOINT_SCORE_COLUMNS, Prediction, SCORE_LABELS,
+                                                 ScoreReport)
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory
@@ -240,7 +242,7 @@ class Publishing:
             self.publish_prediction(item)
         elif isinstance(item, ScoreReport):
             self._publishers['prediction_scores'].publish(
-                make_float64_multiarray(item.table, SCORE_LABELS))
+                make_float64_multiarray(item.table, item.labels))
         elif isinstance(item, LogLine):
             self.log(item.level, item.text)
         elif isinstance(item, GenerationStats):
@@ -359,13 +361,29 @@ def _selfcheck_pairs(report: Optional[ScoreReport]) -> list:
     if report is None:
         return [('prediction_source', 'none yet')]
     pairs = [('prediction_source', report.source), ('prediction_source_reason', report.reason)]
+    worst = None  # (ratio, text) of the joint where the model is furthest behind
     for row in report.table:
-        fields = dict(zip(SCORE_LABELS, row))
+        fields = dict(zip(report.labels, row))
         text = ', '.join(f'{name} {fields[name]:.2%}' for name in SCORE_LABELS[1:5]
                          if np.isfinite(fields[name]))
         count = int(fields['count']) if np.isfinite(fields['count']) else 0
-        pairs.append((f"selfcheck.{fields['horizon_s']:g}s",
+        horizon = f"{fields['horizon_s']:g}s"
+        pairs.append((f'selfcheck.{horizon}',
                       f'{text} (model: {count} scored)' if text else 'not scored yet'))
+        for joint in report.labels[len(SCORE_LABELS)::len(JOINT_SCORE_COLUMNS)]:
+            joint = joint.split(':', 1)[1]
+            of = {name: fields[f'{name}:{joint}'] for name in JOINT_SCORE_COLUMNS}
+            shown = [f"{name.replace('_', ' ')} {value:.2%}" for name, value in of.items()
+                     if np.isfinite(value)]
+            pairs.append((f'selfcheck.{horizon}.{joint}',
+                          ', '.join(shown) if len(shown) > 1 else 'not scored yet'))
+            better = min((of[b] for b in ('follow_reference', 'hold_last')
+                          if np.isfinite(of[b])), default=math.nan)
+            ratio = of['model'] / max(better, 1e-300)
+            if np.isfinite(ratio) and (worst is None or ratio > worst[0]):
+                worst = (ratio, f'{joint} at {horizon}: {ratio:.2f} x the better baseline')
+    if worst is not None:
+        pairs.append(('selfcheck.worst_joint', worst[1]))
     return pairs
 
 
