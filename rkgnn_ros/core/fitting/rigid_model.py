@@ -132,6 +132,24 @@ class RigidModel:
         """Return the law's (Kp, Kd), or None without a law."""
         return None if self.law is None else (self.law.kp.copy(), self.law.kd.copy())
 
+    def simulate(self, x0, t, tau=None, theta_d=None, theta_d_dot=None, reference=None,
+                 substeps=None) -> np.ndarray:
+        """
+        Roll the model out from ``x0`` over ``t``: closed with its law along the commands.
+
+        The commands are ``theta_d``, ``theta_d_dot`` (K, n) or ``reference.evaluate(t)``;
+        without a law, open loop under ``tau`` (held per interval). ``substeps`` is the
+        loop's RKG steps per interval (None: from its stiffness). States (K, 2n).
+        """
+        from .rigid_loop import RigidLoop
+        if self.law is None or (theta_d is None and reference is None):
+            if tau is None:
+                raise ValueError('a rigid-body model without a law rolls out under torque only')
+            return self.arm.simulate(x0, t, tau=tau)
+        if theta_d is None:
+            theta_d, theta_d_dot = reference.evaluate(np.asarray(t, dtype=float))
+        return RigidLoop(self.arm, self.law, substeps).simulate(x0, t, theta_d, theta_d_dot)
+
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the rollout kernel this model predicts with."""
         from .rigid_loop import precompile_rigid_loop
