@@ -50,9 +50,11 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, HERE)
 
 from rkgnn_ros.core.scoring import ahead_errors  # noqa: E402
 from rkgnn_ros.monitor import config, Monitor, NodeProcesses  # noqa: E402
+from urdf_arms import wait_for_identifier  # noqa: E402
 
 ARMS = {'paper': {'files': [], 'mass': 2.0, 'com': [0.0, 0.0, 0.0]},
         'ur5': {'files': ['sim_arm_ur5.yaml'], 'mass': 3.0, 'com': [0.0, 0.02, 0.05]}}
@@ -162,8 +164,8 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
                      '-p', f'payload.detach_at:={float(detach)}']
     sim_args += SENSORS[sensors] + list(extra_sim)
     prefix = f'change_{arm}_{sensors}_' + ('' if attach else 'quiet_')
-    nodes = NodeProcesses([('identifier', []), ('sim_arm', sim_args)], domain, log_dir,
-                          prefix=prefix)
+    identifier = NodeProcesses([('identifier', [])], domain, log_dir, prefix=prefix)
+    nodes = None
     load = os.getloadavg()[0]
     try:
         ctx = rclpy.Context()
@@ -172,10 +174,13 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
         listener = Listener(monitor.node, monitor)
         executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(monitor.node)
+        wait_for_identifier(monitor.node, executor, identifier)
+        nodes = NodeProcesses([('sim_arm', sim_args)], domain, log_dir, prefix=prefix)
         t0 = time.monotonic()
         while time.monotonic() - t0 < MAX_WALL_FACTOR * duration:
             executor.spin_once(timeout_sec=0.1)
             nodes.check()
+            identifier.check()
             with monitor.lock:
                 simulated = monitor.meas_t[-1] - monitor.meas_t[0] if monitor.meas_t else 0.0
             if simulated >= duration:
@@ -185,7 +190,7 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
         monitor.node.destroy_node()
         rclpy.try_shutdown(context=ctx)
     finally:
-        codes = nodes.stop()
+        codes = (nodes.stop() if nodes is not None else []) + identifier.stop()
     meas_t, meas_theta, t0s, offs, thetas, _, _ = snap
     order = np.argsort(meas_t)
     meas_t, meas_theta = meas_t[order], meas_theta[order]

@@ -237,6 +237,17 @@ def torque_nrmse(arm, recorder, start, at=SCORED_AT):
     return float(np.max(torque_errors(fitted, rows)))
 
 
+def wait_for_identifier(node, executor, processes, timeout=120.0):
+    """Spin until the identifier's ~/prediction publisher is seen (it has started)."""
+    start = time.monotonic()
+    while time.monotonic() - start < timeout:
+        executor.spin_once(timeout_sec=0.1)
+        processes.check()
+        if node.count_publishers('identifier/prediction') > 0:
+            return
+    raise RuntimeError(f'the identifier did not start within {timeout:g} s')
+
+
 def run_cell(arm, servo, sensors, duration, horizon, domain, log_dir, description=None):
     """Run sim_arm and the identifier for one cell; return its figures."""
     import rclpy
@@ -248,8 +259,10 @@ def run_cell(arm, servo, sensors, duration, horizon, domain, log_dir, descriptio
         id_args += ['-p', f'robot_description:={description}']
     prefix = f'urdf_arms_{arm}_{servo}_{sensors}_' + ('perturbed_' if description else '')
     load = os.getloadavg()[0]
-    nodes = NodeProcesses([('sim_arm', arm_args), ('identifier', id_args)], domain, log_dir,
-                          prefix=prefix)
+    # the identifier first, as on an arm it watches before the arm moves: the cell counts
+    # from the first joint_states, not from the identifier's start-up
+    identifier = NodeProcesses([('identifier', id_args)], domain, log_dir, prefix=prefix)
+    nodes = None
     try:
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=domain)
@@ -257,10 +270,13 @@ def run_cell(arm, servo, sensors, duration, horizon, domain, log_dir, descriptio
         recorder = Recorder(monitor.node, COMMAND_TOPIC.get(sensors, 'joint_commands'))
         executor = SingleThreadedExecutor(context=ctx)
         executor.add_node(monitor.node)
+        wait_for_identifier(monitor.node, executor, identifier)
+        nodes = NodeProcesses([('sim_arm', arm_args)], domain, log_dir, prefix=prefix)
         t0 = time.monotonic()
         while time.monotonic() - t0 < MAX_WALL_FACTOR * duration:
             executor.spin_once(timeout_sec=0.1)
             nodes.check()
+            identifier.check()
             with monitor.lock:
                 simulated = monitor.meas_t[-1] - monitor.meas_t[0] if monitor.meas_t else 0.0
             if simulated >= duration:
@@ -271,7 +287,7 @@ def run_cell(arm, servo, sensors, duration, horizon, domain, log_dir, descriptio
         monitor.node.destroy_node()
         rclpy.try_shutdown(context=ctx)
     finally:
-        codes = nodes.stop()
+        codes = (nodes.stop() if nodes is not None else []) + identifier.stop()
     if len(snap[0]) < 2 or commands[0].size < 2:
         return {'error': 'no states or no commands recorded', 'exit_codes': codes}
     cell = score(snap, commands, horizon, duration, dict(recorder.by_stamp))
