@@ -240,7 +240,7 @@ class IdentifierNode(Node):
             self._ingestion.internal_error('parameters')
 
     def _feedforward_model(self, train, case, kp, kd):
-        """The feed-forward's model: the robot description's rigid body where there is one."""
+        """Return the feed-forward's model: the description's rigid body where there is one."""
         structure = self._description.structure(self._ingestion.joints)
         return feedforward_model(train, case, kp, kd, structure)
 

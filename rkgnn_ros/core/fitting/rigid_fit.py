@@ -352,7 +352,7 @@ def servo_torque(law: ControllerLaw, samples: FilteredRows) -> np.ndarray:
 def residual(arm: RigidArm, law: Optional[ControllerLaw],
              samples: FilteredRows) -> Tuple[np.ndarray, np.ndarray]:
     """
-    Return the model's residual (K, n) on filtered samples, and what it is judged against.
+    Return the model's residual on filtered samples (K, n), and what it is judged against.
 
     Without a law (case 1) the torque's: Y π − τ, against τ; with one (cases 2 and 3) the
     closed loop's equation error: Y π − the servo's torque, against that torque (an

@@ -214,7 +214,7 @@ class RigidKeeper:
         return RigidUpdate(model, loop, lines)
 
     def _after_change(self, case, segments, origin, span) -> Optional[RigidUpdate]:
-        """The first seconds after a change: only the last body is refitted (module doc)."""
+        """Refit only the last body in the first seconds after a change (module docstring)."""
         if span < PAYLOAD_MIN_S or self.before is None:
             return None
         law = self.law if case == 'torque' else self.fit.law
