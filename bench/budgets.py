@@ -16,8 +16,8 @@
 Wall-time budgets of the offline entry points on a real 7-joint arm, alone and loaded.
 
 The recording: the real Franka Emika Panda excitation trajectory of Gaz et al. (RA-L 2019),
-read by path from ``--data`` (default ``/work/shared/data/panda_gaz2019``, its README says
-what it holds; it is never copied into this repository): 20.9 s of θ, θ̇ and the measured
+read by path from ``--data`` (default ``../shared/data/panda_gaz2019`` beside the
+repository, its README says what it holds; it is never copied into this repository): 20.9 s of θ, θ̇ and the measured
 joint torque of 7 joints at about 1 kHz (case 1, torque known). Without that folder the
 benchmark says so and writes nothing.
 
@@ -55,7 +55,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, ROOT)
 
-DATA = os.environ.get('RKGNN_PANDA_DATA', '/work/shared/data/panda_gaz2019')
+DATA = os.environ.get('RKGNN_PANDA_DATA', os.path.join(
+    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), '..', 'shared', 'data',
+    'panda_gaz2019'))
 JOINTS = tuple(f'panda_joint{j + 1}' for j in range(7))
 RATE = 100.0            # Hz of the Dataset fit_best is given
 T0 = 1_700_000_000.0    # s, where the recording's stamps start
