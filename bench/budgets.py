@@ -17,8 +17,9 @@ Wall-time budgets of the offline entry points on a real 7-joint arm, alone and l
 
 The recording: the real Franka Emika Panda excitation trajectory of Gaz et al. (RA-L 2019),
 read by path from ``--data`` (default ``../shared/data/panda_gaz2019`` beside the
-repository, its README says what it holds; it is never copied into this repository): 20.9 s of θ, θ̇ and the measured
-joint torque of 7 joints at about 1 kHz (case 1, torque known). Without that folder the
+repository, its README says what it holds; it is never copied into this repository):
+20.9 s of θ, θ̇ and the measured joint torque of 7 joints at about 1 kHz (case 1, torque
+known). Without that folder the
 benchmark says so and writes nothing.
 
 Per entry point, budget (``--budgets``, 10 s and 60 s) and load, in a fresh process each:
