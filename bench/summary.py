@@ -214,6 +214,115 @@ def _mean_rate(soak):
     return sum(rates) / len(rates) if rates else float('nan')
 
 
+def _num(value, fmt='{:.3g}'):
+    return '–' if value is None else fmt.format(value)
+
+
+def urdf_arms_section(d):
+    """Return the lines of ``urdf_arms.json`` (arm x servo x sensors, and the perturbed URDF)."""
+    lines = ['## Arms with a robot description (`bench/urdf_arms.py`)', '',
+             '2 s-ahead θ error at 60 s (share of the θ range) of what `~/prediction` '
+             'published, against following the reference; seconds from the first '
+             'joint_states to the first model prediction; held-out torque NRMSE (case 1).', '']
+    for title, table in (('exact URDF', d), ('URDF inertials scaled by [0.7, 1.3], no friction',
+                                             d.get('perturbed_urdf') or {})):
+        cells = [(arm, servo, sensors, cell) for arm, servos in table.items()
+                 if isinstance(servos, dict) and arm in ('ur5', 'panda')
+                 for servo, sensors_ in servos.items() for sensors, cell in sensors_.items()]
+        if not cells:
+            continue
+        lines += [f'### {title}', '', '| arm | servo | sensors | prediction | follow reference '
+                  '| ratio | first model (s) | torque NRMSE | worst joint / baseline |',
+                  '|---|---|---|---|---|---|---|---|---|']
+        for arm, servo, sensors, c in cells:
+            if 'error' in c:
+                lines.append(f'| {arm} | {servo} | {sensors} | {c["error"]} | | | | | |')
+                continue
+            p, f = c.get('prediction_nrmse_60s'), c.get('follow_reference_nrmse')
+            ratio = p / f if p is not None and f else None
+            lines.append(f'| {arm} | {servo} | {sensors} | {_pct(p)} | {_pct(f)} | '
+                         f'{_num(ratio)} | {_num(c.get("first_model_prediction_s"), "{:.1f}")}'
+                         f' | {_pct(c.get("torque_nrmse"))} | '
+                         f'{_num(c.get("self_check_worst_joint_ratio"))} |')
+        lines += ['', f'Worst ratio {_num(table.get("worst_ratio_to_follow_reference"))}, '
+                      f'worst first model {_num(table.get("worst_first_model_prediction_s"))} '
+                      f's, worst torque NRMSE {_pct(table.get("worst_torque_nrmse"))}.', '']
+    return lines
+
+
+def real_panda_section(d):
+    """Return the lines of ``real_panda.json``."""
+    per_joint = ', '.join(f'{v:.4f}' for v in d['nmse_per_joint'])
+    return ['## The real Panda (`bench/real_panda.py`)', '',
+            f"Held-out torque nMSE (last 30 % of the recording): mean {d['nmse_mean']:.4f} "
+            f"(joints {per_joint}); the published model file {d['published_nmse_mean']:.4f}; "
+            f"least squares on the URDF regressor {d['least_squares_nmse_mean']:.4f}; "
+            f"fit {d['fit_s']:.2f} s; physically consistent: {d['consistent']}.", '']
+
+
+def change_section(d):
+    """Return the lines of ``change.json``."""
+    lines = ['## A payload picked up and released (`bench/change.py`)', '',
+             '| arm | sensors | event | error before | worst after | recovery (s) | '
+             'detection (s) | mass error | com error (m) |',
+             '|---|---|---|---|---|---|---|---|---|']
+    for arm in ('paper', 'ur5'):
+        for sensors, cell in (d.get(arm) or {}).items():
+            for event in ('attach', 'detach'):
+                e = cell.get(event) if isinstance(cell, dict) else None
+                if not e:
+                    continue
+                lines.append(f"| {arm} | {sensors} | {event} | {_pct(e.get('error_before'))} | "
+                             f"{_pct(e.get('error_after_peak'))} | {_num(e.get('recovery_s'))} | "
+                             f"{_num(e.get('detection_delay_s'))} | "
+                             f"{_num(e.get('payload_mass_error'))} | "
+                             f"{_num(e.get('payload_com_error_m'))} |")
+    lines += ['', 'Worst recovery: with a robot description '
+                  f"{_num(d.get('worst_recovery_s_urdf'))}"
+                  f" s, without {_num(d.get('worst_recovery_s_no_urdf'))} s; changes said in "
+                  f"10 minutes without one: {d.get('false_alarms_10min', '–')}.", '']
+    return lines
+
+
+def reliability_lines(budgets, hostile):
+    """Return the lines of ``budgets.json`` and ``hostile.json``."""
+    lines = []
+    if hostile:
+        lines += ['## Hostile input (`bench/hostile.py`)', '',
+                  f"{hostile['breaks_survived']} of {hostile['breaks_tested']} breaks refused "
+                  f"and survived, {hostile['tracebacks']} tracebacks, "
+                  f"{hostile.get('drop_burst_tracebacks')} in the 1 kHz drop-and-burst run; "
+                  f"largest identifier RSS {hostile['max_rss_mb']} MB.", '']
+    if budgets:
+        lines += ['## Time budgets (`bench/budgets.py`)', '', '| entry point | budget | alone (s) '
+                  '| loaded (s) |', '|---|---|---|---|']
+        for entry, per_budget in budgets['cells'].items():
+            for budget, loads in per_budget.items():
+                lines.append(f'| {entry} | {budget} | '
+                             f"{_num((loads.get('alone') or {}).get('wall_s'), '{:.2f}')} | "
+                             f"{_num((loads.get('loaded') or {}).get('wall_s'), '{:.2f}')} |")
+        lines += ['', f"Worst wall time over budget: {_num(budgets['worst_overrun_ratio'])}.", '']
+    return lines
+
+
+def rigid_speed_lines(speed, latency):
+    """Return the lines of ``rigid_speed.json`` and the Panda at 1 kHz of ``latency.json``."""
+    lines = []
+    if speed:
+        lines += ['## The rigid body at 7 joints (`bench/rigid_speed.py`)', '',
+                  f"{speed['arm']}: closed form (law and arm, case 1) "
+                  f"{speed['closed_form_s']:.2f} "
+                  f"s, case 3 {speed['case3_s']:.2f} s (choosing its form "
+                  f"{speed['case3_forms_s']:.2f} s), a 2 s prediction "
+                  f"{speed['prediction_2s_ms']:.2f} ms.", '']
+    panda = (latency or {}).get('panda_1khz')
+    if panda:
+        lines += [f"Panda at {panda['rate_hz']:.0f} Hz joint_states (`bench/latency.py --arm "
+                  f"panda`): {panda['drops']} drops, state-to-prediction latency p99 "
+                  f"{panda['latency_p99_ms']:.1f} ms (worst of {panda['runs_count']} runs).", '']
+    return lines
+
+
 def main():
     """Write bench/results/README.md."""
     out = ['# Benchmark results', '',
@@ -307,6 +416,13 @@ def main():
     tuning = _load('pd_tuning')
     if tuning:
         out += pd_tuning_section(tuning)
+    for name, section in (('urdf_arms', urdf_arms_section), ('real_panda', real_panda_section),
+                          ('change', change_section)):
+        data = _load(name)
+        if data:
+            out += section(data)
+    out += rigid_speed_lines(_load('rigid_speed'), _load('latency'))
+    out += reliability_lines(_load('budgets'), _load('hostile'))
     text = '\n'.join(out)
     with open(os.path.join(RESULTS, 'README.md'), 'w', encoding='utf-8') as f:
         f.write(text)
