@@ -24,7 +24,9 @@ seconds of the simulated paper arm, in the three cases (the equation-error start
 rollouts, the refinement, the validation), with the default network and with the
 trigonometric basis, and the prediction of the published models; every kernel then sits in
 the cache, with those of :func:`.core.fitting.identify.precompile`, which the node runs
-before it spins, and sim_arm's simulation kernels. ``make build`` runs it
+before it spins, and sim_arm's simulation kernels; and, on a UR5 of example-robot-data, the
+rigid-body kernels an identifier with a robot description and sim_arm on a URDF arm use
+(:func:`precompile_rigid`). ``make build`` runs it
 (``python -m rkgnn_ros.precompile``); a second run finds everything cached and takes seconds.
 """
 
@@ -45,6 +47,9 @@ JOINTS = ('j1', 'j2', 'j3')
 
 #: The network settings compiled: the default and the trigonometric basis (its dispatch).
 NETWORKS = ({}, {'basis': 'trig+rbf'})
+
+#: The URDF arm whose rigid-body kernels are compiled (example-robot-data's UR5).
+RIGID_ARM = 'example-robot-data:ur_description/urdf/ur5_robot.urdf'
 
 #: Steps of the fake clock before giving up on a published model.
 STEP_LIMIT = 400
@@ -115,6 +120,61 @@ def precompile_sim_arm() -> None:
         sim.sample()
 
 
+def precompile_rigid() -> int:
+    """
+    Compile the rigid-body kernels: a URDF arm simulated, fitted and rolled out per case.
+
+    Returns the number of cases that published a closed loop (0 when example-robot-data,
+    whose UR5 it runs, is not installed). Left to the first identifier run with a robot
+    description, their compilation blocks its first fit and first prediction.
+    """
+    from rkgnn_ros.core.rigid.structure import RigidStructure
+    from rkgnn_ros.core.rigid.urdf import UrdfError
+    from rkgnn_ros.core.sim.servo import Servo
+    from rkgnn_ros.core.sim.trajectories import SumOfSines
+    from rkgnn_ros.core.sim.urdf_arm import UrdfArm
+    try:
+        arm = UrdfArm(RIGID_ARM, viscous=[1.0] * 6, coulomb=[0.5] * 6)
+    except UrdfError as problem:
+        print(f'precompile: rigid-body kernels left to their first use ({problem})',
+              flush=True)
+        return 0
+    kp, kd = np.array([400.0, 400.0, 200.0, 40.0, 40.0, 10.0]), np.full(6, 10.0)
+    home = np.array([0.0, -1.57, 1.57, -1.57, -1.57, 0.0])
+    reference = SumOfSines.random(6, np.random.default_rng(0), n_terms=2, amplitude=0.3,
+                                  offsets=home)
+    data = simulate(arm, Servo(kp, kd), reference, 4.0, rate=100.0,
+                    joint_names=arm.joint_names)
+    structure = RigidStructure(arm.urdf, arm.joint_names)
+    closed = 0
+    for case in ('torque', 'pd_gains', 'unknown'):
+        gains = {'kp': tuple(kp), 'kd': tuple(kd)} if case == 'pd_gains' else {}
+        settings = OnlineSettings(case=case, min_window=2.0, validation_fraction=0.25,
+                                  model_publish_period=0.0, **gains)
+        buffer = StreamBuffer(tuple(arm.joint_names), 0.01, 4.0, 0.1,
+                              need_tau=case == 'torque', need_desired=True)
+        for k in range(data.t.size):
+            buffer.add_state(1000.0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+            buffer.add_command(1000.0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+        now = [100.0]
+        policy = OnlineIdentification(lambda: now[0])
+        for _ in range(4):
+            now[0] += 1.0
+            obs = Observation(settings, tuple(arm.joint_names),
+                              {'state': now[0], 'command': now[0]}, structure=structure)
+            result = policy.step(obs._replace(data=buffer.capture()))
+            loops = [e.loop for e in result.events
+                     if isinstance(e, ModelUpdate) and e.loop is not None]
+            if loops:
+                loops[-1].model.warm_up()
+                x0 = np.concatenate([data.theta[0], data.theta_dot[0]])
+                loops[-1].loop.simulate(x0, data.t[:50], data.theta_d[:50],
+                                        data.theta_d_dot[:50])
+                closed += 1
+                break
+    return closed
+
+
 def main(argv=None) -> int:
     """Compile every kernel of a first identifier (and sim_arm) run; print how long."""
     start = time.monotonic()
@@ -127,6 +187,8 @@ def main(argv=None) -> int:
             generations = run_case(data, case, network)
             print(f'precompile: case {case}, network {network or "default"}: '
                   f'{generations} generations', flush=True)
+    closed = precompile_rigid()
+    print(f'precompile: rigid body, {closed} of 3 cases closed', flush=True)
     print(f'precompile: kernels cached in {time.monotonic() - start:.0f} s', flush=True)
     return 0
 
