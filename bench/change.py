@@ -21,7 +21,10 @@ description and a 2 kg payload at the last tip; ``ur5`` is the UR5 of
 ``config/sim_arm_ur5.yaml``, its description on the topic, and a 3 kg payload at
 (0, 0.02, 0.05) m in its last link's frame. The payload is attached at ``--attach`` s and
 released at ``--detach`` s of simulation time (sim_arm's ``payload.*``; its servo is not
-told). Sensors ``exact`` or ``noisy`` (1e-4 rad of encoder noise, θ̇ by differences).
+told). The arm's time of a cell is its joint_states stamps from the first one received; the
+events are placed on it by the stamps sim_arm logs for them (the first states can be
+missed while the middleware discovers the publisher, which would put them early). Sensors
+``exact`` or ``noisy`` (1e-4 rad of encoder noise, θ̇ by differences).
 
 Figures per cell (2 s-ahead error of what ``~/prediction`` published, RMSE over the
 predictions started in each 2 s bin / θ range, mean over joints): ``error_before`` (the 10 s
@@ -42,6 +45,7 @@ import argparse
 import datetime
 import json
 import os
+import re
 import sys
 import threading
 import time
@@ -150,6 +154,21 @@ def _event_figures(start, t0, error, theta_range, at, listener, arm, payload_on)
     return out
 
 
+def event_stamps(log_path):
+    """Return the stamp times (s) sim_arm's log gives its payload 'attached', 'released'."""
+    out = {}
+    try:
+        with open(log_path, encoding='utf-8', errors='replace') as f:
+            for line in f:
+                found = re.search(r'payload (?:of .* )?(attached|released) .*stamp ([0-9.]+) s',
+                                  line)
+                if found and found.group(1) not in out:
+                    out[found.group(1)] = float(found.group(2))
+    except OSError:
+        pass
+    return out
+
+
 def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=()):
     """Run sim_arm and the identifier for one cell; return its figures."""
     import rclpy
@@ -203,10 +222,14 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
                              for n, w in listener.changes],
             'payloads': [[round(n - start, 3), m, c] for n, m, c in listener.payloads]}
     if attach:
-        cell['attach'] = _event_figures(start, pt0, err, theta_range, attach, listener, arm,
-                                        True)
-        cell['detach'] = _event_figures(start, pt0, err, theta_range, detach, listener, arm,
-                                        False)
+        stamps = event_stamps(os.path.join(log_dir, f'{prefix}sim_arm.log'))
+        cell['event_stamps_s'] = {k: round(v - start, 4) for k, v in stamps.items()}
+        at = {k: stamps[k] - start if k in stamps else nominal
+              for k, nominal in (('attached', attach), ('released', detach))}
+        cell['attach'] = _event_figures(start, pt0, err, theta_range, at['attached'],
+                                        listener, arm, True)
+        cell['detach'] = _event_figures(start, pt0, err, theta_range, at['released'],
+                                        listener, arm, False)
         for key in ('error_before', 'error_after_peak', 'recovery_s', 'detection_delay_s',
                     'payload_mass_error', 'payload_com_error_m'):
             if key in cell['attach']:
