@@ -74,8 +74,9 @@ DETECT_MIN_S = 6.0
 CHECK_EVERY_S = 0.25
 #: Newest seconds of data a check judges.
 CHECK_S = 1.0
-#: Seconds of data after a change before the last body is refitted ...
-PAYLOAD_MIN_S = 1.0
+#: Seconds of data after a change before the last body is refitted (more where the
+#: filter of noisy data needs them: the fit waits for its rows) ...
+PAYLOAD_MIN_S = 0.5
 #: ... and before the whole model is (from then on, only data after the change).
 FULL_REFIT_S = 8.0
 
