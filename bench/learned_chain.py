@@ -142,6 +142,8 @@ def run_real_panda(settings, log, data):
     """Return the real Panda figures (module docstring)."""
     import real_panda
     from rkgnn_ros.core.fitting.chain_fit import fit_chain
+    from rkgnn_ros.core.rigid.chain import axis_errors, chain_of
+    from rkgnn_ros.core.rigid.structure import RigidStructure
     t, theta, theta_dot, tau = real_panda.load(data)
     grid, (theta, theta_dot, tau) = real_panda.resample(t, theta, theta_dot, tau)
     train, held = real_panda.parts(grid, theta, theta_dot, tau)
@@ -151,8 +153,19 @@ def run_real_panda(settings, log, data):
     if found is None:
         return {'error': 'fit_chain returned None'}
     nmse = held.nmse(found.arm.inverse_dynamics(held.theta, held.theta_dot, held.theta_ddot))
+    axes = axis_errors(found.chain, chain_of(RigidStructure(*_urdf_panda())))
     return {'nmse_mean': float(np.mean(nmse)), 'nmse_per_joint': nmse.tolist(),
-            'fit_s': wall, 'fit_cpu_s': cpu, 'report': found.report}
+            'axis_error_deg_max': axes['aligned_deg_max'], 'axis_error_deg': axes['aligned_deg'],
+            'axis_pairwise_deg_max': axes['pairwise_deg_max'],
+            'fit_s': wall, 'fit_cpu_s': cpu, 'consistent': found.arm.consistent(),
+            'report': found.report}
+
+
+def _urdf_panda():
+    import real_panda
+    from rkgnn_ros.core.sim.urdf_arm import UrdfArm
+    arm = UrdfArm(real_panda.URDF)
+    return arm.urdf, arm.joint_names
 
 
 def main(argv=None) -> int:

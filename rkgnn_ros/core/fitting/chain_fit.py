@@ -111,12 +111,15 @@ class ChainSettings:
         Gravity's magnitude (m/s²).
     joint_iterations : int
         Most iterations of the chain and consistent parameters refined together.
+    length_pull : float
+        The refinement's pull towards a compact arm, λ, in units of the residual per
+        equation (a length of :data:`~.chain_search.LENGTH_SCALE` costs that much).
 
     """
 
     search_rows: int = 150
-    refine_blocks: int = 60
-    block_length: int = 8
+    refine_blocks: int = 120
+    block_length: int = 16
     max_starts: int = 40
     agree: int = 2
     time_budget: float = 420.0
@@ -125,6 +128,7 @@ class ChainSettings:
     measured_velocity: bool = False
     gravity: float = 9.81
     joint_iterations: int = 100
+    length_pull: float = 30.0
 
 
 class ChainFit(NamedTuple):
@@ -217,7 +221,7 @@ def _fit(train, validation, settings: ChainSettings, names, log) -> Optional[Cha
     stage = time.monotonic()
     best = refine(fine, coding, found.best.x, max_iterations=60, prior=SEARCH_PRIOR)
     # the pull towards a compact arm: a share of the residual per equation (module docstring)
-    prior = best.cost / fine.target.size
+    prior = settings.length_pull * best.cost / fine.target.size
     best = refine(fine, coding, best.x, max_iterations=60, prior=prior)
     best = turn_axes(fine, coding, best, prior=prior)
     log(f'refinement: cost {best.cost:.3e}, {time.monotonic() - stage:.1f} s')

@@ -34,7 +34,8 @@ tries each axis turned (the same line, reversed) from the best chain and keeps w
 refines lower. :func:`multistart` draws starts, refines each, and stops once the best cost
 was reached :data:`AGREE` times. :func:`determinacy` says how well the data fix each axis:
 the Gauss-Newton covariance of the numbers, s² (JᵀJ)⁺ with s² the residual variance per
-row, carried to each axis direction (degrees) and its line's place (m).
+row, carried to each axis direction (degrees) and its line's place (m); infinite where a
+direction the data leave free moves it.
 """
 
 import math
@@ -67,6 +68,14 @@ AGREE = 2
 
 #: Relative difference of two costs that count as the same minimum.
 AGREE_SHARE = 0.02
+
+#: A singular value of the residual's Jacobian below this share of the largest: a
+#: direction the data leave free.
+FREE_SHARE = 1e-6
+
+#: A free direction moving an axis, a line or gravity by more than this (per unit of the
+#: numbers) leaves it undetermined.
+MOVED = 1e-6
 
 
 class ChainCoding:
@@ -278,36 +287,42 @@ def determinacy(score: ChainScore, coding: ChainCoding, x, step: float = 1e-6) -
     Return how well the rows fix the chain of ``x`` (module docstring).
 
     ``axis_deg`` (n,): standard deviation of each axis direction (deg); ``line_m`` (n,):
-    of its line's place across the axis (m); ``singular_values``: of the Jacobian of the
-    relative residual; ``free_directions``: numbers the data leave free (singular values
-    below 1e-6 of the largest); ``residual_share``: ‖r‖², the unexplained share.
+    of its line's place across the axis (m); ``gravity_tilt_deg``: of gravity's angle to the
+    first axis; each infinite where a number the data leave free (a singular value below
+    :data:`FREE_SHARE` of the largest) moves it. ``singular_values``: of the Jacobian of
+    the relative residual; ``free_directions``: how many are free; ``residual_share``:
+    ‖r‖², the unexplained share. The rows count as independent, which filtered rows are
+    not quite: the deviations are lower bounds.
     """
     r, jac = score.jacobian(coding.tree, x)
     n_rows, n_numbers = jac.shape
-    n_linear = score.rows.columns.size
-    dof = max(n_rows - n_numbers - n_linear, 1)
+    dof = max(n_rows - n_numbers - score.rows.columns.size, 1)
     variance = float(r @ r) / dof
-    u, s, vt = np.linalg.svd(jac, full_matrices=False)
-    kept = s > 1e-6 * s[0] if s.size else np.zeros(0, dtype=bool)
-    inverse = (vt[kept].T / s[kept] ** 2) @ vt[kept]
-    covariance = variance * inverse
+    _, s, vt = np.linalg.svd(jac, full_matrices=False)
+    kept = s > FREE_SHARE * s[0] if s.size else np.zeros(0, dtype=bool)
+    covariance = variance * ((vt[kept].T / s[kept] ** 2) @ vt[kept])
+    free = vt[~kept]
     axes0, points0 = lines(coding.chain(x))
     d_axes = np.empty((coding.n, 3, n_numbers))
     d_points = np.empty((coding.n, 3, n_numbers))
+    d_tilt = np.zeros((1, n_numbers))
+    d_tilt[0, 0] = math.pi         # gravity's angle to the first axis, β = π x[0]
     for k in range(n_numbers):
         moved = np.array(x, dtype=float)
         moved[k] += step
         axes, points = lines(coding.chain(moved))
-        # the base frame the numbers fix moves with them: compare in the chain's own terms
         d_axes[:, :, k] = (axes - axes0) / step
         d_points[:, :, k] = (points - points0) / step
-    axis_sd, line_sd = np.empty(coding.n), np.empty(coding.n)
-    for i in range(coding.n):
-        ga, gp = d_axes[i], d_points[i]
-        axis_sd[i] = math.sqrt(max(float(np.trace(ga @ covariance @ ga.T)), 0.0))
-        across = np.eye(3) - np.outer(axes0[i], axes0[i])
-        gp = across @ gp
-        line_sd[i] = math.sqrt(max(float(np.trace(gp @ covariance @ gp.T)), 0.0))
-    return {'axis_deg': np.degrees(axis_sd).tolist(), 'line_m': line_sd.tolist(),
+
+    def deviation(g):
+        if free.size and np.max(np.abs(g @ free.T)) > MOVED:
+            return math.inf
+        return math.sqrt(max(float(np.trace(g @ covariance @ g.T)), 0.0))
+
+    axis_sd = [math.degrees(deviation(d_axes[i])) for i in range(coding.n)]
+    line_sd = [deviation((np.eye(3) - np.outer(axes0[i], axes0[i])) @ d_points[i])
+               for i in range(coding.n)]
+    return {'axis_deg': axis_sd, 'line_m': line_sd,
+            'gravity_tilt_deg': math.degrees(deviation(d_tilt)),
             'singular_values': s.tolist(), 'free_directions': int(np.sum(~kept)),
             'residual_share': float(r @ r), 'rows': int(n_rows)}
