@@ -21,8 +21,9 @@ inertia, the PD gains), by :func:`rkgnn_ros.core.sim.simulate.simulate` under a
 continuous PD :class:`~rkgnn_ros.core.sim.servo.Servo`, 100 Hz, exact sensors: 30 s along
 ``SumOfSines.random`` (seed 1, the config's amplitude, 3 sines of 0.1-0.8 Hz per joint,
 about the config's home pose) fit; 10 s along other sines (seed 7, 0.8 of the amplitude,
-about home + 0.2 rad on every joint) are held out. :func:`~rkgnn_ros.core.fitting.chain_fit.fit_chain`
-gets the 30 s only: no URDF, no kinematics.
+about home + 0.2 rad on every joint) are held out.
+:func:`~rkgnn_ros.core.fitting.chain_fit.fit_chain` gets the 30 s only: no URDF, no
+kinematics.
 
 Figures per arm:
 
@@ -44,7 +45,8 @@ fits, last 30 % held out, nMSE per joint with θ̈ and τ low-passed at 20 Hz), 
 learned from the training part alone; ``nmse_mean`` beside the least squares with the true
 kinematics (0.010 in that bench).
 
-Writes ``bench/results/learned_chain.json``. Goals (issue 33): torque NRMSE <= 0.03, axes
+Writes ``bench/results/learned_chain.json`` and each learned arm as
+``bench/results/learned_chain_<arm>.urdf``. Goals (issue 33): torque NRMSE <= 0.03, axes
 within 5 degrees, fit <= 600 s; real Panda nMSE mean <= 0.03.
 """
 
@@ -135,7 +137,16 @@ def run_arm(name, settings, log):
            'fit_s': wall, 'fit_cpu_s': cpu, 'consistent': found.arm.consistent(),
            'urdf_torque_nrmse_heldout': float(np.max(torque_nrmse(reference.arm, held))),
            'report': found.report}
+    _write_urdf(name, found)
     return out
+
+
+def _write_urdf(name, found):
+    """Write the learned arm's URDF beside the results (bench/results/learned_chain_*.urdf)."""
+    path = os.path.join(HERE, 'results', f'learned_chain_{name}.urdf')
+    with open(path, 'w', encoding='utf-8') as f:
+        f.write(found.urdf(f'bench/learned_chain.py, {name}, '
+                           f'{datetime.date.today().isoformat()}'))
 
 
 def run_real_panda(settings, log, data):
@@ -154,6 +165,7 @@ def run_real_panda(settings, log, data):
         return {'error': 'fit_chain returned None'}
     nmse = held.nmse(found.arm.inverse_dynamics(held.theta, held.theta_dot, held.theta_ddot))
     axes = axis_errors(found.chain, chain_of(RigidStructure(*_urdf_panda())))
+    _write_urdf('real_panda', found)
     return {'nmse_mean': float(np.mean(nmse)), 'nmse_per_joint': nmse.tolist(),
             'axis_error_deg_max': axes['aligned_deg_max'], 'axis_error_deg': axes['aligned_deg'],
             'axis_pairwise_deg_max': axes['pairwise_deg_max'],

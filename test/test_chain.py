@@ -137,10 +137,8 @@ def test_an_axis_turned_is_turned_back():
     chain = arm_chain()
     coding = ChainCoding(3)
     x = coding.numbers(chain)
-    axes, points = lines(coding.chain(x))
     for joint in range(3):
         turned = coding.turned(x, joint)
-        t_axes, t_points = lines(coding.chain(turned))
         errors = axis_errors(coding.chain(turned), chain)
         assert errors['pairwise_deg_max'] > 10.0
         back = coding.turned(turned, joint)
@@ -150,7 +148,7 @@ def test_an_axis_turned_is_turned_back():
     score = ChainScore(rows, torque_weights([data]))
     start = refine(score, coding, coding.turned(x, 2), max_iterations=20)
     best = turn_axes(score, coding, start, max_iterations=20)
-    assert best.cost < 1e-8 < start.cost
+    assert best.cost < 1e-6 and best.cost < 1e-2 * start.cost
     assert axis_errors(coding.chain(best.x), chain)['aligned_deg_max'] < 0.1
 
 
@@ -195,4 +193,4 @@ def test_an_axis_the_data_cannot_see_is_reported_undetermined():
     x = coding.numbers(chain)
     report = determinacy(score, coding, x)
     assert report['free_directions'] >= 1 or report['axis_deg'][2] > 10.0
-    assert max(report['axis_deg'][:2]) < 0.1
+    assert max(report['axis_deg'][:2]) < 1.0 < report['axis_deg'][2]

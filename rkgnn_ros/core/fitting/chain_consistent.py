@@ -25,10 +25,10 @@ terms ψ) at once:
     minimise  ‖W (Y(x) π(φ, ψ) − τ)‖² / ‖W τ‖²  +  the priors of :mod:`..rigid.solve`
               +  λ Σ (L / LENGTH_SCALE)²
 
-(the priors on φ and ψ of :mod:`..rigid.solve`, far weaker: :data:`JOINT_PRIOR_WEIGHT`; λ the pull towards a compact arm of
-:func:`~.chain_search.refine`), by scipy's bounded trust region with the exact Jacobian in
-φ and ψ and forward differences of the rows' torques in x (one inverse dynamics per
-number, :meth:`~.chain_rows.ChainRows.torques`).
+(the priors on φ and ψ of :mod:`..rigid.solve`, far weaker, :data:`JOINT_PRIOR_WEIGHT`;
+λ the pull towards a compact arm of :func:`~.chain_search.refine`), by scipy's bounded
+trust region with the exact Jacobian in φ and ψ and forward differences of the rows'
+torques in x (one inverse dynamics per number, :meth:`~.chain_rows.ChainRows.torques`).
 """
 
 import math

@@ -26,18 +26,25 @@ of its best π (variable projection, :class:`~.chain_rows.ChainScore`), and only
    (:func:`~.chain_search.multistart`); the best start's axes are turned one at a time
    (the near-symmetry of a light, round body) where that refines lower;
 2. refinement on exact rows (parallel filtering on blocks, :func:`~.chain_rows.block_rows`),
-   where the lightest bodies show, and the axes turned once more;
-3. how well the data fix each axis (:func:`~.chain_search.determinacy`);
-4. the physically consistent fit of the chosen chain on all the data
-   (:func:`~.rigid_fit.fit_torque` on a :class:`~..rigid.chain.ChainStructure`), scored on
-   the validation segments.
+   where the lightest bodies show, with a pull towards a compact arm
+   (:data:`ChainSettings.length_pull`) where the data leave a length nearly free, and the
+   axes turned once more;
+3. the chain and physically consistent parameters refined together on the same rows
+   (:func:`~.chain_consistent.refine_jointly`): a weakly fixed part of the chain moves to
+   where bodies that exist explain the torque;
+4. how well the data fix each axis (:func:`~.chain_search.determinacy`);
+5. the physically consistent fit of the chosen chain on all the data
+   (:func:`~.rigid_fit.fit_torque` on a :class:`~..rigid.chain.ChainStructure`, the joint
+   refinement's parameters as its prior), scored on the validation segments.
 
 :func:`fit_chain` returns a :class:`ChainFit`: the chain, the identified
 :class:`~.rigid_fit.RigidArm` (inverse and forward dynamics, mass matrix, parameters), the
 report (the chain as modified DH numbers and as lines, the determinacy, the search) and
 :meth:`ChainFit.urdf`, the learned arm as a URDF with its identified inertials. The chain is
 known up to a mirror image of the whole arm (the same dynamics: no data tell them apart).
-BLAS runs on one thread during the fit (its threads only slow these small products).
+Data sampled faster than :data:`SEARCH_RATE` are thinned for steps 1-4
+(:func:`decimated`); step 5 takes them whole. BLAS runs on one thread during the fit (its
+threads only slow these small products).
 """
 
 import dataclasses
@@ -47,8 +54,8 @@ from typing import Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .chain_rows import block_rows, ChainScore, state_rows, torque_weights
 from .chain_consistent import JOINT_PRIOR_WEIGHT, refine_jointly
+from .chain_rows import block_rows, ChainScore, state_rows, torque_weights
 from .chain_search import (ChainCoding, determinacy, multistart, refine, SEARCH_PRIOR,
                            turn_axes)
 from .rigid_data import choose_sigma

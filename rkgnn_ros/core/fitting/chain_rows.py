@@ -62,7 +62,7 @@ class _Group(NamedTuple):
     first: int
     count: int
     length: int
-    filter: np.ndarray      # (k, length): the kept rows of one block from its states
+    smoothing: np.ndarray   # (k, length): the kept rows of one block from its states
 
 
 class ChainRows:
@@ -97,9 +97,9 @@ class ChainRows:
         for g in self.groups:
             block = y[g.first * self.n:(g.first + g.count * g.length) * self.n]
             block = block.reshape(g.count, g.length, width)
-            parts.append(np.einsum('kl,blc->bkc', g.filter, block).reshape(-1, self.columns.size))
+            parts.append(np.einsum('kl,blc->bkc', g.smoothing, block)
+                         .reshape(-1, self.columns.size))
         return np.concatenate(parts)
-
 
     def torques(self, tree: Tree, parameters) -> np.ndarray:
         """Return Y's rows times ``parameters`` (P,), shape (R n,): one RNEA per state."""
@@ -112,7 +112,7 @@ class ChainRows:
         parts = []
         for g in self.groups:
             block = tau[g.first:g.first + g.count * g.length].reshape(g.count, g.length, self.n)
-            parts.append(np.einsum('kl,blj->bkj', g.filter, block).reshape(-1))
+            parts.append(np.einsum('kl,blj->bkj', g.smoothing, block).reshape(-1))
         return np.concatenate(parts)
 
 
@@ -257,7 +257,7 @@ class ChainScore:
         return a, scale, factor, beta, (a @ beta - self.target) / self.norm
 
     def residual(self, tree: Tree) -> np.ndarray:
-        """Return the relative residual (R n,) of the chain's best parameters."""
+        """Return the chain's relative residual, shape (R n,), at its best parameters."""
         if not _finite_tree(tree):
             return np.full(self.target.size, 1.0 / math.sqrt(self.target.size))
         return self._solve(tree)[4]
@@ -268,7 +268,7 @@ class ChainScore:
         return float(r @ r)
 
     def parameters(self, tree: Tree) -> np.ndarray:
-        """Return the least-squares parameters (P,) of the chain (minimum norm, unphysical)."""
+        """Return the chain's least-squares parameters, shape (P,) (no consistency)."""
         _, scale, _, beta, _ = self._solve(tree)
         return beta / scale
 

@@ -71,11 +71,11 @@ AGREE_SHARE = 0.02
 
 #: A singular value of the residual's Jacobian below this share of the largest: a
 #: direction the data leave free.
-FREE_SHARE = 1e-6
+FREE_SHARE = 1e-10
 
 #: A free direction moving an axis, a line or gravity by more than this (per unit of the
 #: numbers) leaves it undetermined.
-MOVED = 1e-6
+MOVED = 1e-3
 
 
 class ChainCoding:
