@@ -45,8 +45,8 @@ fits, last 30 % held out, nMSE per joint with θ̈ and τ low-passed at 20 Hz), 
 learned from the training part alone; ``nmse_mean`` beside the least squares with the true
 kinematics (0.010 in that bench).
 
-Writes ``bench/results/learned_chain.json`` and each learned arm as
-``bench/results/learned_chain_<arm>.urdf``. Goals (issue 33): torque NRMSE <= 0.03, axes
+Writes ``bench/results/learned_chain.json`` (``--out``) and each learned arm beside it as
+``learned_chain_<arm>.urdf``. Goals (issue 33): torque NRMSE <= 0.03, axes
 within 5 degrees, fit <= 600 s; real Panda nMSE mean <= 0.03.
 """
 
@@ -112,7 +112,7 @@ def torque_nrmse(arm, held):
     return torque_errors(arm, rows)
 
 
-def run_arm(name, settings, log):
+def run_arm(name, settings, log, path=RESULTS):
     """Return the figures of one simulated arm."""
     from rkgnn_ros.core.fitting.chain_fit import fit_chain
     from rkgnn_ros.core.fitting.rigid_fit import fit_torque
@@ -137,19 +137,19 @@ def run_arm(name, settings, log):
            'fit_s': wall, 'fit_cpu_s': cpu, 'consistent': found.arm.consistent(),
            'urdf_torque_nrmse_heldout': float(np.max(torque_nrmse(reference.arm, held))),
            'report': found.report}
-    _write_urdf(name, found)
+    _write_urdf(name, found, path)
     return out
 
 
-def _write_urdf(name, found):
-    """Write the learned arm's URDF beside the results (bench/results/learned_chain_*.urdf)."""
-    path = os.path.join(HERE, 'results', f'learned_chain_{name}.urdf')
+def _write_urdf(name, found, out):
+    """Write the learned arm's URDF beside the results: ``<out without .json>_<arm>.urdf``."""
+    path = f'{os.path.splitext(out)[0]}_{name}.urdf'
     with open(path, 'w', encoding='utf-8') as f:
         f.write(found.urdf(f'bench/learned_chain.py, {name}, '
                            f'{datetime.date.today().isoformat()}'))
 
 
-def run_real_panda(settings, log, data):
+def run_real_panda(settings, log, data, path=RESULTS):
     """Return the real Panda figures (module docstring)."""
     import real_panda
     from rkgnn_ros.core.fitting.chain_fit import fit_chain
@@ -165,7 +165,7 @@ def run_real_panda(settings, log, data):
         return {'error': 'fit_chain returned None'}
     nmse = held.nmse(found.arm.inverse_dynamics(held.theta, held.theta_dot, held.theta_ddot))
     axes = axis_errors(found.chain, chain_of(RigidStructure(*_urdf_panda())))
-    _write_urdf('real_panda', found)
+    _write_urdf('real_panda', found, path)
     return {'nmse_mean': float(np.mean(nmse)), 'nmse_per_joint': nmse.tolist(),
             'axis_error_deg_max': axes['aligned_deg_max'], 'axis_error_deg': axes['aligned_deg'],
             'axis_pairwise_deg_max': axes['pairwise_deg_max'],
@@ -214,9 +214,9 @@ def main(argv=None) -> int:
     for name in [a for a in args.arms.split(',') if a]:
         print(f'== {name}', flush=True)
         if name == 'real_panda':
-            results[name] = run_real_panda(settings, log, args.data)
+            results[name] = run_real_panda(settings, log, args.data, args.out)
         else:
-            results[name] = run_arm(name, settings, log)
+            results[name] = run_arm(name, settings, log, args.out)
         print(json.dumps({k: (np.round(v, 4).tolist() if isinstance(v, list) else v)
                           for k, v in results[name].items() if k != 'report'}), flush=True)
     results['goals'] = dict(GOALS)
