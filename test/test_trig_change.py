@@ -32,7 +32,7 @@ AT, T0 = 12.0, 1000.0
 
 @pytest.fixture(scope='module')
 def released():
-    """The paper's arm carrying 2 kg at its tip for 12 s, then 6 s without it."""
+    """Return the paper's arm carrying 2 kg at its tip for 12 s, then 6 s without it."""
     arm, pd, ref = PlanarArm.paper(), PDController.paper(), paper_reference(3)
     loaded = with_payload(arm, 2.0)
     before = simulate(loaded, pd, ref, AT, rate=100.0, joint_names=JOINTS)
