@@ -20,9 +20,11 @@ state over a plan. The law's command-only terms (constant, integral held, θ-ter
 velocity feed-forward) fold into a shifted θd (:meth:`ControllerLaw.shift`); its θ-terms
 on the measured θ are evaluated in the loop's compiled rollout when the loop knows their
 basis (``_terms_compiled``), else along the previous pass; an integral term grows along
-the previous pass (Picard iteration, :data:`PASSES` rollouts). A subclass gives
-``_once(x0, t, θd', θ̇d)`` (one compiled rollout of the PD loop with the compiled θ-terms)
-and ``_set_law_terms()`` (what of the law its kernel takes).
+the previous pass (Picard iteration, :data:`PASSES` rollouts) unless the subclass's kernel
+integrates it as a state (``_integral_compiled``: then ``_once`` also takes ``raw``, the
+unshifted θd, and the integral grows from its start value inside the rollout). A subclass
+gives ``_once(x0, t, θd', θ̇d)`` (one compiled rollout of the PD loop with the compiled
+θ-terms) and ``_set_law_terms()`` (what of the law its kernel takes).
 """
 
 import copy
@@ -43,6 +45,7 @@ class LawLoop:
 
     law: ControllerLaw
     _terms_compiled: bool = False
+    _integral_compiled: bool = False
 
     def _set_law_terms(self) -> None:
         raise NotImplementedError
@@ -84,18 +87,20 @@ class LawLoop:
         on_theta = (law.theta_input == 'measured' and law.theta_weights.size > 0
                     and not self._terms_compiled)
         integrating = bool(np.any(law.ki != 0.0))
-        passes = max(1, int(passes)) if (on_theta or integrating) else 1
+        in_kernel = integrating and self._integral_compiled
+        passes = max(1, int(passes)) if (on_theta or (integrating and not in_kernel)) else 1
         along = theta_d
         states = None
         for _ in range(passes):
             shifted = theta_d + law.shift(theta_d, theta_d_dot, integral)
             if on_theta:
                 shifted = shifted + law._theta_terms(along, None) / law.kp
-            states = self._once(x0, t, shifted, theta_d_dot)
+            states = (self._once(x0, t, shifted, theta_d_dot, raw=theta_d) if in_kernel
+                      else self._once(x0, t, shifted, theta_d_dot))
             if not np.all(np.isfinite(states)):
                 break
             along = states[:, :n]
-            if integrating:
+            if integrating and not in_kernel:
                 e = theta_d - along
                 grown = np.zeros_like(e)
                 grown[1:] = np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(t)[:, None], axis=0)
