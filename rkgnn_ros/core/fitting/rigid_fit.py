@@ -64,6 +64,12 @@ FORM_GAIN = 0.5
 #: ... and the simpler form leaves more than this (worst joint) unexplained.
 FORM_MIN_ERROR = 0.01
 
+#: Consistent-solver evaluations of a form's fit while the forms are compared ...
+SELECT_EVALUATIONS = 40
+
+#: ... and of the chosen form's fit when it had not converged within them.
+FULL_EVALUATIONS = 200
+
 
 class RigidArm:
     """
@@ -405,13 +411,14 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
                validation: Sequence[Dataset] = (), kp=None, kd=None, integral: bool = False,
                gravity: Optional[str] = None, features: Optional[GravityFeatures] = None,
                prior=None, sigma: Optional[float] = None, measured_velocity: bool = False,
-               min_samples: int = 50) -> Optional[RigidFit]:
+               min_samples: int = 50, max_evaluations: int = 200) -> Optional[RigidFit]:
     """
     Return the arm and servo of the closed loop fitted on ``train`` (cases 2 and 3).
 
     ``kp``, ``kd`` (n,) known (case 2) or None (case 3: fitted, module docstring).
     ``integral``: a PID servo; ``gravity``: a gravity compensation on 'measured' θ or
-    'desired' θd (None: none). None with too few samples or a fit that fails.
+    'desired' θd (None: none); ``max_evaluations``: the consistent solver's budget. None
+    with too few samples or a fit that fails.
     """
     need = ('theta_d', 'theta_d_dot')
     train = [seg for seg in train if all(getattr(seg, k) is not None for k in need)]
@@ -440,7 +447,8 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
     w = np.tile(weights, fit.n_samples)
     try:
         result = fit_consistent(structure, rows * w[:, None], target * w, extras * w[:, None],
-                                cols.normalise, prior=prior, extra_ridge=1e-8)
+                                cols.normalise, prior=prior, extra_ridge=1e-8,
+                                max_evaluations=max_evaluations)
     except (ValueError, np.linalg.LinAlgError):
         return None
     law = _law_of(cols.layout, result.extra, n, kp, kd, features, gravity, fit, fit.n_samples)
@@ -511,23 +519,29 @@ def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
 
     A PD first; a gravity compensation (on θ, then on θd) and an integral are each kept
     only where the held-out error is at most :data:`FORM_GAIN` of the simpler form's and
-    that one leaves more than :data:`FORM_MIN_ERROR`.
+    that one leaves more than :data:`FORM_MIN_ERROR`. The forms are compared on fits of
+    at most :data:`SELECT_EVALUATIONS` solver evaluations; the chosen one, unless its fit
+    converged within them, is fitted again with :data:`FULL_EVALUATIONS`.
     """
     if features is None:
         features = GravityFeatures(structure)
 
-    def attempt(integral, gravity):
+    def attempt(integral, gravity, budget):
         return fit_closed(structure, train, validation, kp, kd, integral, gravity, features,
-                          prior=prior, sigma=sigma, measured_velocity=measured_velocity)
+                          prior=prior, sigma=sigma, measured_velocity=measured_velocity,
+                          max_evaluations=budget)
 
-    best = attempt(False, None)
+    form = (False, None)
+    best = attempt(*form, SELECT_EVALUATIONS)
     for integral, gravity in ((False, 'measured'), (False, 'desired'), (True, None),
                               (True, 'measured')):
         if best is not None and not best.error > FORM_MIN_ERROR:
             break
-        other = attempt(integral, gravity)
+        other = attempt(integral, gravity, SELECT_EVALUATIONS)
         if other is None:
             continue
         if best is None or other.error <= FORM_GAIN * best.error:
-            best = other
+            best, form = other, (integral, gravity)
+    if best is not None and best.arm.info['evaluations'] >= SELECT_EVALUATIONS:
+        best = attempt(*form, FULL_EVALUATIONS) or best     # not converged: its full fit
     return best
