@@ -39,7 +39,7 @@ import numpy as np
 __all__ = ['BAND_FACTOR', 'OVERSHOOT', 'Excursion', 'band_width', 'leaves_band']
 
 #: Half-width of the band beyond the plan's hull, in recent RMSEs (see the module).
-BAND_FACTOR = 3.0
+BAND_FACTOR = 4.0
 #: ... plus this share of the hull's width (a servo's overshoot of a move: 25 % is a
 #: damping ratio of 0.4).
 OVERSHOOT = 0.25
