@@ -64,3 +64,38 @@ def test_a_change_is_said_with_the_arm_it_was_armed_on_after_the_loop_is_dropped
     now, change = said[0]
     # the change time within the centred derivative's half window before it, or after
     assert AT - 0.15 <= change.time - T0 <= AT + 0.5 and now - AT <= 1.0
+
+
+@pytest.fixture(scope='module')
+def picked_up():
+    """Return the paper's arm without a payload for 12 s, then 6 s carrying 2 kg at its tip."""
+    arm, pd, ref = PlanarArm.paper(), PDController.paper(), paper_reference(3)
+    loaded = with_payload(arm, 2.0)
+    before = simulate(arm, pd, ref, AT, rate=100.0, joint_names=JOINTS)
+    x0 = np.concatenate([before.theta[-1], before.theta_dot[-1]])
+    after = simulate(loaded, pd, ref, 6.0, rate=100.0, x0=x0, t0=AT, joint_names=JOINTS)
+    return arm, loaded, before, after
+
+
+def test_a_loop_refitted_on_the_changed_data_does_not_hide_the_change(picked_up):
+    arm, loaded, before, after = picked_up
+    buffer = StreamBuffer(JOINTS, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+    monitor = TrigChangeMonitor()
+    loop = SimpleNamespace(arm=arm)
+    said = []
+    samples = [(d, k) for d in (before, after) for k in range(d.n_samples - (d is before))]
+    fed = 0
+    for step in range(int(17.9 / 0.25)):
+        now = step * 0.25
+        while fed < len(samples) and samples[fed][0].t[samples[fed][1]] <= now:
+            d, k = samples[fed]
+            buffer.add_state(T0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
+            buffer.add_command(T0 + d.t[k], d.theta_d[k], d.theta_d_dot[k])
+            fed += 1
+        if now > AT and step % 4 == 1:   # the keeper's refit each second, on the new data
+            loop = SimpleNamespace(arm=loaded)
+        events = monitor.observe(buffer.capture(), loop, 0.2, 100.0 + now, JOINTS)
+        said += [(now, e) for e in events if isinstance(e, DynamicsChange)]
+    assert len(said) == 1, said
+    now, change = said[0]
+    assert AT - 0.15 <= change.time - T0 <= AT + 0.5 and now - AT <= 1.0

@@ -79,29 +79,35 @@ class TrigChangeMonitor:
 
     def observe(self, capture, loop, fraction: float, now: float, joints):
         """
-        Re-arm on ``loop`` and check the capture if due; return the events of a change.
+        Check the capture if due, then re-arm on ``loop``; return the events of a change.
 
-        Events: a :class:`~.online_records.DynamicsChange` and a log line; [] if none.
+        The newest data are judged before a new loop's level is taken: a loop refitted on
+        data that already hold the change would otherwise set a level that hides it. A
+        loop is armed on only after a check found the newest data normal (or when nothing
+        is armed). Events: a :class:`~.online_records.DynamicsChange` and a log line; []
+        if none.
         """
         origin = capture.time_origin
         segments = self.recent(capture.segments(MIN_SEGMENT_SAMPLES, True), origin)
-        _, validation, _ = split_validation(segments, fraction, MIN_SEGMENT_SAMPLES)
-        self.rearm(loop, validation, origin, data_span(segments))
-        if not self.due(now):
-            return []
-        self._last_check = now
-        # judged with the arm whose residual's level the detector holds, which may be one
-        # the keeper has already dropped for no longer explaining the newest data
-        change = self.check(self._armed_by, segments, origin)
-        if change is None:
-            return []
-        names = tuple(joints[j] for j in change.joints)
-        statistic = tuple(float(v) for v in change.statistic)
-        return [DynamicsChange(change.time, names, statistic),
-                LogLine('warning', f'the dynamics changed at {change.time:.3f} s (joints '
-                                   f'{list(names)}: residual {max(statistic):.3g} times its '
-                                   'normal square): the data before it are dropped and the '
-                                   'arm is fitted again on the data after it')]
+        checked = False
+        if self.due(now):
+            self._last_check, checked = now, True
+            # judged with the arm whose residual's level the detector holds, which may be
+            # one the keeper has already dropped for no longer explaining the newest data
+            change = self.check(self._armed_by, segments, origin)
+            if change is not None:
+                names = tuple(joints[j] for j in change.joints)
+                statistic = tuple(float(v) for v in change.statistic)
+                return [DynamicsChange(change.time, names, statistic),
+                        LogLine('warning', f'the dynamics changed at {change.time:.3f} s '
+                                           f'(joints {list(names)}: residual '
+                                           f'{max(statistic):.3g} times its normal square): '
+                                           'the data before it are dropped and the arm is '
+                                           'fitted again on the data after it')]
+        if checked or self.detector.level is None:
+            _, validation, _ = split_validation(segments, fraction, MIN_SEGMENT_SAMPLES)
+            self.rearm(loop, validation, origin, data_span(segments))
+        return []
 
     def rearm(self, loop, validation: Sequence[Dataset], origin: float, span: float) -> None:
         """Take the normal level of ``loop``'s arm from ``validation`` (once per loop)."""
