@@ -50,6 +50,11 @@ The rules (the node's documentation states them for users):
   explain held-out data; the search's model is published and predicts otherwise. (With
   known gains too: the closed loop's prediction does not depend on the common scale the
   fit leaves open, and the fit checks the servo's form on held-out data.)
+- Without a robot description, in case 'torque' on 3 to 7 joints where the planar
+  trigonometric arm does not hold, the arm's chain is learned in the background
+  (:mod:`.chain_online`); no generation runs while its fit does (the fit takes the
+  search's core; the published model and loops stay in use). An accepted chain is then
+  used as a description's structure: the rigid-body policy takes over, the search ends.
 - θ̇ of the buffered data is the centred derivative of θ when the observation says so.
 - A stream silent for ``stale_timeout`` pauses the search (one warning); a reset, a change
   of the settings' ``version`` or of the case (``case: auto`` follows the streams) restarts
@@ -337,6 +342,8 @@ class OnlineIdentification:
             if not self._refresh_data(settings, obs.data, obs.joints, obs.estimate_velocity):
                 return False
         elif self._evo is None:  # waiting for enough data: look again in a moment
+            return False
+        if self._chain.running:  # the chain's fit has the search's core meanwhile
             return False
         line = hand_over_settings(self._evo, self._algorithm, settings, self._generation + 1)
         self._algorithm = settings.optimizer
