@@ -72,8 +72,8 @@ MAX_FIT_S = 300.0
 #: Lowest CPU priority: the fit's thread takes the cores the node's callbacks leave.
 FIT_NICE = 19
 #: :func:`~.chain_fit.fit_chain`'s settings online: fewer starts, rows and iterations.
-ONLINE_SETTINGS = ChainSettings(refine_blocks=60, max_starts=12, time_budget=60.0,
-                                joint_iterations=30, refine_iterations=30)
+ONLINE_SETTINGS = ChainSettings(search_rows=100, refine_blocks=40, max_starts=12,
+                                time_budget=60.0, joint_iterations=20, refine_iterations=20)
 
 
 class Abandoned(Exception):
