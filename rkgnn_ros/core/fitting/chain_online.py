@@ -56,7 +56,7 @@ __all__ = ['CHAIN_DATA_S', 'ChainLearner', 'judged', 'learn_chain', 'MAX_ATTEMPT
 #: Fewest joints whose chain is learned (fewer: the planar bases serve).
 MIN_JOINTS = 3
 #: Seconds of gathered data (gaps left out) before the first fit.
-CHAIN_DATA_S = 30.0
+CHAIN_DATA_S = 25.0
 #: Newest seconds of data kept for a fit.
 MAX_DATA_S = 60.0
 #: More seconds gathered before a refused chain is learned again.

@@ -385,6 +385,10 @@ class OnlineIdentification:
         if settings.case == 'torque' and self._chain.wants_data(joints):
             self._chain.feed(joints, paired if law is not None else segments,
                              capture.time_origin, getattr(capture, 'epoch', None))
+            # a fit due now starts before this step's generation
+            for level, text in self._chain.poll(settings.case if self._laws.trig is None
+                                                else ''):
+                self._out.log(level, text)
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
             self._reclose(fitted[1], settings.case)
         train, validation, seconds = split_validation(
