@@ -233,3 +233,32 @@ def test_fit_best_and_identify_bag_learn_the_chain_when_asked(monkeypatch):
     assert quick([noise], NAMES, ChainSettings(
         refine_blocks=20, block_length=8, max_starts=4, seed=1, joint_iterations=5,
         refine_iterations=5)) is None
+
+
+@pytest.mark.parametrize('learning', [True, False])
+def test_no_generation_runs_while_the_fit_does(learning):
+    from rkgnn_ros.core.fitting.online import OnlineIdentification
+    from rkgnn_ros.core.fitting.online_records import Observation, OnlineSettings
+    from rkgnn_ros.stream_buffer import StreamBuffer
+    data = arm_data(8.0)
+    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=True, need_desired=False)
+    for k in range(data.n_samples):
+        buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+    now = [100.0]
+    # a fit that never ends (its thread is never started), or no learner at all
+    learner = ChainLearner(SETTINGS, lambda run: None, min_data_s=3.0, enabled=learning)
+    policy = OnlineIdentification(lambda: now[0], chain_learner=learner,
+                                  warm_start_seconds=0.5, warm_start_nfev=20)
+    cfg = OnlineSettings(case='torque', min_window=2.0, validation_fraction=0.2,
+                         model_publish_period=0.5, network={'basis': 'rbf'})
+    ran, texts = [], []
+    for _ in range(6):
+        now[0] += 0.5
+        obs = Observation(cfg, NAMES, {'state': now[0]})
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        result = policy.step(obs)
+        ran.append(result.ran)
+        texts += [getattr(e, 'text', '') for e in result.events]
+    assert learner.running == learning
+    assert any(ran) != learning, texts
