@@ -262,3 +262,21 @@ def test_no_generation_runs_while_the_fit_does(learning):
         texts += [getattr(e, 'text', '') for e in result.events]
     assert learner.running == learning
     assert any(ran) != learning, texts
+
+
+def test_identify_bag_learns_the_chain_when_asked(servoed, tmp_path, capsys, monkeypatch):
+    import yaml
+    from bag_helpers import write_run
+    from rkgnn_ros.identify_bag import main
+    quick = chain_online.learn_chain
+    monkeypatch.setattr(chain_online, 'learn_chain',
+                        lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
+    write_run(tmp_path / 'bag', servoed, names=NAMES)
+    code = main([str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'), '--heldout', '3',
+                 '--learn-chain', '--budget', '60', '--quiet'])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    model = yaml.safe_load((tmp_path / 'out' / 'model.yaml').read_text())
+    assert model['kind'] == 'rigid_body' and model['case'] == 'torque'
+    assert model['source'] == 'the chain learned from joint data'
+    assert len(model['info']['learned_chain']['chain']['modified_dh']['alpha_deg']) == 3

@@ -404,7 +404,9 @@ class OnlineIdentification:
             self._rewarm.placed(seconds, self._clock())
         else:
             self._evo.set_data(train)
-            if self._rewarm.due(self._evo.spec, seconds, self._clock()):
+            # no equation-error fit either while the chain's fit runs (it has the core)
+            if not self._chain.running and self._rewarm.due(self._evo.spec, seconds,
+                                                            self._clock()):
                 self._rewarm.placed(seconds, self._clock())
                 self._out.log('info', rewarm(self._evo, train, seconds, _warm_budget(
                     self._warm_start_seconds, seconds), self._warm_start_nfev))
