@@ -248,16 +248,24 @@ def wait_for_identifier(node, executor, processes, timeout=120.0):
     raise RuntimeError(f'the identifier did not start within {timeout:g} s')
 
 
-def run_cell(arm, servo, sensors, duration, horizon, domain, log_dir, description=None):
-    """Run sim_arm and the identifier for one cell; return its figures."""
+def run_cell(arm, servo, sensors, duration, horizon, domain, log_dir, description=None,
+             identifier_args=(), prefix=None, torque=True):
+    """
+    Run sim_arm and the identifier for one cell; return its figures.
+
+    ``identifier_args``: more ``--ros-args`` of the identifier; ``prefix``: of the log
+    files (default from the cell); ``torque``: compute ``torque_nrmse`` (it reads the model
+    as the URDF's parameters).
+    """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     arm_args = ['--params-file', config(ARMS[arm])] + servo_arguments(arm, servo) + \
         SENSORS[sensors]
-    id_args = ['-p', f'prediction.horizon:={float(horizon)}']
+    id_args = ['-p', f'prediction.horizon:={float(horizon)}'] + list(identifier_args)
     if description is not None:
         id_args += ['-p', f'robot_description:={description}']
-    prefix = f'urdf_arms_{arm}_{servo}_{sensors}_' + ('perturbed_' if description else '')
+    prefix = prefix or (f'urdf_arms_{arm}_{servo}_{sensors}_'
+                        + ('perturbed_' if description else ''))
     load = os.getloadavg()[0]
     # the identifier first, as on an arm it watches before the arm moves: the cell counts
     # from the first joint_states, not from the identifier's start-up
@@ -301,8 +309,8 @@ def run_cell(arm, servo, sensors, duration, horizon, domain, log_dir, descriptio
                                         else float(recorder.first_model - start))
     # the last model before 60 s on the motion after it (on a shorter run: its last third)
     at = min(SCORED_AT, duration * 2.0 / 3.0)
-    cell['torque_nrmse'] = (torque_nrmse(arm, recorder, start, at) if sensors != 'no_effort'
-                            else None)
+    cell['torque_nrmse'] = (torque_nrmse(arm, recorder, start, at)
+                            if sensors != 'no_effort' and torque else None)
     cell['exit_codes'] = codes
     cell['load_average'] = [round(load, 2), round(os.getloadavg()[0], 2)]
     cell['published_sources'] = dict(recorder.sources)

@@ -312,6 +312,25 @@ def _structure(args, config, joints, log):
     return structure
 
 
+def _learned_chain(args, config, joints, segments, log):
+    """
+    Return the chain learned from the training part (``--learn-chain``), or None.
+
+    Case 'torque' on 3 to 7 joints only (:func:`~rkgnn_ros.core.fitting.chain_online.
+    learn_chain`); a chain refused is said in the log and the search runs as without it.
+    """
+    from rkgnn_ros.core.fitting.chain_online import learn_chain
+    if config.case != 'torque':
+        log('warning', f'--learn-chain: the chain is learned from torque (case torque), the '
+                       f'recording gives case {config.case}: not learned')
+        return None
+    _say(args.quiet, 'learning the chain from the training part (no robot description)')
+    structure = learn_chain(segments, joints, log=log)
+    if structure is None:
+        _say(args.quiet, 'the learned chain was not used (see the log)')
+    return structure
+
+
 def _say(quiet: bool, text: str) -> None:
     if not quiet:
         print(text, flush=True)
@@ -403,6 +422,8 @@ def identify(args, started: Optional[float] = None) -> dict:
                          f'{status.validation_nrmse:.4g}')
 
     structure = _structure(args, config, joints, log)
+    if structure is None and getattr(args, 'learn_chain', False):
+        structure = _learned_chain(args, config, joints, train_segments, log)
     _say(args.quiet, f'fitting (case {config.case}, budget {budget:.0f} s'
                      + (f', the rigid body of {structure.describe()})' if structure else ')'))
     result = identify_offline(config.settings, capture, joints, budget_s=budget,

@@ -119,6 +119,9 @@ class SearchWorker:
     def stop(self) -> bool:
         """Stop and join the worker thread; return False if it did not stop in time."""
         self._stop.set()
+        close = getattr(self._policy, 'close', None)
+        if close is not None:      # what the policy runs in the background ends too
+            close()
         thread = self._thread
         if thread is not None and thread.is_alive():
             thread.join(JOIN_TIMEOUT_S)

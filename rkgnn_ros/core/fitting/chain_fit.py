@@ -121,6 +121,9 @@ class ChainSettings:
     length_pull : float
         The refinement's pull towards a compact arm, λ, in units of the residual per
         equation (a length of :data:`~.chain_search.LENGTH_SCALE` costs that much).
+    refine_iterations : int
+        Most iterations of each of the refinement's local fits (its axes turned: 40 at
+        most).
 
     """
 
@@ -136,6 +139,7 @@ class ChainSettings:
     gravity: float = 9.81
     joint_iterations: int = 100
     length_pull: float = 30.0
+    refine_iterations: int = 60
 
 
 class ChainFit(NamedTuple):
@@ -226,11 +230,13 @@ def _fit(train, validation, settings: ChainSettings, names, log) -> Optional[Cha
     log(f'search: {found.message}, best cost {found.best.cost:.3e} after '
         f'{len(found.minima)} starts, {found.seconds:.1f} s')
     stage = time.monotonic()
-    best = refine(fine, coding, found.best.x, max_iterations=60, prior=SEARCH_PRIOR)
+    best = refine(fine, coding, found.best.x, max_iterations=settings.refine_iterations,
+                  prior=SEARCH_PRIOR)
     # the pull towards a compact arm: a share of the residual per equation (module docstring)
     prior = settings.length_pull * best.cost / fine.target.size
-    best = refine(fine, coding, best.x, max_iterations=60, prior=prior)
-    best = turn_axes(fine, coding, best, prior=prior)
+    best = refine(fine, coding, best.x, max_iterations=settings.refine_iterations,
+                  prior=prior)
+    best = turn_axes(fine, coding, best, min(40, settings.refine_iterations), prior=prior)
     log(f'refinement: cost {best.cost:.3e}, {time.monotonic() - stage:.1f} s')
     refined_s = time.monotonic() - stage
     stage = time.monotonic()

@@ -252,7 +252,7 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
              max_generations: Optional[int] = None, basis: str = 'trig',
              validation_fraction: float = 0.2, max_evaluations: Optional[int] = None,
              clock: Callable[[], float] = time.perf_counter, structure=None,
-             **evolution_kw) -> FitResult:
+             learn_chain: bool = False, **evolution_kw) -> FitResult:
     """
     Identify with our best pipeline inside a wall-time budget.
 
@@ -310,15 +310,30 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     robot description) the arm's rigid body is fitted in closed form instead
     (:func:`.rigid_online.fit_rigid`, a second or less, whatever the budget):
     ``model`` is a :class:`~.rigid_model.RigidModel`, ``final_cost`` its held-out error.
+    With ``learn_chain`` and no ``structure``, case 1 on 3 to 7 joints: the arm's chain is
+    learned from the data first (:func:`.chain_online.learn_chain`, minutes, outside the
+    budget) and, when it predicts the held-out torque, its rigid body is fitted so
+    (history's first entry: phase 'chain').
     """
     from dataclasses import replace
     from . import global_fit
+    history_first: List[dict] = []
+    if structure is None and learn_chain and normalize_case(case) == 'torque':
+        from .chain_online import learn_chain as learned_chain
+        start = clock()
+        lines: List[str] = []
+        structure = learned_chain([datasets] if isinstance(datasets, Dataset) else datasets,
+                                  validation_fraction=validation_fraction,
+                                  log=lambda level, text: lines.append(text))
+        history_first.append({'phase': 'chain', 'accepted': structure is not None,
+                              'wall_s': clock() - start, 'log': lines})
     if structure is not None:
         from .rigid_online import fit_rigid
         start = clock()
         model = fit_rigid(datasets, normalize_case(case), structure, kp, kd,
                           validation_fraction)
-        return FitResult(model, [{'phase': 'rigid', 'cost': model.info['held_out_error']}],
+        return FitResult(model, history_first + [{'phase': 'rigid',
+                                                  'cost': model.info['held_out_error']}],
                          wall_s=clock() - start, final_cost=model.info['held_out_error'])
     from .budget import Budget
     budget = Budget(float('inf') if time_budget is None else time_budget, clock)

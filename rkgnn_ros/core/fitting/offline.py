@@ -44,6 +44,7 @@ from typing import Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple
 import numpy as np
 
 from .budget import Budget
+from .chain_online import ChainLearner
 from .fitness import Interrupted
 from .identify import nrmse, RKGNNModel
 from .online import OnlineIdentification
@@ -112,10 +113,12 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
     clock = [0.0]
     status = [Status()]
     budget = Budget(budget_s, wall)
+    # the data come once: a chain is learned before (chain_online.learn_chain), not here
     policy = OnlineIdentification(clock=lambda: clock[0],
                                   on_status=lambda new: status.__setitem__(0, new),
                                   warm_start_seconds=min(WARM_START_S,
-                                                         WARM_START_SHARE * budget.seconds))
+                                                         WARM_START_SHARE * budget.seconds),
+                                  chain_learner=ChainLearner(enabled=False))
     joints = tuple(joints)
     settings = replace(settings, max_generations=int(max_generations))
     history: List[GenerationStats] = []

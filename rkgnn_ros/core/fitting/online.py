@@ -50,6 +50,11 @@ The rules (the node's documentation states them for users):
   explain held-out data; the search's model is published and predicts otherwise. (With
   known gains too: the closed loop's prediction does not depend on the common scale the
   fit leaves open, and the fit checks the servo's form on held-out data.)
+- Without a robot description, in case 'torque' on 3 to 7 joints where the planar
+  trigonometric arm does not hold, the arm's chain is learned in the background
+  (:mod:`.chain_online`); no generation runs while its fit does (the fit takes the
+  search's core; the published model and loops stay in use). An accepted chain is then
+  used as a description's structure: the rigid-body policy takes over, the search ends.
 - θ̇ of the buffered data is the centred derivative of θ when the observation says so.
 - A stream silent for ``stale_timeout`` pauses the search (one warning); a reset, a change
   of the settings' ``version`` or of the case (``case: auto`` follows the streams) restarts
@@ -67,6 +72,7 @@ import numpy as np
 from . import case_three
 from .case_one import LawKeeper, search_segments
 from .case_three import ArmKeeper
+from .chain_online import ChainLearner
 from .controller import ControllerLaw
 from .identify import Evolution
 from .memory import MemoryFeed
@@ -171,6 +177,9 @@ class OnlineIdentification:
     warm_start_seconds, warm_start_nfev : float, int
         Budget of one equation-error fit (real seconds, function evaluations); at most
         :data:`YOUNG_WARM_START_S` seconds while the data span less than :data:`YOUNG_DATA_S`.
+    chain_learner : ChainLearner, optional
+        Learns the chain of a spatial arm without a robot description (default one that
+        fits in a background thread; tests pass their own).
 
     """
 
@@ -178,7 +187,8 @@ class OnlineIdentification:
                  published: Optional[RKGNNModel] = None,
                  on_status: Optional[Callable[[Status], None]] = None,
                  warm_start_seconds: float = WARM_START_S,
-                 warm_start_nfev: int = WARM_START_NFEV):
+                 warm_start_nfev: int = WARM_START_NFEV,
+                 chain_learner: Optional[ChainLearner] = None):
         self._clock = clock
         self._on_status = on_status or (lambda status: None)
         self._warm_start_seconds = float(warm_start_seconds)
@@ -211,6 +221,7 @@ class OnlineIdentification:
         self._last_stats = -math.inf
         self._staleness = Staleness()
         self._rigid = RigidPolicy(clock, self._out.append, self._set_status, self._staleness)
+        self._chain = ChainLearner() if chain_learner is None else chain_learner
         self._changes = TrigChangeMonitor()  # a change of the dynamics, without a description
         self._memory = MemoryFeed()  # samples that keep the linear fit's regressor rich
         self._had_finite = False
@@ -228,6 +239,7 @@ class OnlineIdentification:
                 or _finished(obs.settings, searching, self._generation)):
             return False
         now = self._clock()
+        obs = self._with_learned(obs)
         if obs.structure is not None:   # the rigid body is refitted instead of searched
             return self._rigid.data_due(obs, now)
         if obs.settings.case == 'torque' and self._changes.due(now):
@@ -261,11 +273,38 @@ class OnlineIdentification:
         self._set_status('error', f'{type(error).__name__}: {error}')
         return self._out.take()
 
+    def close(self) -> None:
+        """Abandon what runs in the background (the chain learner's fit)."""
+        self._chain.close()
+
+    def _with_learned(self, obs: Observation) -> Observation:
+        """Return ``obs`` with the learned chain as its structure where none is given."""
+        chain = self._chain.structure
+        if (obs.structure is None and chain is not None and obs.joints is not None
+                and tuple(obs.joints) == chain.joint_names):
+            return obs._replace(structure=chain)
+        return obs
+
+    def _learn_chain(self, obs: Observation) -> Observation:
+        """Without a description: judge or start the chain learner's fit (:mod:`.chain_online`)."""
+        if obs.structure is not None:
+            return obs
+        if obs.reset:
+            self._chain.reset()
+        # a spatial arm only: where the planar trigonometric arm holds, it serves
+        case = obs.settings.case if self._laws.trig is None else ''
+        for level, text in self._chain.poll(case):
+            self._out.log(level, text)
+        return self._with_learned(obs)
+
     def _step(self, obs: Observation) -> bool:
         settings = obs.settings
+        obs = self._learn_chain(obs)
         if obs.structure is not None:   # a robot description: its rigid body, no search
             if self._evo is not None:
-                self._drop_search('the robot description gives the model')
+                self._drop_search('the robot description gives the model'
+                                  if obs.structure is not self._chain.structure else
+                                  'the learned chain gives the model')
             return self._rigid.step(obs)
         if obs.reset:
             self._drop_search('~/reset')
@@ -304,6 +343,8 @@ class OnlineIdentification:
                 return False
         elif self._evo is None:  # waiting for enough data: look again in a moment
             return False
+        if self._chain.running:  # the chain's fit has the search's core meanwhile
+            return False
         line = hand_over_settings(self._evo, self._algorithm, settings, self._generation + 1)
         self._algorithm = settings.optimizer
         if line:
@@ -341,6 +382,13 @@ class OnlineIdentification:
             if settings.case in _CLOSED_FIT_CASES:
                 fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock(),
                                         self._memory.samples)
+        if settings.case == 'torque' and self._chain.wants_data(joints):
+            self._chain.feed(joints, paired if law is not None else segments,
+                             capture.time_origin, getattr(capture, 'epoch', None))
+            # a fit due now starts before this step's generation
+            for level, text in self._chain.poll(settings.case if self._laws.trig is None
+                                                else ''):
+                self._out.log(level, text)
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
             self._reclose(fitted[1], settings.case)
         train, validation, seconds = split_validation(
@@ -356,7 +404,9 @@ class OnlineIdentification:
             self._rewarm.placed(seconds, self._clock())
         else:
             self._evo.set_data(train)
-            if self._rewarm.due(self._evo.spec, seconds, self._clock()):
+            # no equation-error fit either while the chain's fit runs (it has the core)
+            if not self._chain.running and self._rewarm.due(self._evo.spec, seconds,
+                                                            self._clock()):
                 self._rewarm.placed(seconds, self._clock())
                 self._out.log('info', rewarm(self._evo, train, seconds, _warm_budget(
                     self._warm_start_seconds, seconds), self._warm_start_nfev))

@@ -191,11 +191,13 @@ class RigidKeeper:
             self.detector.set_normal(info['residual_rms'], info['torque_spread'])
         self.refits += 1
         error = fit.error
-        model = RigidModel(fit.arm, law, case, segments[-1].dt,
-                           {'refits': self.refits, 'generation': self.refits,
-                            'held_out_error': error,
-                            'held_out_errors': fit.errors.tolist(),
-                            'window_s': float(sum(seg.duration for seg in segments))})
+        info = {'refits': self.refits, 'generation': self.refits, 'held_out_error': error,
+                'held_out_errors': fit.errors.tolist(),
+                'window_s': float(sum(seg.duration for seg in segments))}
+        learned = getattr(self.structure, 'report', None)
+        if learned is not None:      # no description: the chain learned from the data
+            info['learned_chain'] = learned
+        model = RigidModel(fit.arm, law, case, segments[-1].dt, info)
         loop = None
         if law is not None and error <= MAX_ERROR:
             rigid = RigidLoop(fit.arm, law)
@@ -204,7 +206,8 @@ class RigidKeeper:
         if (loop is not None) != self._predicting:
             self._predicting = loop is not None
             what = 'torque error' if case == 'torque' else 'closed-loop equation error'
-            lines.append(('info', f'the rigid-body model of the robot description predicts '
+            of = 'the learned chain' if learned is not None else 'the robot description'
+            lines.append(('info', f'the rigid-body model of {of} predicts '
                                   f'(held-out {what} {error:.2%}, {law.describe()})')
                          if loop is not None else
                          ('warning', f'the rigid-body model does not predict: held-out '

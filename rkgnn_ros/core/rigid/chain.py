@@ -386,6 +386,11 @@ class ChainStructure(RigidStructure):
     source : str
         Names the structure in messages.
 
+    Attributes
+    ----------
+    report : dict or None
+        What learned the chain says of it (set by whoever learned it; None: not learned).
+
     """
 
     def __init__(self, chain: Chain, joint_names: Optional[Sequence[str]] = None,
@@ -394,6 +399,7 @@ class ChainStructure(RigidStructure):
         n = chain.n_joints
         self.chain = chain
         self.source = source
+        self.report = None
         names = [f'joint{i + 1}' for i in range(n)] if joint_names is None else joint_names
         self.joint_names = tuple(str(v) for v in names)
         if len(self.joint_names) != n:

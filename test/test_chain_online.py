@@ -1,0 +1,282 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The chain learned online: gathered, fitted in the background, handed over or refused."""
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from rkgnn_ros.core.data import Dataset
+from rkgnn_ros.core.fitting import chain_online
+from rkgnn_ros.core.fitting.chain_fit import ChainSettings
+from rkgnn_ros.core.fitting.chain_online import ChainLearner
+from rkgnn_ros.core.rigid.chain import axis_errors, ChainStructure
+from test_chain import arm_chain, bodies, dataset
+
+NAMES = ('a', 'b', 'c')
+#: small and seeded: the 3-joint chain is found in seconds
+SETTINGS = ChainSettings(refine_blocks=40, block_length=8, max_starts=20, seed=1,
+                         joint_iterations=40, refine_iterations=30)
+T0 = 1000.0
+
+
+def at_once(run):
+    run()
+
+
+def arm_data(seconds=12.0, seed=12):
+    data = dataset(ChainStructure(arm_chain()), bodies(3, np.random.default_rng(11)),
+                   seconds, seed)
+    return Dataset(data.t, data.theta, data.theta_dot, tau=data.tau, joint_names=NAMES)
+
+
+def captures(data, window=5.0, every=1.0):
+    """Yield (segments, origin) as a buffer of ``window`` s shows ``data`` every ``every`` s."""
+    end = every
+    while end <= data.t[-1] + 1e-9:
+        keep = (data.t > end - window - 1e-9) & (data.t <= end + 1e-9)
+        idx = np.flatnonzero(keep)
+        yield [data.slice(idx[0], idx[-1] + 1)], T0
+        end += every
+
+
+def test_overlapping_captures_are_gathered_once_on_one_grid():
+    data = arm_data(12.0)
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=100.0)
+    for segments, origin in captures(data):
+        learner.feed(NAMES, segments, origin)
+    assert len(learner._segments) == 1
+    gathered = learner._segments[0]
+    assert abs(learner.gathered_s - 11.0) < 1e-9      # the last capture ends at 11 s
+    np.testing.assert_allclose(gathered.t, data.t[:gathered.n_samples], atol=1e-9)
+    np.testing.assert_allclose(gathered.theta, data.theta[:gathered.n_samples])
+    np.testing.assert_allclose(gathered.tau, data.tau[:gathered.n_samples])
+    # too few joints, or another joint list: nothing kept, or afresh
+    assert not learner.wants_data(('a', 'b'))
+    learner.feed(('x', 'y', 'z'), [data.slice(0, 50)], T0)
+    assert learner.gathered_s < 1.0
+
+
+def test_the_learner_hands_over_the_chain_of_a_small_arm():
+    data = arm_data(12.0)
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=10.0)
+    lines = []
+    for segments, origin in captures(data):
+        learner.feed(NAMES, segments, origin)
+        lines += learner.poll('torque')
+    lines += learner.poll('torque')
+    assert learner.structure is not None, lines
+    assert 'learning the chain' in lines[0][1]
+    assert lines[-1][0] == 'info' and 'identified from now on' in lines[-1][1]
+    structure = learner.structure
+    assert structure.joint_names == NAMES
+    assert axis_errors(structure.chain, arm_chain())['aligned_deg_max'] < 1.0
+    assert learner.error < 0.05
+    assert set(structure.report) >= {'chain', 'determinacy', 'held_out_errors', 'data_s'}
+    assert not learner.wants_data(NAMES) and learner.poll('torque') == []
+
+
+def test_the_learner_refuses_garbage_and_tries_again_later():
+    data = arm_data(12.0)
+    rng = np.random.default_rng(3)
+    noise = Dataset(data.t, data.theta, data.theta_dot,
+                    tau=rng.normal(0.0, 1.0, data.tau.shape), joint_names=NAMES)
+    settings = ChainSettings(refine_blocks=20, block_length=8, max_starts=4, seed=1,
+                             joint_iterations=5, refine_iterations=5, time_budget=20.0)
+    learner = ChainLearner(settings, at_once, min_data_s=10.0)
+    lines = []
+    for segments, origin in captures(noise):
+        learner.feed(NAMES, segments, origin)
+        lines += learner.poll('torque')
+    lines += learner.poll('torque')
+    assert learner.structure is None
+    assert lines[-1][0] == 'warning' and 'not used' in lines[-1][1], lines
+    assert learner.wants_data(NAMES)        # a refusal: more data, another try later
+    # a case without torque never starts a fit
+    other = ChainLearner(settings, at_once, min_data_s=1.0)
+    other.feed(NAMES, [data], T0)
+    assert other.poll('unknown') == [] and not other.running
+
+
+def test_the_fit_runs_in_the_background_at_low_priority(monkeypatch):
+    release, seen = threading.Event(), {}
+
+    def slow_fit(train, validation, settings, names, log):
+        seen['nice'] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        seen['thread'] = threading.current_thread().name
+        release.wait(30.0)
+        log('search: done')            # a stage boundary: a cancelled fit ends here
+        return None
+
+    monkeypatch.setattr(chain_online, 'fit_chain', slow_fit)
+    learner = ChainLearner(SETTINGS, min_data_s=5.0)
+    learner.feed(NAMES, [arm_data(6.0)], T0)
+    began = time.monotonic()
+    lines = learner.poll('torque')
+    for _ in range(5):
+        lines += learner.poll('torque')
+    assert time.monotonic() - began < 1.0           # poll never waits for the fit
+    assert learner.running and len(lines) == 1
+    release.set()
+    job = learner._job
+    assert job.done.wait(10.0)
+    assert seen['thread'] == 'rkgnn_chain_learner'
+    assert seen['nice'] == chain_online.FIT_NICE
+    lines = learner.poll('torque')
+    assert not learner.running and 'too few data' in lines[0][1]
+
+
+def test_a_reset_abandons_the_running_fit(monkeypatch):
+    release = threading.Event()
+
+    def slow_fit(train, validation, settings, names, log):
+        release.wait(30.0)
+        log('search: done')
+        raise AssertionError('not reached: the stage line ends a cancelled fit')
+
+    monkeypatch.setattr(chain_online, 'fit_chain', slow_fit)
+    learner = ChainLearner(SETTINGS, min_data_s=5.0)
+    learner.feed(NAMES, [arm_data(6.0)], T0)
+    learner.poll('torque')
+    job = learner._job
+    learner.reset()
+    release.set()
+    assert job.done.wait(10.0) and job.error == 'abandoned'
+    assert learner.poll('torque') == [] and learner.structure is None
+
+
+@pytest.fixture(scope='module')
+def servoed():
+    """12 s of the 3-joint chain under a PD servo, simulated on its own URDF."""
+    pytest.importorskip('pinocchio')
+    from rkgnn_ros.core.rigid.urdf_out import identified_urdf
+    from rkgnn_ros.core.sim.servo import Servo
+    from rkgnn_ros.core.sim.simulate import simulate
+    from rkgnn_ros.core.sim.trajectories import SumOfSines
+    from rkgnn_ros.core.sim.urdf_arm import UrdfArm
+    truth = ChainStructure(arm_chain(), NAMES)
+    parameters = bodies(3, np.random.default_rng(11))
+    parameters[30:] = 0.0       # no rotor inertia, friction or offsets: a plain URDF
+    arm = UrdfArm(identified_urdf(truth, parameters, 'test arm'), list(NAMES))
+    servo = Servo(np.array([80.0, 80.0, 40.0]), np.array([8.0, 8.0, 4.0]))
+    reference = SumOfSines.random(3, np.random.default_rng(1), n_terms=3, amplitude=0.5)
+    return simulate(arm, servo, reference, 14.0, rate=100.0, joint_names=NAMES)
+
+
+def test_the_policy_hands_the_learned_chain_to_the_rigid_body_policy(servoed):
+    from rkgnn_ros.core.fitting.online import OnlineIdentification
+    from rkgnn_ros.core.fitting.online_records import ModelUpdate, Observation, OnlineSettings
+    from rkgnn_ros.core.fitting.rigid_model import RigidModel
+    from rkgnn_ros.stream_buffer import StreamBuffer
+    data = servoed
+    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+    now = [100.0]
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=10.0)
+    policy = OnlineIdentification(lambda: now[0], chain_learner=learner)
+    # no search is built in this test (min_window beyond the data): the chain alone
+    cfg = OnlineSettings(case='torque', min_window=100.0, validation_fraction=0.2,
+                         model_publish_period=0.5)
+    events, k = [], 0
+    for _ in range(40):
+        now[0] += 0.5
+        while k < data.n_samples and data.t[k] <= now[0] - 100.0:
+            buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+            k += 1
+        obs = Observation(cfg, NAMES, {'state': now[0], 'command': now[0]})
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        result = policy.step(obs)
+        assert not result.ran
+        events += result.events
+    texts = [getattr(e, 'text', '') for e in events]
+    assert any('identified from now on' in t for t in texts), texts
+    updates = [e for e in events if isinstance(e, ModelUpdate)]
+    assert updates, texts
+    model = updates[-1].model
+    assert isinstance(model, RigidModel) and model.arm.structure is learner.structure
+    assert 'learned_chain' in model.info and model.info['held_out_error'] < 0.05
+    assert updates[-1].loop is not None            # closed with the learned servo law
+    assert any('rigid-body model of the learned chain predicts' in t for t in texts), texts
+
+
+def test_fit_best_and_identify_bag_learn_the_chain_when_asked(monkeypatch):
+    from rkgnn_ros.core.fitting.identify import fit_best
+    from rkgnn_ros.core.fitting.rigid_model import RigidModel
+    quick = chain_online.learn_chain
+    monkeypatch.setattr(chain_online, 'learn_chain',
+                        lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
+    result = fit_best([arm_data(12.0)], 'torque', learn_chain=True)
+    assert result.history[0]['phase'] == 'chain' and result.history[0]['accepted']
+    assert isinstance(result.model, RigidModel)
+    assert 'learned_chain' in result.model.info and result.final_cost < 0.05
+    # garbage: refused, the usual pipeline runs
+    rng = np.random.default_rng(3)
+    data = arm_data(12.0)
+    noise = Dataset(data.t, data.theta, data.theta_dot,
+                    tau=rng.normal(0.0, 1.0, data.tau.shape), joint_names=NAMES)
+    assert quick([noise], NAMES, ChainSettings(
+        refine_blocks=20, block_length=8, max_starts=4, seed=1, joint_iterations=5,
+        refine_iterations=5)) is None
+
+
+@pytest.mark.parametrize('learning', [True, False])
+def test_no_generation_runs_while_the_fit_does(learning):
+    from rkgnn_ros.core.fitting.online import OnlineIdentification
+    from rkgnn_ros.core.fitting.online_records import Observation, OnlineSettings
+    from rkgnn_ros.stream_buffer import StreamBuffer
+    data = arm_data(8.0)
+    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=True, need_desired=False)
+    for k in range(data.n_samples):
+        buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+    now = [100.0]
+    # a fit that never ends (its thread is never started), or no learner at all
+    learner = ChainLearner(SETTINGS, lambda run: None, min_data_s=3.0, enabled=learning)
+    policy = OnlineIdentification(lambda: now[0], chain_learner=learner,
+                                  warm_start_seconds=0.5, warm_start_nfev=20)
+    cfg = OnlineSettings(case='torque', min_window=2.0, validation_fraction=0.2,
+                         model_publish_period=0.5, network={'basis': 'rbf'})
+    ran, texts = [], []
+    for _ in range(6):
+        now[0] += 0.5
+        obs = Observation(cfg, NAMES, {'state': now[0]})
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        result = policy.step(obs)
+        ran.append(result.ran)
+        texts += [getattr(e, 'text', '') for e in result.events]
+    assert learner.running == learning
+    assert any(ran) != learning, texts
+
+
+def test_identify_bag_learns_the_chain_when_asked(servoed, tmp_path, capsys, monkeypatch):
+    import yaml
+    from bag_helpers import write_run
+    from rkgnn_ros.identify_bag import main
+    quick = chain_online.learn_chain
+    monkeypatch.setattr(chain_online, 'learn_chain',
+                        lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
+    write_run(tmp_path / 'bag', servoed, names=NAMES)
+    code = main([str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'), '--heldout', '3',
+                 '--learn-chain', '--budget', '60', '--quiet'])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    model = yaml.safe_load((tmp_path / 'out' / 'model.yaml').read_text())
+    assert model['kind'] == 'rigid_body' and model['case'] == 'torque'
+    assert model['source'] == 'the chain learned from joint data'
+    assert len(model['info']['learned_chain']['chain']['modified_dh']['alpha_deg']) == 3
