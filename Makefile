@@ -32,7 +32,7 @@ build: $(STAMP)
 	@$(VENV)/bin/colcon --log-base log build --symlink-install --base-paths . \
 		--event-handlers console_cohesion- status- summary+ 2>&1 | grep -v '^$$' || \
 		{ echo 'colcon build failed: see log/latest_build'; exit 1; }
-	@source install/setup.bash && $(VPY) -m rkgnn_ros.precompile | tail -n 1 || \
+	@source install/setup.bash && $(VPY) tools/precompile.py | tail -n 1 || \
 		echo 'precompile failed: the first identifier run compiles the kernels itself'
 
 test: setup

@@ -29,11 +29,11 @@ Subscribed (:mod:`~rkgnn_ros.identification.subscriptions`: QoS, who reads each)
     ``joint_commands`` where that topic is silent, and predictions end where it ends.
     ``controller_state`` parameter's topic (control_msgs, optional): θd, θ̇d of a
     joint_trajectory_controller (:mod:`~rkgnn_ros.identification.ros2_control`).
-    Size budgets (:mod:`rkgnn_ros.conversions`): a JointState of at most 64 KiB, a
+    Size budgets (:mod:`rkgnn_ros.wire.conversions`): a JointState of at most 64 KiB, a
     JointTrajectory of at most 8 MiB and 10,000 points, at most 256 joint names of at most
     256 bytes each; a message over any is dropped, counted as ``over_budget``. A stamp far
     from its stream (more than 1 s) is dropped as ``stamp_outlier`` unless three in a row
-    show that the stream itself moved (a clock jump, :mod:`rkgnn_ros.stream_buffer`); the
+    show that the stream itself moved (a clock jump, :mod:`rkgnn_ros.streams.buffer`); the
     node clock jumping back by more than 1 s (``/clock`` under ``use_sim_time``) clears the
     buffer too.
 Published
@@ -113,9 +113,9 @@ from rkgnn_ros.identification.publishing import (create_forward_publisher, creat
 from rkgnn_ros.identification.subscriptions import (quiet_events, subscribe_description,
                                                     subscribe_streams)
 from rkgnn_ros.identification.worker import SearchWorker
-from rkgnn_ros.parameters import Change
-from rkgnn_ros.sigint import Interrupt
-from rkgnn_ros.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
+from rkgnn_ros.node.parameters import Change
+from rkgnn_ros.node.sigint import Interrupt
+from rkgnn_ros.node.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 from std_srvs.srv import SetBool, Trigger
 
 __all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main',

@@ -39,7 +39,7 @@ from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identification.feedforward import FeedforwardSender, RAMP_S
 from rkgnn_ros.identification.parameters import ConfigurationError, make_config
-from rkgnn_ros.stream_capture import PlannedReference
+from rkgnn_ros.streams.capture import PlannedReference
 from trajectory_msgs.msg import JointTrajectory
 
 pytestmark = pytest.mark.ros

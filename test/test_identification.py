@@ -36,7 +36,6 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
-from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
 from rkgnn_ros.core.differentiate import causal_derivative
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification, Status
@@ -51,7 +50,8 @@ from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierP
 from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import Outbox
 from rkgnn_ros.identification.worker import SearchWorker
-from rkgnn_ros.parameters import Change, ParameterSpec
+from rkgnn_ros.node.parameters import Change, ParameterSpec
+from rkgnn_ros.wire.conversions import make_joint_state, make_joint_trajectory
 from ros_helpers import wait_for
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory

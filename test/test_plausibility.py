@@ -27,7 +27,6 @@ import tracemalloc
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
-from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.core.control.model import feedforward_model
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.validation import MIN_SEGMENT_SAMPLES, split_validation
@@ -39,6 +38,7 @@ from rkgnn_ros.identification.feedforward import rollout_error
 from rkgnn_ros.identification.ingest import Ingestion
 from rkgnn_ros.identification.parameters import make_config
 from rkgnn_ros.identification.plausibility import PLAUSIBILITY_REASONS, PlausibilityFilter
+from rkgnn_ros.wire.conversions import make_joint_state
 
 JOINTS = ('j1', 'j2', 'j3')
 T0 = 1000.0

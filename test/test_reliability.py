@@ -53,7 +53,6 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
-from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
 from rkgnn_ros.core.fitting.identify import Evolution, precompile
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification
@@ -69,7 +68,8 @@ from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import Outbox
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
+from rkgnn_ros.wire.conversions import make_joint_state
 from ros_helpers import Rosout, Spinner, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String

@@ -16,7 +16,7 @@
 Ingestion: the joint streams into the buffer, every rejection counted and logged.
 
 :class:`Ingestion` turns joint_states and joint_commands (raw CDR bytes) and the reference
-trajectory into buffered arrays (:class:`~rkgnn_ros.stream_buffer.StreamBuffer`), learns the
+trajectory into buffered arrays (:class:`~rkgnn_ros.streams.buffer.StreamBuffer`), learns the
 joints from the first message when none are configured, keeps the newest state and command
 for predictions, and owns the drop accounting of the whole node: a counter per reason
 (shown in ``/diagnostics``) and a log line at most once a second per topic and reason,
@@ -47,13 +47,13 @@ from typing import Callable, Dict, NamedTuple, Optional, Tuple
 import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
-from rkgnn_ros.cdr import encapsulation_problem
-from rkgnn_ros.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
-                                   parse_joint_state_cdr, Rejection, REJECTION_REASONS)
 from rkgnn_ros.identification.parameters import MAX_JOINTS
 from rkgnn_ros.identification.plausibility import PLAUSIBILITY_REASONS, PlausibilityFilter
 from rkgnn_ros.identification.sources import read_joint_state, Sources
-from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
+from rkgnn_ros.streams.buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
+from rkgnn_ros.wire.cdr import encapsulation_problem
+from rkgnn_ros.wire.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
+                                        parse_joint_state_cdr, Rejection, REJECTION_REASONS)
 
 __all__ = ['NODE_REASONS', 'INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'StateSample']
 

@@ -15,7 +15,7 @@
 """
 The identifier's parameters: the table, the checks, and one consistent snapshot per change.
 
-:data:`PARAMETERS` and :data:`OUTPUTS` are the node's rows (:class:`~rkgnn_ros.parameters.
+:data:`PARAMETERS` and :data:`OUTPUTS` are the node's rows (:class:`~rkgnn_ros.node.parameters.
 ParameterSpec`), each saying what a change does. :func:`check_parameters` is the on-set
 validation rclpy cannot do (open bounds, cross-parameter rules, the optimizer's own rules);
 its reasons name the parameter and its bound. :class:`IdentifierParameters` holds the
@@ -36,14 +36,14 @@ from rclpy.exceptions import InvalidTopicNameException
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.parameter import Parameter
 from rclpy.validate_full_topic_name import validate_full_topic_name
-from rkgnn_ros.conversions import MAX_NAME_BYTES
 from rkgnn_ros.core.fitting.identify import normalize_case
 from rkgnn_ros.core.fitting.online import AUTO_BASIS, OnlineSettings
 from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
 from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.identification.description import MAX_DESCRIPTION_BYTES
 from rkgnn_ros.identification.ros2_control import declare_controller_gains
-from rkgnn_ros.parameters import Change, ParameterSpec
+from rkgnn_ros.node.parameters import Change, ParameterSpec
+from rkgnn_ros.wire.conversions import MAX_NAME_BYTES
 
 __all__ = ['PARAMETERS', 'OUTPUTS', 'PARAMETER_CASES', 'Config', 'ConfigurationError',
            'IdentifierParameters', 'auto_case', 'check_parameters', 'make_config',

@@ -19,7 +19,7 @@ The prediction service: the model rolled out from the newest state, checked as i
 an accepted state with ``prediction.on_state``) wakes it; requests that arrive while a
 prediction runs collapse into one, which starts from the newest state. The compiled rollout
 releases the GIL, so the 1 kHz ingestion never waits behind it. Inputs over the horizon are
-snapshots, never live buffers: the newest plan (:class:`~rkgnn_ros.stream_buffer.
+snapshots, never live buffers: the newest plan (:class:`~rkgnn_ros.streams.buffer.
 PlannedReference`, immutable), else the newest command held.
 
 What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
@@ -68,11 +68,11 @@ from typing import Callable, NamedTuple, Optional, Tuple
 
 from builtin_interfaces.msg import Time
 import numpy as np
-from rkgnn_ros.conversions import make_joint_state, serialize_joint_trajectory
 from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
 from rkgnn_ros.identification.candidates import describe, Models, Slot
+from rkgnn_ros.wire.conversions import make_joint_state, serialize_joint_trajectory
 from sensor_msgs.msg import JointState
 
 __all__ = ['LATENCY_WINDOW', 'JOINT_SCORE_COLUMNS', 'SCORE_LABELS', 'Prediction', 'Predictor',

@@ -36,13 +36,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import InertiaStamped
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rkgnn_ros.conversions import make_float64_multiarray
-from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
-                                           Status)
+from rkgnn_ros.core.fitting.online import GenerationStats, LogLine, LoopUpdate, ModelUpdate, Status
 from rkgnn_ros.core.fitting.online_records import DynamicsChange, PayloadEstimate
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.identification.prediction import (JOINT_SCORE_COLUMNS, Prediction, SCORE_LABELS,
                                                  ScoreReport)
+from rkgnn_ros.wire.conversions import make_float64_multiarray
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory

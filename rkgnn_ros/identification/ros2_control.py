@@ -26,7 +26,7 @@ identifier takes both as they are:
   identifier as well.
 - :func:`subscribe_controller_state`: with the ``controller_state`` parameter set to the
   controller's topic, θd, θ̇d (and the commanded effort) come from its
-  JointTrajectoryControllerState (:mod:`rkgnn_ros.controller_state`) into the command
+  JointTrajectoryControllerState (:mod:`rkgnn_ros.wire.controller_state`) into the command
   stream, under every rule ``joint_commands`` is under. The subscription is raw: a message
   over :data:`MAX_CONTROLLER_STATE_BYTES` is dropped as ``over_budget`` before it is
   decoded. It needs ``control_msgs``; without it the input stays off with one warning
@@ -38,10 +38,10 @@ from typing import Callable, Mapping, Optional
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.serialization import deserialize_message, serialize_message
-from rkgnn_ros.cdr import encapsulation_problem
-from rkgnn_ros.controller_state import (control_msgs_available, CONTROL_MSGS_REASON,
-                                        controller_state_to_joint_state)
-from rkgnn_ros.conversions import MAX_STATE_BYTES, Rejection
+from rkgnn_ros.wire.cdr import encapsulation_problem
+from rkgnn_ros.wire.controller_state import (control_msgs_available, CONTROL_MSGS_REASON,
+                                             controller_state_to_joint_state)
+from rkgnn_ros.wire.conversions import MAX_STATE_BYTES, Rejection
 
 __all__ = ['MAX_CONTROLLER_STATE_BYTES', 'controller_gains', 'declare_controller_gains',
            'subscribe_controller_state']

@@ -85,7 +85,7 @@ Pairing (only when ``need_desired``)
     unlike message_filters' ApproximateTimeSynchronizer, no pair replaces another.
 Reading
     Readers get copies, never the buffer: :meth:`StreamBuffer.capture` (resampled into
-    segments and paired on the grid as :mod:`rkgnn_ros.stream_capture` describes) and
+    segments and paired on the grid as :mod:`rkgnn_ros.streams.capture` describes) and
     :meth:`StreamBuffer.reference`, the newest planned trajectory.
 """
 
@@ -95,10 +95,9 @@ import threading
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
-
 from rkgnn_ros.core.stamps import StampGrid
-from rkgnn_ros.sample_series import SampleSeries
-from rkgnn_ros.stream_capture import Capture, covered_by, PlannedReference, Snapshot
+from rkgnn_ros.streams.capture import Capture, covered_by, PlannedReference, Snapshot
+from rkgnn_ros.streams.series import SampleSeries
 
 __all__ = ['DROP_REASONS', 'AddResult', 'Capture', 'PlannedReference', 'Snapshot',
            'StreamBuffer']
