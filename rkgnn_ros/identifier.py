@@ -237,7 +237,7 @@ class IdentifierNode(Node):
                 self._make_prediction_timer()
             self._configure_description()
         except Exception:  # noqa: B902 - a callback must never raise
-            self._ingestion.internal_error('parameters')
+            self._ingestion.drops.internal_error('parameters')
 
     def _feedforward_model(self, train, case, kp, kd):
         """Return the feed-forward's model: the description's rigid body where there is one."""
@@ -253,10 +253,10 @@ class IdentifierNode(Node):
         try:
             self._description.take_message(description_text(raw))
         except ValueError as problem:
-            self._ingestion.reject('robot_description', 'robot_description', 'over_budget'
-                                   if 'bytes' in str(problem) else 'malformed', str(problem))
+            self._ingestion.drops.reject('robot_description', 'robot_description', 'over_budget'
+                                         if 'bytes' in str(problem) else 'malformed', str(problem))
         except Exception:  # noqa: B902 - a callback must never raise
-            self._ingestion.internal_error('robot_description')
+            self._ingestion.drops.internal_error('robot_description')
 
     def _make_prediction_timer(self) -> None:
         if self._prediction_timer is not None:

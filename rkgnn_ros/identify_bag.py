@@ -193,12 +193,12 @@ def _feed(ingestion, messages, topics, recording, until_ns=None, from_ns=None) -
                 decoded = recording.decode(message)
             except Exception:  # noqa: B902 - a message the definitions cannot decode
                 counts['undecodable'] += 1
-                ingestion.count('command', 'malformed')
+                ingestion.drops.count('command', 'malformed')
                 continue
             command = controller_state_to_joint_state(decoded)
             if isinstance(command, Rejection):
-                ingestion.reject(topics.controller_state, 'command', command.reason,
-                                 command.message)
+                ingestion.drops.reject(topics.controller_state, 'command', command.reason,
+                                       command.message)
             else:
                 ingestion.handle_command(serialize_message(command), message.log_ns)
                 counts['controller_states'] += 1
@@ -377,7 +377,7 @@ def identify(args, started: Optional[float] = None) -> dict:
     if held_in is not None:
         _feed(held_in, messages, topics, recording, from_ns=split_ns)
     recording.close()
-    drops = {k: v for k, v in train_in.drop_counts().items() if v}
+    drops = {k: v for k, v in train_in.drops.counts().items() if v}
     joints = train_in.joints
     config = train_in.view()[0]  # case 'auto': the case the recorded streams decided
     capture = train_in.capture()

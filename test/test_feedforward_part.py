@@ -84,6 +84,7 @@ class FakeIngestion:
         self.config, self.joints, self.data = config, JOINTS, data
         self.plan = None
         self.errors = 0
+        self.drops = self  # its drop accounting: internal_error
 
     def view(self):
         return self.config, self.joints, None, {'state': self.seconds()}

@@ -81,7 +81,7 @@ def fitted(ingestion):
 def test_garbage_among_the_stream_is_dropped_counted_and_fits_as_clean_data(data):
     clean = ingest(data)
     dirty = ingest(data, every=50, rng=np.random.default_rng(0))  # 2 messages a second
-    drops = dirty.drop_counts()
+    drops = dirty.drops.counts()
     assert sum(drops[reason] for reason in PLAUSIBILITY_REASONS) == 40
     assert drops['duplicate_stamp'] == 0  # no garbage took a good sample's place
     assert dirty.samples_buffered() == clean.samples_buffered() == data.n_samples

@@ -361,7 +361,7 @@ class FeedforwardSender:
                 else:
                     self._node.get_logger().error(item[2])
             except Exception:  # noqa: B902 - a callback must never raise
-                self._ingestion.internal_error('feedforward')
+                self._ingestion.drops.internal_error('feedforward')
 
     def diagnostics(self) -> DiagnosticArray:
         """Return the feed-forward's status: on or off and why, its model's verdict."""

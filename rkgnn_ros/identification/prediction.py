@@ -432,7 +432,7 @@ class Predictor:
         left = None if plan is None else plan.end - t0
         if not hold:
             if left is None or left < step - 1e-9:
-                self._ingestion.warn_throttled(
+                self._ingestion.drops.warn_throttled(
                     ('prediction', 'no_plan'),
                     '~/prediction: no plan on reference_trajectory reaches past the newest '
                     'state; with prediction.beyond_plan stop no prediction is published')
@@ -486,9 +486,9 @@ class Predictor:
             states = model.simulate(x0, horizon.t, reference=horizon.reference,
                                     substeps=max(1, substeps))
         if not np.all(np.isfinite(states)):
-            self._ingestion.reject('~/prediction', 'prediction', 'prediction_non_finite',
-                                   'the model diverged over the horizon; a baseline is '
-                                   'published instead')
+            self._ingestion.drops.reject('~/prediction', 'prediction', 'prediction_non_finite',
+                                         'the model diverged over the horizon; a baseline is '
+                                         'published instead')
             return None
         theta, theta_dot = np.array(states[:, :n]), np.array(states[:, n:2 * n])
         theta[0], theta_dot[0] = x0[:n], x0[n:]
@@ -593,4 +593,4 @@ class Predictor:
             except Exception:  # noqa: B902 - the thread must survive
                 if self._stop.is_set():
                     break
-                self._ingestion.internal_error('prediction')
+                self._ingestion.drops.internal_error('prediction')

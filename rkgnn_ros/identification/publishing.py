@@ -220,7 +220,7 @@ class Publishing:
             try:
                 self._handle(item)
             except Exception:  # noqa: B902 - a callback must never raise
-                self._ingestion.internal_error('publishing')
+                self._ingestion.drops.internal_error('publishing')
 
     def publish_prediction(self, item: Prediction) -> None:
         """
@@ -307,7 +307,7 @@ class Publishing:
         try:
             self._publishers['diagnostics'].publish(self._diagnostics())
         except Exception:  # noqa: B902 - a callback must never raise
-            self._ingestion.internal_error('diagnostics')
+            self._ingestion.drops.internal_error('diagnostics')
 
     def _diagnostics(self) -> DiagnosticArray:
         status = self._status()
@@ -344,7 +344,7 @@ class Publishing:
             ('prediction_latency_p99_ms', _percentile_text(latencies, 99)),
         ]
         pairs += [(f'drops.{reason}', count)
-                  for reason, count in ingestion.drop_counts().items()]
+                  for reason, count in ingestion.drops.counts().items()]
         node = self._node
         diag = DiagnosticStatus(level=level, name=node.get_name(),
                                 message=f'{state}: {status.detail}',

@@ -124,22 +124,22 @@ def subscribe_controller_state(node, topic: str, ingestion, qos) -> Optional[obj
     def on_state(raw: bytes) -> None:
         try:
             if len(raw) > MAX_CONTROLLER_STATE_BYTES:
-                ingestion.reject(topic, 'command', 'over_budget',
-                                 f'a controller state of {len(raw)} bytes is over the budget '
-                                 f'of {MAX_CONTROLLER_STATE_BYTES}')
+                ingestion.drops.reject(topic, 'command', 'over_budget',
+                                       f'a controller state of {len(raw)} bytes is over the '
+                                       f'budget of {MAX_CONTROLLER_STATE_BYTES}')
                 return
             problem = encapsulation_problem(raw, 'JointTrajectoryControllerState')
             if problem is not None:  # rclpy would print a line on stderr for each
-                ingestion.reject(topic, 'command', 'malformed', problem)
+                ingestion.drops.reject(topic, 'command', 'malformed', problem)
                 return
             msg = deserialize_message(raw, JointTrajectoryControllerState)
             command = controller_state_to_joint_state(msg)
             if isinstance(command, Rejection):
-                ingestion.reject(topic, 'command', command.reason, command.message)
+                ingestion.drops.reject(topic, 'command', command.reason, command.message)
                 return
             ingestion.handle_command(serialize_message(command))
         except Exception:  # noqa: B902 - bad input is counted, never raised
-            ingestion.internal_error(topic)
+            ingestion.drops.internal_error(topic)
 
     return node.create_subscription(JointTrajectoryControllerState, topic, on_state, qos,
                                     raw=True)

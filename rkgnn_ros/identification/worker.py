@@ -144,7 +144,7 @@ class SearchWorker:
                 if self._stop.is_set() or not self._alive():
                     break
                 errors += 1
-                self._ingestion.count('worker', 'worker_error')
+                self._ingestion.drops.count('worker', 'worker_error')
                 self._outbox.log('error', f'identification worker failed ({errors} in a row), '
                                           f'retrying in {backoff:.1f} s: {exc!r}\n'
                                           f'{traceback.format_exc()}')

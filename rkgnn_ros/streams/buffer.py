@@ -183,6 +183,15 @@ def _settle(buffer, states, commands, settled: float) -> Tuple[int, float]:
     return int((~covered).sum()), float(stamps[b - 1])
 
 
+def _summed(drops: Dict[str, Dict[str, int]]) -> Dict[str, int]:
+    """Return the drops per reason summed over the streams."""
+    total: Dict[str, int] = {}
+    for counts in drops.values():
+        for reason, count in counts.items():
+            total[reason] = total.get(reason, 0) + count
+    return total
+
+
 class StreamBuffer:
     """
     Bounded, thread-safe window of joint states and commands for identification.
@@ -506,14 +515,7 @@ class StreamBuffer:
         """Return the drops per reason, summed over the streams (a copy)."""
         with self._lock:
             self._settle_locked()
-            return self._counters_locked()
-
-    def _counters_locked(self) -> Dict[str, int]:
-        total: Dict[str, int] = {}
-        for counts in self._drops.values():
-            for reason, count in counts.items():
-                total[reason] = total.get(reason, 0) + count
-        return total
+            return _summed(self._drops)
 
     def stats(self) -> dict:
         """
@@ -541,7 +543,7 @@ class StreamBuffer:
                 'time_origin': self._origin,
                 'accepted': dict(self._accepted),
                 'drops': {stream: dict(c) for stream, c in self._drops.items()},
-                'counters': self._counters_locked(),
+                'counters': _summed(self._drops),
             }
 
     def _settle_locked(self):
