@@ -58,7 +58,7 @@ Topics (subscribed)
     repeated joints, a point without efforts, NaN or inf, an effort beyond ``tau_limit``,
     times not increasing, its last point in the past) is not applied and drops the one
     before: the servo runs alone, and the reason is counted and logged (at most once a
-    second per reason; :mod:`rkgnn_ros.core.control.receiver`); a clock jumping back drops
+    second per reason; :mod:`rkgnn_ros.core.sim.receiver`); a clock jumping back drops
     it too (its times are on the old timeline). The subscription is raw:
     the size budgets of every JointTrajectory input (:mod:`rkgnn_ros.wire.conversions`: 8 MiB,
     10,000 points, 256 names of at most 256 bytes) are checked on the bytes first, and a
@@ -105,9 +105,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.time import Time
-from rkgnn_ros.core.control.receiver import FeedforwardReceiver
 from rkgnn_ros.core.sim.arm_simulator import ArmSimulator, SimulationDiverged
 from rkgnn_ros.core.sim.plant import PlanarArm
+from rkgnn_ros.core.sim.receiver import FeedforwardReceiver
 from rkgnn_ros.node.parameters import Change
 from rkgnn_ros.node.sigint import Interrupt
 from rkgnn_ros.node.stacks import dump_stacks_on_sigusr1, TeardownWatchdog

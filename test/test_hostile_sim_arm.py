@@ -42,11 +42,11 @@ from rclpy.serialization import serialize_message
 pytest.importorskip('pinocchio')
 
 from rkgnn_ros import sim_arm  # noqa: E402
-from rkgnn_ros.core.control.receiver import FeedforwardReceiver  # noqa: E402
 from rkgnn_ros.core.rigid.urdf import MAX_URDF_BYTES  # noqa: E402
 from rkgnn_ros.core.sim.arm_simulator import ArmSimulator  # noqa: E402
 from rkgnn_ros.core.sim.parameters import ArmParameters  # noqa: E402
 from rkgnn_ros.core.sim.plant import PlanarArm  # noqa: E402
+from rkgnn_ros.core.sim.receiver import FeedforwardReceiver  # noqa: E402
 from rkgnn_ros.core.sim.torque_scale import torque_scale  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import SumOfSines  # noqa: E402
 from rkgnn_ros.core.sim.urdf_arm import UrdfArm, UrdfError  # noqa: E402

@@ -15,7 +15,7 @@
 """
 sim_arm's feed-forward input: the receiver's rules, the simulator's sum, the node's topic.
 
-The receiver (:mod:`rkgnn_ros.core.control.receiver`) with plain arrays; the simulator
+The receiver (:mod:`rkgnn_ros.core.sim.receiver`) with plain arrays; the simulator
 with a feed-forward against the accurate simulation; the node through its topics only:
 what it applied is read back from what it publishes (``joint_states`` effort minus the PD
 torque of ``joint_commands``; no sensor noise by default), and why it refused from
@@ -33,9 +33,9 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rkgnn_ros.core.control.feedforward import plan_feedforward
-from rkgnn_ros.core.control.receiver import FeedforwardReceiver, REASONS
 from rkgnn_ros.core.sim.arm_simulator import ArmSimulator
 from rkgnn_ros.core.sim.plant import PlanarArm
+from rkgnn_ros.core.sim.receiver import FeedforwardReceiver, REASONS
 from rkgnn_ros.core.sim.servo import FeedforwardTrack, Servo
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference

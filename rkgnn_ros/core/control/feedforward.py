@@ -126,7 +126,7 @@ def feedforward_torque(model, theta_d, theta_d_dot, theta_d_ddot,
     torque_scale : float
         N m per model torque unit: 1 for a model identified with torque (cases 1 and 2);
         for case 3 the scale fixed by a measurement (see
-        :func:`rkgnn_ros.core.control.gate.torque_scale_from_effort`).
+        :func:`rkgnn_ros.core.fitting.torque_check.torque_scale_from_effort`).
 
     Returns
     -------

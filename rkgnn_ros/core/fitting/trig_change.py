@@ -18,7 +18,7 @@ A change of the dynamics of an arm without a robot description (case 1).
 Where the planar trigonometric arm predicts (:meth:`.case_one.LawKeeper.fit_trig`), its
 torque residual on the newest data is what :class:`.change.ChangeDetector` judges: the
 measured torque against the arm's inverse dynamics at the measured states, θ̈ the centred
-derivative of θ̇ as the torque gate takes it (:func:`~..control.gate.paired_torques`), so the
+derivative of θ̇ as the torque gate takes it (:func:`~.torque_check.paired_torques`), so the
 normal level (the residual's RMS on the held-out part of the fit, once the data span
 :data:`~.rigid_online.DETECT_MIN_S`) has the same noise in it. A change is said with its
 time; the policy then drops what the data before it built (:mod:`.online`).

@@ -54,8 +54,8 @@ import numpy as np
 from .controller_laws import ControllerLaw, TrigFeatures
 from .law_loop import LawLoop, PASSES
 from .linear import LinearDynamics, Samples, samples_from_datasets
+from .torque_check import paired_torques, torque_error
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
-from ..control.gate import paired_torques, torque_error
 from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..integration.inputs import stage_inputs
@@ -339,7 +339,7 @@ def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
     Return the trigonometric arm fitted on ``train`` (case 1) closed with ``law``.
 
     The arm's held-out torque error (:func:`trig_torque_error`: the
-    :func:`~rkgnn_ros.core.control.gate.torque_error` of its inverse dynamics on
+    :func:`~rkgnn_ros.core.fitting.torque_check.torque_error` of its inverse dynamics on
     ``validation``, worst joint; inf without validation samples, or when it cannot be
     computed) is kept in :attr:`TrigLoop.torque_error`: the caller decides
     whether the basis holds this arm (it is a planar arm's). ``prior``: samples fitted
