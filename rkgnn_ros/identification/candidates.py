@@ -39,7 +39,10 @@ prediction (:meth:`Models.take`):
   candidate's trial is never restarted: the newest offer waits for it to end (replacing
   an older one waiting), so refits that come faster than a trial takes (a loop fitted at
   every data refresh, 1 s, against about 3 s for 10 predictions scored 2 s ahead) still
-  reach use, one trial after another.
+  reach use, one trial after another;
+- a change of the arm's dynamics (:meth:`Models.dynamics_changed`, in the order of the
+  offers) drops the candidate and the offer waiting: both were fitted on the arm before
+  it, and the first offer after it starts its trial at once.
 """
 
 from collections import deque
@@ -126,6 +129,11 @@ class Models:
         with self._lock:
             self._offers.append(('loop', Slot(model, loop)))
 
+    def dynamics_changed(self) -> None:
+        """Say that the arm's dynamics changed: what waits for a trial is stale (module)."""
+        with self._lock:
+            self._offers.append(('change', None))
+
     # -- the prediction thread --------------------------------------------------------------
 
     def take(self, check: SelfCheck, now: float) -> Tuple[Optional[Slot], Optional[Slot]]:
@@ -149,7 +157,13 @@ class Models:
         return any(slot is not None and slot.model is model
                    for slot in (self.in_use, self.candidate, self._waiting))
 
-    def _place(self, kind: str, slot: Slot, check: SelfCheck) -> None:
+    def _place(self, kind: str, slot: Optional[Slot], check: SelfCheck) -> None:
+        if kind == 'change':
+            if self.candidate is not None:
+                self.candidate = None
+                check.discard_candidate()
+            self._waiting = None
+            return
         if kind == 'loop':
             if slot.model is None:
                 if self.in_use is not None and self.in_use.model is not None:

@@ -260,6 +260,10 @@ class Predictor:
         """
         self._models.offer_loop(model, loop)
 
+    def dynamics_changed(self) -> None:
+        """Drop the candidate and the offer waiting: the arm changed (any thread)."""
+        self._models.dynamics_changed()
+
     # ------------------------------------------------------------------ latency
 
     def request(self) -> None:

@@ -31,8 +31,11 @@ squares (:func:`~rkgnn_ros.core.rigid.solve.fit_consistent`) on the filtered sam
 A servo's gravity compensation (Y_g ρ on θ or on θd, :class:`.rigid_law.GravityFeatures`)
 and an integral are fitted where they explain held-out data clearly better
 (:func:`fit_closed_forms`). Each fit is scored on held-out samples: case 1 by the torque
-error (RMSE / std per joint), cases 2 and 3 by the closed loop's equation error (RMS of
-Y π minus the servo's torque over the servo torque's std, per joint). :class:`RigidArm` is
+error (RMSE on the held-out samples / std over fitted and held-out samples, per joint),
+cases 2 and 3 by the closed loop's equation error (RMS of Y π minus the servo's torque on
+the held-out samples over the servo torque's std on all of them, per joint). The spread is
+the whole window's: a held-out part of a second or less can see a joint's torque hardly
+vary, and its own spread would call a small error large. :class:`RigidArm` is
 the arm a fit gives, with the model interface the gate and the feed-forward use.
 """
 
@@ -209,14 +212,21 @@ def _rms(x: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(value) & (value > 0.0), value, 1.0)
 
 
-def torque_errors(arm: RigidArm, rows: Optional[FilteredRows]) -> np.ndarray:
-    """Return the torque error per joint on filtered rows, RMSE / std (inf: none)."""
+def torque_errors(arm: RigidArm, rows: Optional[FilteredRows],
+                  spread_of: Optional[np.ndarray] = None) -> np.ndarray:
+    """
+    Return the torque error per joint on filtered rows, RMSE / std (inf: none).
+
+    ``spread_of`` (K, n): the torques whose std normalises (default the rows' own).
+    """
     if rows is None or rows.tau is None or rows.n_samples < 2:
         return np.full(arm.n_joints, math.inf)
-    return _relative(rows.regressor @ arm.parameters - rows.tau, rows.tau)
+    return _relative(rows.regressor @ arm.parameters - rows.tau,
+                     rows.tau if spread_of is None else spread_of)
 
 
 def _relative(residual: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Return the RMS of ``residual`` (K, n) over the std of ``reference`` (K', n)."""
     with np.errstate(all='ignore'):
         rmse = np.sqrt(np.mean(np.square(residual), axis=0))
         std = np.std(reference, axis=0)
@@ -262,7 +272,8 @@ def fit_torque(structure: RigidStructure, train: Sequence[Dataset],
     arm = RigidArm(structure, result.parameters,
                    {'case': 'torque', 'samples': int(fit.n_samples), 'sigma': sigma,
                     'rms_residual': result.rms_residual, 'evaluations': result.evaluations})
-    errors = torque_errors(arm, held)
+    errors = torque_errors(arm, held, None if held is None or held.tau is None
+                           else np.concatenate([fit.tau, held.tau]))
     if held is not None and held.tau is not None:
         _normal_level(arm, None, held)
     arm.info['torque_errors'] = errors.tolist()
@@ -368,13 +379,17 @@ def residual(arm: RigidArm, law: Optional[ControllerLaw],
 
 
 def _equation_errors(arm: RigidArm, law: ControllerLaw, samples: Optional[FilteredRows],
-                     gravity) -> np.ndarray:
-    """Return the closed loop's equation error per joint on ``samples`` (inf: none)."""
+                     fitted: FilteredRows) -> np.ndarray:
+    """
+    Return the closed loop's equation error per joint on ``samples`` (inf: none).
+
+    Normalised by the std of the servo's torque on ``samples`` and ``fitted`` together.
+    """
     n = arm.n_joints
     if samples is None or samples.n_samples < 2 or samples.error is None:
         return np.full(n, math.inf)
     out, servo = residual(arm, law, samples)
-    return _relative(out, servo)
+    return _relative(out, np.concatenate([servo_torque(law, fitted), servo]))
 
 
 def _normal_level(arm: RigidArm, law, samples: Optional[FilteredRows]) -> None:
@@ -444,7 +459,7 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
                     'evaluations': result.evaluations, 'form': law.describe(),
                     'mean_kp_unit_in_newton_metres': 1.0 / scale,
                     'scale_from': 'robot_description' if kp is None else 'gains'})
-    errors = _equation_errors(arm, law, held, gravity)
+    errors = _equation_errors(arm, law, held, fit)
     if held is not None and held.error is not None:
         _normal_level(arm, law, held)
     arm.info['equation_errors'] = errors.tolist()

@@ -307,9 +307,11 @@ class RigidPolicy:
 
     :class:`~.online.OnlineIdentification` hands it every step whose observation carries a
     structure: it refits at most every :data:`REFRESH_S` and publishes the model at most
-    every ``model_publish_period``; a reset, another structure or another case starts it
-    afresh. ``emit`` takes events, ``set_status(state, detail, **numbers)`` the status,
-    ``staleness`` is the policy's :class:`~.online_rules.Staleness`.
+    every ``model_publish_period`` (the first after a change of the dynamics at once, its
+    refit tried at every check until the data since the change suffice); a reset, another
+    structure or another case starts it afresh. ``emit`` takes events,
+    ``set_status(state, detail, **numbers)`` the status, ``staleness`` is the policy's
+    :class:`~.online_rules.Staleness`.
     """
 
     def __init__(self, clock, emit, set_status, staleness):
@@ -354,6 +356,8 @@ class RigidPolicy:
         for event in events:
             self._emit(event)
         if update is None:
+            if keeper.change is not None:    # after a change: again at the next check
+                self._last_refresh = now - REFRESH_S + CHECK_EVERY_S
             self._set_status('waiting for data', 'too few data for the rigid-body fit yet')
             return False
         if publish:
@@ -373,6 +377,7 @@ class RigidPolicy:
                               capture.time_origin)
         if change is None:
             return
+        self._last_publish = -math.inf       # the first model after it goes out at once
         names = tuple(keeper.structure.joint_names[j] for j in change.joints)
         statistic = tuple(float(v) for v in change.statistic)
         self._emit(DynamicsChange(change.time, names, statistic))

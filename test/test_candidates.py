@@ -1,0 +1,69 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Which model predicts: offers into use, candidates on trial, and a change of the arm."""
+
+from types import SimpleNamespace
+
+from rkgnn_ros.core.selfcheck import SelfCheck
+from rkgnn_ros.identification.candidates import Models
+
+
+def stand_in(generation):
+    """Return a stand-in for a model that predicts without a loop (case unknown)."""
+    return SimpleNamespace(case='unknown', info={'generation': generation})
+
+
+def test_first_offer_is_taken_into_use_and_later_ones_wait_for_a_trial():
+    check, models = SelfCheck(2), Models()
+    first, second, third = stand_in(1), stand_in(2), stand_in(3)
+    models.offer_model(first)
+    in_use, candidate = models.take(check, 0.0)
+    assert in_use.model is first and candidate is None
+    models.offer_model(second)
+    in_use, candidate = models.take(check, 0.1)
+    assert in_use.model is first and candidate.model is second
+    models.offer_model(third)
+    in_use, candidate = models.take(check, 0.2)
+    # the second stays on trial, the third waits for that trial to end
+    assert in_use.model is first and candidate.model is second
+    assert [slot.model for slot in models.pending()] == [second, third]
+
+
+def test_a_change_drops_the_candidate_and_the_offer_waiting():
+    check, models = SelfCheck(2), Models()
+    before, stale, waiting, after = stand_in(1), stand_in(2), stand_in(3), stand_in(4)
+    models.offer_model(before)
+    models.take(check, 0.0)
+    models.offer_model(stale)
+    models.take(check, 0.1)
+    models.offer_model(waiting)
+    models.take(check, 0.15)
+    assert len(models.pending()) == 2
+    models.dynamics_changed()
+    models.offer_model(after)        # fitted on the data after the change
+    in_use, candidate = models.take(check, 0.2)
+    # the model in use predicts until the new one earns it; the new one is on trial at once
+    assert in_use.model is before and candidate.model is after
+    assert [slot.model for slot in models.pending()] == [after]
+
+
+def test_a_change_with_nothing_pending_keeps_the_model_in_use():
+    check, models = SelfCheck(2), Models()
+    only = stand_in(1)
+    models.offer_model(only)
+    models.take(check, 0.0)
+    models.dynamics_changed()
+    in_use, candidate = models.take(check, 0.1)
+    assert in_use.model is only and candidate is None and models.pending() == []
