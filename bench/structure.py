@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The shape of the package, measured: module and class sizes and where the Gill update lives.
+The shape of the package, measured: sizes, and where the Gill update and the servo law live.
 
 Run from the package root (any checkout: ``--root`` measures another one)::
 
@@ -33,6 +33,18 @@ Writes ``bench/results/structure.json`` with
   tableau's entries that involve √2; each is listed by file and function. A module-level
   table built from coefficients imported from ``rkg`` (a stepping method as data, such as
   rows of Gill's stages for a generic stage loop) counts too, listed by file and name;
+- ``servo_law_definitions``: how many functions write out a servo law, Kp e + Kd ė, listed
+  by file and function (``servo_law_definition_sites``). A function counts when one of its
+  sums (a chain of ``+``, in any order and nesting) has two product terms (``*`` or ``@``),
+  one with a proportional gain among its factors and one with a derivative gain. A factor
+  is a proportional gain when its name starts with ``kp`` or ``k_p`` and a derivative gain
+  when it starts with ``kd`` or ``k_d`` (case and leading underscores ignored; the name of
+  a variable, the attribute of an attribute access, or the array a subscript or ``.T`` is
+  taken of: ``kp``, ``self.kp_``, ``c.kp[i]``, ``kp_known[a]``, ``kp.T``); two factors that
+  subscript the same array named ``g`` or containing ``gain`` (``gains[0]`` and
+  ``gains[1]``, ``g[:, :n]`` and ``g[:, n:]``, ``gains[p, i]`` and ``gains[p, n + i]``)
+  count as the two gains. A call of the law's one definition writes nothing out and does
+  not count; nor does a sum with a single gain product (``ki * e + Kt (τ - τ_raw)``);
 
 and, to say where the limits (600 lines a module, 400 a class) are not met, every module
 and class over them. Nothing here imports the package: the files are parsed, not run.
@@ -114,10 +126,103 @@ def coefficient_tables(tree, imported):
     return found
 
 
+def _gain_name(node):
+    """Return the name a factor is known by (see the module docstring), or None."""
+    while True:
+        if isinstance(node, ast.Subscript):
+            node = node.value
+        elif isinstance(node, ast.Attribute) and node.attr == 'T':
+            node = node.value
+        elif isinstance(node, ast.UnaryOp):
+            node = node.operand
+        else:
+            break
+    if isinstance(node, ast.Name):
+        return node.id.lower().lstrip('_')
+    if isinstance(node, ast.Attribute):
+        return node.attr.lower().lstrip('_')
+    return None
+
+
+def _gain_array(node):
+    """Return the name of the gains array a subscript factor takes, or None."""
+    if isinstance(node, ast.Subscript):
+        name = _gain_name(node.value)
+        if name is not None and (name == 'g' or 'gain' in name):
+            return name, ast.dump(node.slice)
+    return None
+
+
+def _sum_terms(node):
+    """Return the terms of a chain of additions (flattened), or [node]."""
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add):
+        return _sum_terms(node.left) + _sum_terms(node.right)
+    return [node]
+
+
+def _factors(node):
+    """Return the factors of a product term (flattened ``*`` and ``@``), or None."""
+    if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Mult, ast.MatMult)):
+        return (_factors(node.left) or [node.left]) + (_factors(node.right) or [node.right])
+    return None
+
+
+def _is_servo_law_sum(node):
+    """Return whether a chain of additions has a Kp·e term and a Kd·ė term."""
+    products = [f for f in (_factors(term) for term in _sum_terms(node)) if f]
+    kinds = []
+    for factors in products:
+        names = {_gain_name(f) or '' for f in factors}
+        kinds.append(('p' if any(n.startswith(('kp', 'k_p')) for n in names) else '')
+                     + ('d' if any(n.startswith(('kd', 'k_d')) for n in names) else ''))
+    if any('p' in a for a in kinds) and any('d' in b for b in kinds) and len(products) > 1:
+        p_terms = [i for i, k in enumerate(kinds) if 'p' in k]
+        d_terms = [i for i, k in enumerate(kinds) if 'd' in k]
+        if any(i != j for i in p_terms for j in d_terms):
+            return True
+    arrays = [{_gain_array(f) for f in factors} - {None} for factors in products]
+    for i, a in enumerate(arrays):
+        for b in arrays[i + 1:]:
+            if any(x[0] == y[0] and x[1] != y[1] for x in a for y in b):
+                return True
+    return False
+
+
+def writes_servo_law(function):
+    """Return whether a function's own body (not a nested one's) writes out a servo law."""
+    todo = list(ast.iter_child_nodes(function))
+    while todo:
+        child = todo.pop()
+        if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda,
+                              ast.ClassDef)):
+            continue
+        if isinstance(child, ast.BinOp) and isinstance(child.op, ast.Add) \
+                and _is_servo_law_sum(child):
+            return True
+        todo.extend(ast.iter_child_nodes(child))
+    return False
+
+
+def qualified_functions(tree):
+    """Yield ``(qualified name, function node)`` for every function of a module."""
+    todo = [('', node) for node in tree.body]
+    while todo:
+        prefix, node = todo.pop(0)
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            name = prefix + node.name
+            if not isinstance(node, ast.ClassDef):
+                yield name, node
+            todo.extend((name + '.', child) for child in node.body)
+        else:
+            todo.extend((prefix, child) for child in ast.iter_child_nodes(node)
+                        if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef,
+                                              ast.ClassDef, ast.If, ast.Try, ast.With)))
+
+
 def measure(root):
     """Return the measurements of the checkout at ``root`` as a dict."""
     package = os.path.join(root, 'rkgnn_ros')
-    modules, classes, gill = [], [], []
+    modules, classes, gill, laws = [], [], [], []
     for path in python_files(package):
         rel = os.path.relpath(path, root)
         with open(path, encoding='utf-8') as f:
@@ -132,6 +237,8 @@ def measure(root):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 if uses_gill_coefficients(node, imported):
                     gill.append(f'{rel}:{node.name}')
+        laws += [f'{rel}:{name}' for name, node in qualified_functions(tree)
+                 if writes_servo_law(node)]
     modules.sort(reverse=True)
     classes.sort(reverse=True)
     node = os.path.join(package, 'identifier.py')
@@ -147,6 +254,8 @@ def measure(root):
         'node_module_lines': node_lines,
         'rkg_step_definitions': len(gill),
         'rkg_step_definition_sites': gill,
+        'servo_law_definitions': len(laws),
+        'servo_law_definition_sites': laws,
         'modules_over_limit': {name: lines for lines, name in modules if lines > MODULE_LIMIT},
         'classes_over_limit': {name: lines for lines, name in classes if lines > CLASS_LIMIT},
         'limits': {'module_lines': MODULE_LIMIT, 'class_lines': CLASS_LIMIT},

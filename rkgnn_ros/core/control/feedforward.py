@@ -51,6 +51,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..servo_law import pd_torque
+
 
 def _samples(name: str, value, shape=None) -> np.ndarray:
     """Return ``value`` as a finite float array of at least 1 dimension (shape checked)."""
@@ -242,8 +244,8 @@ def computed_torque(model, theta, theta_dot, theta_d, theta_d_dot, theta_d_ddot,
         if np.any(gain < 0.0):
             raise ValueError(f'{name} must be >= 0, got {gain.tolist()}')
         gains.append(gain)
-    command = (theta_d_ddot + gains[0] * (theta_d - theta)
-               + gains[1] * (theta_d_dot - theta_dot))
+    command = theta_d_ddot + pd_torque(gains[0], gains[1], theta_d - theta,
+                                       theta_d_dot - theta_dot)
     tau = np.asarray(model.inverse_dynamics(theta, theta_dot, command), dtype=float)
     if tau.shape != shape:
         raise ValueError(f'the model returned torques of shape {tau.shape}, expected {shape}')

@@ -66,6 +66,7 @@ from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..model.params import decode
 from ..model.trig import TrigBasis
+from ..servo_law import pd_torque
 
 __all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_GAIN_SAMPLES',
            'MIN_LOOP_SAMPLES', 'REFIT_S', 'RETRY_MAX_S', 'RETRY_S', 'Start', 'fit_gains',
@@ -154,7 +155,7 @@ def fit_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.ndar
         return None
     e = np.vstack([seg.theta_d - seg.theta for seg in segments])
     de = np.vstack([seg.theta_d_dot - seg.theta_dot for seg in segments])
-    rms = float(np.mean(np.sqrt(np.mean((kp * e + kd * de) ** 2, axis=0))))
+    rms = float(np.mean(np.sqrt(np.mean(pd_torque(kp, kd, e, de) ** 2, axis=0))))
     if not rms > 0.0:
         return None
     return kp / rms, kd / rms

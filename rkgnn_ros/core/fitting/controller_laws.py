@@ -31,6 +31,7 @@ from typing import Optional
 import numpy as np
 
 from ..model.model import RKGNNModel
+from ..servo_law import pd_torque
 
 __all__ = ['ControllerLaw', 'DEFAULT_FILTER_SIGMA', 'PDLaw', 'RBFFeatures', 'THETA_INPUTS',
            'TrigFeatures']
@@ -70,7 +71,7 @@ class PDLaw:
         """Return the law's torque for states and commands of shape (..., n)."""
         e = np.asarray(theta_d) - np.asarray(theta)
         e_dot = np.asarray(theta_d_dot) - np.asarray(theta_dot)
-        return self.kp * e + self.kd * e_dot + self.bias
+        return pd_torque(self.kp, self.kd, e, e_dot) + self.bias
 
     def usable(self, max_fit_ratio: float = 0.2, min_gain: float = 1e-6) -> bool:
         """Return whether the law explains the torque of every joint and Kp > 0."""
@@ -294,7 +295,7 @@ class ControllerLaw:
         theta_d = np.asarray(theta_d, dtype=float)
         theta_d_dot = np.asarray(theta_d_dot, dtype=float)
         held = self.integral_term if integral_term is None else integral_term
-        tau = (self.kp * (theta_d - theta) + self.kd * (theta_d_dot - theta_dot)
+        tau = (pd_torque(self.kp, self.kd, theta_d - theta, theta_d_dot - theta_dot)
                + self.bias + held + self.feedforward * theta_d_dot
                + self._theta_terms(theta, theta_d))
         return np.clip(tau, -self.tau_limit, self.tau_limit)

@@ -53,6 +53,7 @@ from ..rigid import consistency
 from ..rigid.kernels import N_INERTIAL, N_JOINT
 from ..rigid.solve import fit_consistent
 from ..rigid.structure import RigidStructure
+from ..servo_law import pd_torque
 
 __all__ = ['FORM_GAIN', 'RigidArm', 'RigidFit', 'fit_closed', 'fit_closed_forms', 'fit_torque',
            'torque_errors']
@@ -159,8 +160,8 @@ class RigidArm:
         out[0] = x
 
         def rate(state, u):
-            torque = u if not closed else (self.kp * (u[:n] - state[:n])
-                                           + self.kd * (u[n:] - state[n:]))
+            torque = u if not closed else pd_torque(self.kp, self.kd, u[:n] - state[:n],
+                                                    u[n:] - state[n:])
             acc = self.structure.accelerations(self.parameters, state[None, :n],
                                                state[None, n:], torque[None])[0]
             return np.concatenate([state[n:], acc])
@@ -351,7 +352,7 @@ def _law_of(layout: dict, k: np.ndarray, n: int, kp, kd, features, gravity,
 
 def servo_torque(law: ControllerLaw, samples: FilteredRows) -> np.ndarray:
     """Return the law's torque on filtered samples (K, n); its integral from each start."""
-    servo = law.kp * samples.error + law.kd * samples.error_rate
+    servo = pd_torque(law.kp, law.kd, samples.error, samples.error_rate)
     if np.any(law.ki != 0.0):
         servo = servo + law.ki * samples.integral
     if law.theta_weights.size:

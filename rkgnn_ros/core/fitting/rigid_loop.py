@@ -43,6 +43,7 @@ from .rigid_law import GravityFeatures
 from ..integration.inputs import stage_inputs
 from ..integration.rkg import choose_substeps, gill_node, gill_stage
 from ..rigid.kernels import _crba, _rnea, cholesky_solve, gravity_pass, N_INERTIAL
+from ..servo_law import compiled_pd_torque
 
 __all__ = ['MAX_SUBSTEPS', 'RigidLoop', 'precompile_rigid_loop']
 
@@ -71,7 +72,7 @@ def _rates(x, u, n, parent, col, trot, pos, axis, gravity, vc, pi, kp, kd, law_p
     if law_on:
         gravity_pass(parent, col, rot, pos, axis, gravity, law_pi, al, fn, ff, tmp, grav)
     for i in range(n):
-        tau = kp[i] * (u[i] - x[i]) + kd[i] * (u[n + i] - x[n + i])
+        tau = compiled_pd_torque(kp[i], kd[i], u[i] - x[i], u[n + i] - x[n + i])
         if law_on:
             tau += grav[i]
         rate[n + i] = tau - bias[i]

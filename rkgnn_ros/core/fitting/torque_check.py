@@ -33,6 +33,7 @@ import numpy as np
 
 from ..data import Dataset
 from ..differentiate import centred_derivative, CENTRED_ORDER, CENTRED_WINDOW
+from ..servo_law import pd_torque
 
 __all__ = ['model_case', 'paired_torques', 'STD_FLOOR', 'torque_error',
            'torque_scale_from_effort']
@@ -115,7 +116,7 @@ def paired_torques(model, validation: Sequence[Dataset],
                                  'desired trajectory')
             theta_d, theta_d_dot = data.theta_d[keep], data.theta_d_dot[keep]
             if case == 'pd_gains':
-                tau = kp * (theta_d - theta) + kd * (theta_d_dot - theta_dot)
+                tau = pd_torque(kp, kd, theta_d - theta, theta_d_dot - theta_dot)
             else:
                 with np.errstate(all='ignore'):
                     tau = torque_scale * np.asarray(

@@ -62,6 +62,7 @@ from ..integration.inputs import stage_inputs
 from ..integration.rkg import choose_substeps, gill_node, gill_stage
 from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
+from ..servo_law import compiled_pd_torque, pd_torque
 
 __all__ = ['INTEGRAL_GAIN', 'INTEGRAL_MIN_ERROR', 'KI_ZERO', 'MAX_SUBSTEPS', 'PASSES',
            'YOUNG_DATA_S', 'TrigLoop', 'closed_loop_error', 'data_span',
@@ -164,7 +165,7 @@ def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, la
         g = 0.0
         for f in range(nf):
             g += grad[i, f] * w_pot[f]
-        tau = kp[i] * (u[i] - x[i]) + kd[i] * (u[n + i] - qd)
+        tau = compiled_pd_torque(kp[i], kd[i], u[i] - x[i], u[n + i] - qd)
         for f in range(nl):
             tau += law_w[i, f] * law_phi[f]
         rate[n + i] = tau - v - g - viscous[i] * qd - coulomb[i] * math.tanh(qd / vc)
@@ -452,7 +453,7 @@ def _equation_error(arm: LinearDynamics, held: Samples, integral: bool) -> float
     residual = regressor(arm.basis, held.theta, held.theta_dot, held.theta_ddot,
                          arm.coulomb_velocity, held.error, held.error_rate,
                          held.error_integral) @ arm._full_coef
-    servo = arm.kp_ * held.error + arm.kd_ * held.error_rate
+    servo = pd_torque(arm.kp_, arm.kd_, held.error, held.error_rate)
     if integral:
         servo = servo + arm.ki_ * held.error_integral + arm.bias_
     spread = np.maximum(servo.std(axis=0), 1e-12)

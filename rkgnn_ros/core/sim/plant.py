@@ -52,6 +52,7 @@ import numpy as np
 from .parameters import ArmParameters
 from .plant_kernels import forward_dynamics_kernel, KernelConstants
 from .stability import ClosedLoopAnalysis, gain_matrix
+from ..servo_law import pd_torque_coupled
 
 ArrayLike = Union[float, np.ndarray]
 
@@ -468,8 +469,8 @@ class PDController:
         ndarray, shape (..., n)
 
         """
-        tau = ((np.asarray(theta_d) - theta) @ self.kp.T
-               + (np.asarray(theta_d_dot) - theta_dot) @ self.kd.T)
+        tau = pd_torque_coupled(self.kp, self.kd, np.asarray(theta_d) - theta,
+                                np.asarray(theta_d_dot) - theta_dot)
         if self.tau_limit is not None:
             tau = np.clip(tau, -self.tau_limit, self.tau_limit)
         return tau

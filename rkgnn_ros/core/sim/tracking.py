@@ -64,6 +64,7 @@ from .simulate import MAX_SPEED
 from .trajectories import Reference
 from ..integration.rkg import (gill_node, gill_stage, IMAG_STABILITY_LIMIT, rkg_step,
                                stability_polynomial)
+from ..servo_law import compiled_pd_torque, pd_torque
 
 
 #: Default gain bounds ((Kp_lo, Kp_hi), (Kd_lo, Kd_hi)), the same on every joint. They
@@ -89,10 +90,10 @@ _kernel_verified = False
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _pd_torque(th, om, ref, j, kp, kd, tau):
+def _pd_torque_into(th, om, ref, j, kp, kd, tau):
     """Write the PD torque towards θd = ref[j, 0], θ̇d = ref[j, 1] into ``tau`` (n,)."""
     for i in range(th.shape[0]):
-        tau[i] = kp[i] * (ref[j, 0, i] - th[i]) + kd[i] * (ref[j, 1, i] - om[i])
+        tau[i] = compiled_pd_torque(kp[i], kd[i], ref[j, 0, i] - th[i], ref[j, 1, i] - om[i])
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
@@ -133,7 +134,7 @@ def _closed_loop_cost(x0, ref, substeps, h, gains, p, d, gh, viscous, coulomb,
                 yth[i] = th[i]
                 yom[i] = om[i]
             for stage in range(4):
-                _pd_torque(yth, yom, ref, j + gill_node(stage), kp, kd, tau)
+                _pd_torque_into(yth, yom, ref, j + gill_node(stage), kp, kd, tau)
                 forward_dynamics_into(yth, yom, tau, d, gh, viscous, coulomb, coulomb_velocity,
                                       work, acc)
                 gill_stage(stage, h, th, yth, yom, qth)     # θ' = θ̇, before θ̇ moves on
@@ -391,7 +392,7 @@ class TrackingProblem:
         kp, kd = g[:, :n], g[:, n:]                                      # (P, n) each
 
         def f(x, u):                                                     # x (P, 2n)
-            tau = kp * (u[0] - x[:, :n]) + kd * (u[1] - x[:, n:])
+            tau = pd_torque(kp, kd, u[0] - x[:, :n], u[1] - x[:, n:])
             return arm.dynamics(x, tau)
 
         x = np.tile(self.x0, (g.shape[0], 1))                           # (P, 2n)
@@ -428,7 +429,7 @@ class TrackingProblem:
             return bool(np.all(np.abs(got - expected) <= _KERNEL_RTOL * np.abs(expected)))
 
         if not matches():
-            _pd_torque.recompile()
+            _pd_torque_into.recompile()
             _closed_loop_cost.recompile()
             _population_cost.recompile()
             if not matches():

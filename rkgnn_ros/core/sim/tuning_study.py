@@ -52,6 +52,7 @@ from .simulate import MAX_SPEED
 from .tracking import TrackingProblem
 from .trajectories import Reference
 from ..integration.rkg import gill_stage, rkg_step
+from ..servo_law import compiled_pd_torque, pd_torque
 
 __all__ = ['DEFAULT_STEP', 'SampledTrackingProblem']
 
@@ -104,8 +105,8 @@ def _sampled_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, p,
         if step % per_servo == 0:
             k = step // per_servo
             for i in range(n):
-                u = (gains[p, i] * (servo_ref[k, 0, i] - th[i])
-                     + gains[p, n + i] * (servo_ref[k, 1, i] - om[i]))
+                u = compiled_pd_torque(gains[p, i], gains[p, n + i],
+                                       servo_ref[k, 0, i] - th[i], servo_ref[k, 1, i] - om[i])
                 tau[i] = min(max(u, -limit[i]), limit[i])
         _held_torque_step(x, tau, h, d, gh, viscous, coulomb, coulomb_velocity, xs, f, q,
                           work)
@@ -267,7 +268,7 @@ class SampledTrackingProblem:
             for step in range(n_steps):
                 if step % self.per_servo == 0:
                     ref = self.servo_reference[step // self.per_servo]     # (2, n)
-                    tau = (g[:, :n] * (ref[0] - x[:, :n]) + g[:, n:] * (ref[1] - x[:, n:]))
+                    tau = pd_torque(g[:, :n], g[:, n:], ref[0] - x[:, :n], ref[1] - x[:, n:])
                     tau = np.clip(tau, -self.torque_limit, self.torque_limit)
                 x = rkg_step(self.arm.dynamics, x, self.h, tau, tau, tau)
                 diverged |= ~(np.all(np.isfinite(x), axis=1)
