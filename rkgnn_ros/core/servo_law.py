@@ -35,13 +35,15 @@ stability analysis takes them so) go through :func:`pd_torque_coupled`: row i of
 torque is Σ_j of the law on Kp_ij, e_j, which for diagonal gains is the law per joint to
 the last bit.
 
-A new law is a function here and its twin, built on the ones before it.
+A new law is a function here and its twin, built on the ones before it, as
+:func:`pd_velocity_feedforward_torque` is: a PD with a velocity feed-forward.
 """
 
 from numba import njit
 import numpy as np
 
-__all__ = ['compiled_pd_torque', 'pd_torque', 'pd_torque_coupled']
+__all__ = ['compiled_pd_torque', 'compiled_pd_velocity_feedforward_torque', 'pd_torque',
+           'pd_torque_coupled', 'pd_velocity_feedforward_torque']
 
 
 def pd_torque(kp, kd, error, error_rate):
@@ -73,3 +75,20 @@ def pd_torque_coupled(kp, kd, error, error_rate):
     error = np.asarray(error, dtype=float)[..., None, :]
     error_rate = np.asarray(error_rate, dtype=float)[..., None, :]
     return pd_torque(kp, kd, error, error_rate).sum(axis=-1)
+
+
+def pd_velocity_feedforward_torque(kp, kd, kv, error, error_rate, theta_d_dot):
+    """
+    Return a PD with velocity feed-forward: Kp e + Kd ė + Kv θ̇d (N m).
+
+    Kv (N m s/rad) times the planned velocity θ̇d pays the viscous friction of the planned
+    motion, so a joint tracking a ramp needs no steady error to push it (a PD alone lags
+    by b θ̇d / Kp behind a ramp against viscous friction b). Kv = 0 is :func:`pd_torque`.
+    """
+    return pd_torque(kp, kd, error, error_rate) + kv * theta_d_dot
+
+
+@njit(cache=True, nogil=True, inline='always')
+def compiled_pd_velocity_feedforward_torque(kp, kd, kv, error, error_rate, theta_d_dot):
+    """Compiled twin of :func:`pd_velocity_feedforward_torque` (on the PD's twin)."""
+    return compiled_pd_torque(kp, kd, error, error_rate) + kv * theta_d_dot
