@@ -16,6 +16,8 @@
 
 from types import SimpleNamespace
 
+import numpy as np
+from rkgnn_ros.core.fitting.online_records import ClosedLoop
 from rkgnn_ros.core.selfcheck import SelfCheck
 from rkgnn_ros.identification.candidates import Models
 
@@ -67,3 +69,23 @@ def test_a_change_with_nothing_pending_keeps_the_model_in_use():
     models.dynamics_changed()
     in_use, candidate = models.take(check, 0.1)
     assert in_use.model is only and candidate is None and models.pending() == []
+
+
+def test_a_pid_loops_integral_is_carried_past_the_self_checks_window():
+    # θd − θ = 0.1 rad throughout; Ki 2 N m/(rad s); the law's term is 1 N m at t = 0
+    check, models = SelfCheck(1, window=10.0), Models()
+    law = SimpleNamespace(ki=np.array([2.0]), integral_term=np.array([1.0]))
+    closed = ClosedLoop(stand_in(1), SimpleNamespace(law=law), 0.0)
+    t = np.arange(0.0, 40.01, 0.01)
+    asked = []
+    for until in (5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0):
+        new = (t > until - 5.0) | (until == 5.0)
+        new &= t <= until
+        check.add_references(t[new], np.full((new.sum(), 1), 0.6))
+        check.add_states(t[new], np.full((new.sum(), 1), 0.5))
+        asked.append(float(models.integral(closed, until, check)[0]))
+    # 1 + 2 * 0.1 * t at each: the record keeps only the last 13 s, the carry all of it
+    np.testing.assert_allclose(asked, 1.0 + 0.2 * np.array([5, 10, 15, 20, 25, 30, 35, 40]),
+                               rtol=1e-9)
+    # asked afresh from the loop's own time, 40 s back, the record no longer reaches it
+    assert float(Models().integral(closed, 40.0, check)[0]) == 1.0

@@ -43,6 +43,11 @@ prediction (:meth:`Models.take`):
 - a change of the arm's dynamics (:meth:`Models.dynamics_changed`, in the order of the
   offers) drops the candidate and the offer waiting: both were fitted on the arm before
   it, and the first offer after it starts its trial at once.
+
+A loop with an integral term (a PID) predicts from its integral at each prediction's start
+(:meth:`Models.integral`): the law's term at the data it was fitted on, carried on with the
+recorded ∫ (θd − θ) dt from one prediction to the next, so a loop in use for longer than
+the self-check keeps states (its window) still starts from the servo's integral.
 """
 
 from collections import deque
@@ -50,6 +55,7 @@ import math
 import threading
 from typing import List, NamedTuple, Optional, Tuple
 
+import numpy as np
 from rkgnn_ros.core.fitting.online import ClosedLoop
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
@@ -111,6 +117,7 @@ class Models:
         self.candidate: Optional[Slot] = None
         self._waiting: Optional[Slot] = None
         self._trial_start = math.nan
+        self._carried: dict = {}    # id(closed loop) -> (it, stamp time, integral term)
 
     # -- offers (any thread) ----------------------------------------------------------------
 
@@ -147,7 +154,28 @@ class Models:
             self.candidate, self._waiting = self._waiting, None
             self._trial_start = now
             check.discard_candidate()
+        kept = {id(slot.loop) for slot in (self.in_use, self.candidate) if slot is not None}
+        self._carried = {key: value for key, value in self._carried.items() if key in kept}
         return self.in_use, self.candidate
+
+    def integral(self, closed: ClosedLoop, t0: float, check: SelfCheck) -> np.ndarray:
+        """
+        Return ``closed``'s integral term (N m, (n,)) at stamp time ``t0`` (module docstring).
+
+        Carried from the last time it was asked (or the loop's ``integral_time``) with the
+        law's Ki times ∫ (θd − θ) dt the self-check recorded since; where the record does
+        not reach back that far, the term is left where it was.
+        """
+        law = closed.loop.law
+        held = self._carried.get(id(closed))
+        since, integral = ((held[1], held[2]) if held is not None and held[0] is closed
+                           and held[1] <= t0 else (closed.integral_time, law.integral_term))
+        if np.any(law.ki != 0.0):
+            grown = check.error_integral(since, t0)
+            if grown is not None:
+                since, integral = t0, integral + law.ki * grown
+        self._carried[id(closed)] = (closed, since, integral)
+        return integral
 
     def restart_trial(self, now: float) -> None:
         """Start the candidate's trial again (the self-check was made anew)."""

@@ -52,7 +52,8 @@ What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
 
 Case 1 closes the learned servo law around the arm model
 (:class:`~rkgnn_ros.core.fitting.online_records.ClosedLoop`): its integral term is the
-law's at the data it was fitted on, carried on to the start with the errors since. A
+law's at the data it was fitted on, carried on to the start with the errors since
+(:meth:`~rkgnn_ros.identification.candidates.Models.integral`). A
 prediction is checked finite (else counted ``prediction_non_finite`` and a baseline
 goes out), serialized straight to CDR and handed over as a :class:`Prediction` to
 ``publish``: the identifier queues it for its executor thread, which publishes it and calls
@@ -472,14 +473,8 @@ class Predictor:
             return None
         n = len(joints)
         if loop is not None and loop.model is model:  # closed with a fitted servo law
-            law = loop.loop.law
-            integral = law.integral_term
-            if np.any(law.ki != 0.0):
-                grown = check.error_integral(loop.integral_time, t0)
-                if grown is not None:
-                    integral = integral + law.ki * grown
             states = loop.loop.simulate(x0, horizon.t, horizon.theta_d, horizon.theta_d_dot,
-                                        integral)
+                                        self._models.integral(loop, t0, check))
         elif model.case == 'torque':
             return None  # case 1 predicts only in closed loop with the learned law
         else:
