@@ -45,6 +45,14 @@ Writes ``bench/results/structure.json`` with
   ``gains[1]``, ``g[:, :n]`` and ``g[:, n:]``, ``gains[p, i]`` and ``gains[p, n + i]``)
   count as the two gains. A call of the law's one definition writes nothing out and does
   not count; nor does a sum with a single gain product (``ki * e + Kt (τ - τ_raw)``);
+- ``online_policy_constant_modules``: how many modules of the online policy define a
+  tunable of it, listed with the names (``online_policy_constants``). The online policy is
+  the modules of ``rkgnn_ros/core/fitting/`` that decide what the identification does and
+  when (:data:`ONLINE_POLICY`: ``online*.py``, ``policy.py``, the keepers, the rigid
+  body's form choice, the change detectors, the search's starts, the excitation memory's
+  feed, the validation split); a tunable is a module-level UPPER_CASE name bound to a
+  number (a literal, signed, or arithmetic on literals, or a call whose second argument is
+  one: the policy table's rows);
 
 and, to say where the limits (600 lines a module, 400 a class) are not met, every module
 and class over them. Nothing here imports the package: the files are parsed, not run.
@@ -61,6 +69,12 @@ import subprocess
 HERE = os.path.dirname(os.path.abspath(__file__))
 MODULE_LIMIT = 600
 CLASS_LIMIT = 400
+
+#: The modules of core/fitting/ that make up the online policy (see the module docstring).
+ONLINE_POLICY = ('online.py', 'online_records.py', 'online_rules.py', 'policy.py', 'case_one.py',
+                 'case_three.py', 'rigid_online.py', 'rigid_fit.py', 'change.py',
+                 'rigid_change.py', 'trig_change.py', 'search_starts.py', 'memory.py',
+                 'validation.py')
 
 SQRT2 = math.sqrt(2.0)
 #: Gill's alpha, beta, gamma: the coefficients of the accumulator form and nothing else.
@@ -219,10 +233,38 @@ def qualified_functions(tree):
                                               ast.ClassDef, ast.If, ast.Try, ast.With)))
 
 
+def _is_number(node):
+    """Return whether an expression is a number: a literal, signed, or arithmetic on them."""
+    if isinstance(node, ast.Constant):
+        return isinstance(node.value, (int, float)) and not isinstance(node.value, bool)
+    if isinstance(node, ast.UnaryOp):
+        return _is_number(node.operand)
+    if isinstance(node, ast.BinOp):
+        return _is_number(node.left) and _is_number(node.right)
+    if isinstance(node, ast.Call) and len(node.args) >= 2:
+        return _is_number(node.args[1])
+    return False
+
+
+def numeric_constants(tree):
+    """Return the UPPER_CASE names a module binds at module level to a number."""
+    found = []
+    for stmt in tree.body:
+        if isinstance(stmt, ast.Assign):
+            targets, value = stmt.targets, stmt.value
+        elif isinstance(stmt, ast.AnnAssign) and stmt.value is not None:
+            targets, value = [stmt.target], stmt.value
+        else:
+            continue
+        if _is_number(value):
+            found += [t.id for t in targets if isinstance(t, ast.Name) and t.id.isupper()]
+    return found
+
+
 def measure(root):
     """Return the measurements of the checkout at ``root`` as a dict."""
     package = os.path.join(root, 'rkgnn_ros')
-    modules, classes, gill, laws = [], [], [], []
+    modules, classes, gill, laws, policy = [], [], [], [], {}
     for path in python_files(package):
         rel = os.path.relpath(path, root)
         with open(path, encoding='utf-8') as f:
@@ -239,6 +281,11 @@ def measure(root):
                     gill.append(f'{rel}:{node.name}')
         laws += [f'{rel}:{name}' for name, node in qualified_functions(tree)
                  if writes_servo_law(node)]
+        folder, name = os.path.split(rel)
+        if folder == os.path.join('rkgnn_ros', 'core', 'fitting') and name in ONLINE_POLICY:
+            constants = numeric_constants(tree)
+            if constants:
+                policy[rel] = constants
     modules.sort(reverse=True)
     classes.sort(reverse=True)
     node = os.path.join(package, 'identifier.py')
@@ -256,6 +303,8 @@ def measure(root):
         'rkg_step_definition_sites': gill,
         'servo_law_definitions': len(laws),
         'servo_law_definition_sites': laws,
+        'online_policy_constant_modules': len(policy),
+        'online_policy_constants': policy,
         'modules_over_limit': {name: lines for lines, name in modules if lines > MODULE_LIMIT},
         'classes_over_limit': {name: lines for lines, name in classes if lines > CLASS_LIMIT},
         'limits': {'module_lines': MODULE_LIMIT, 'class_lines': CLASS_LIMIT},

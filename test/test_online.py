@@ -26,13 +26,12 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.differentiate import centred_derivative
 from rkgnn_ros.core.fitting import case_one
-from rkgnn_ros.core.fitting.case_three import REFIT_S
 from rkgnn_ros.core.fitting.global_fit import is_global
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Observation, OnlineIdentification, OnlineSettings,
                                            split_validation)
-from rkgnn_ros.core.fitting.search_starts import REWARM_PERIOD_S
+from rkgnn_ros.core.fitting.policy import REFIT_S, REWARM_PERIOD_S
 from rkgnn_ros.core.fitting.trig_loop import TrigLoop
 from rkgnn_ros.core.fitting.validation import validation_nrmse
 from rkgnn_ros.core.model.spec import NetworkSpec

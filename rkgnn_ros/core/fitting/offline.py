@@ -49,7 +49,7 @@ from .identify import nrmse, RKGNNModel
 from .online import OnlineIdentification
 from .online_records import (ClosedLoop, GenerationStats, LogLine, ModelUpdate, Observation,
                              OnlineSettings, Status)
-from .search_starts import WARM_START_S
+from .policy import WARM_START_S
 from ..data import Dataset
 
 __all__ = ['OfflineResult', 'Verdict', 'heldout_baselines', 'heldout_prediction',

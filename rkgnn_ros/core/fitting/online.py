@@ -75,12 +75,15 @@ from .online_records import (AUTO_BASIS, ClosedLoop, GenerationStats, LogLine, L
                              StepResult, StreamCapture)
 from .online_rules import (auto_untried, EventLog, feed_memory, stale_stream, Staleness,
                            trig_holds)
+from .policy import (DATA_REFRESH_S, EVOLUTION_MIN_PERIOD, LOG_THROTTLE_S,
+                     MAX_CONSECUTIVE_ERRORS, MIN_SEGMENT_SAMPLES, VALIDATION_EVERY,
+                     WAITING_REFRESH_S, WARM_START_NFEV, WARM_START_S, YOUNG_DATA_S,
+                     YOUNG_WARM_START_S)
 from .rigid_online import RigidPolicy
 from .search_starts import (hand_over_settings, restart_around, rewarm, RewarmSchedule,
-                            warm_start, WARM_START_NFEV, WARM_START_S)
+                            warm_start)
 from .trig_change import TrigChangeMonitor
-from .trig_loop import YOUNG_DATA_S
-from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
+from .validation import split_validation, validation_nrmse
 from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..model.model import RKGNNModel
@@ -89,19 +92,6 @@ __all__ = ['AUTO_BASIS', 'OnlineIdentification', 'OnlineSettings', 'Observation'
            'StreamCapture', 'Status', 'ClosedLoop', 'ModelUpdate', 'LoopUpdate',
            'GenerationStats', 'LogLine', 'StepResult', 'model_update', 'split_validation']
 
-DATA_REFRESH_S = 1.0        # at most one set_data per second
-WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
-VALIDATION_EVERY = 5        # generations between two validations of a changed best
-EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
-MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search restarts
-#: While the data span less than :data:`.trig_loop.YOUNG_DATA_S`, one equation-error fit
-#: (the search's warm start, or a re-warm) takes at most this (real s). It runs in the
-#: worker thread between the fits on the trigonometric basis, which then wait: in a run of
-#: bench/online.py (case 2, the arm starting from rest) two 5 s fits, at 5 and at 10 s of
-#: data, held the closed loop back until 15 s and the first prediction of a model until
-#: 17.7 s after the first joint_states. The data double soon after, and a full fit follows.
-YOUNG_WARM_START_S = 1.0
-LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
 #: Cases whose predictions use the linear closed-loop fit on the trigonometric basis
 #: (:class:`.case_three.ArmKeeper`): it needs neither torque nor the gains.
 _CLOSED_FIT_CASES = ('unknown', 'pd_gains')

@@ -46,6 +46,7 @@ from typing import NamedTuple, Optional, Sequence, Tuple
 import numpy as np
 
 from .controller_laws import ControllerLaw
+from .policy import FORM_GAIN, FORM_MIN_ERROR
 from .rigid_data import choose_sigma, filtered_rows, FilteredRows
 from .rigid_law import GravityFeatures
 from ..data import Dataset
@@ -55,15 +56,8 @@ from ..rigid.solve import fit_consistent
 from ..rigid.structure import RigidStructure
 from ..servo_law import pd_torque
 
-__all__ = ['FORM_GAIN', 'RigidArm', 'RigidFit', 'fit_closed', 'fit_closed_forms', 'fit_torque',
+__all__ = ['RigidArm', 'RigidFit', 'fit_closed', 'fit_closed_forms', 'fit_torque',
            'torque_errors']
-
-#: A richer closed-loop form (integral, gravity compensation) is kept when its held-out
-#: error is at most this share of the simpler one's.
-FORM_GAIN = 0.5
-
-#: ... and the simpler form leaves more than this (worst joint) unexplained.
-FORM_MIN_ERROR = 0.01
 
 
 class RigidArm:
@@ -511,8 +505,8 @@ def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
     Return the closed-loop fit of the form the held-out data support best.
 
     A PD first; a gravity compensation (on θ, then on θd) and an integral are each kept
-    only where the held-out error is at most :data:`FORM_GAIN` of the simpler form's and
-    that one leaves more than :data:`FORM_MIN_ERROR`.
+    only where the held-out error is at most :data:`~.policy.FORM_GAIN` of the simpler form's and
+    that one leaves more than :data:`~.policy.FORM_MIN_ERROR`.
     """
     if features is None:
         features = GravityFeatures(structure)

@@ -20,7 +20,7 @@ torque residual on the newest data is what :class:`.change.ChangeDetector` judge
 measured torque against the arm's inverse dynamics at the measured states, θ̈ the centred
 derivative of θ̇ as the torque gate takes it (:func:`~.torque_check.paired_torques`), so the
 normal level (the residual's RMS on the held-out part of the fit, once the data span
-:data:`~.rigid_online.DETECT_MIN_S`) has the same noise in it. A change is said with its
+:data:`~.policy.DETECT_MIN_S`) has the same noise in it. A change is said with its
 time; the policy then drops what the data before it built (:mod:`.online`).
 """
 
@@ -31,10 +31,11 @@ import numpy as np
 
 from .change import Change, ChangeDetector
 from .online_records import DynamicsChange, LogLine
+from .policy import (CHECK_EVERY_S, CHECK_S, DETECT_MIN_S, MIN_SEGMENT_SAMPLES,
+                     TRIG_CHANGE_MARGIN_S)
 from .rigid_change import since
-from .rigid_online import CHECK_EVERY_S, CHECK_S, DETECT_MIN_S
 from .trig_loop import data_span
-from .validation import MIN_SEGMENT_SAMPLES, split_validation
+from .validation import split_validation
 from ..data import Dataset
 from ..differentiate import centred_derivative, CENTRED_ORDER, CENTRED_WINDOW
 
@@ -122,7 +123,7 @@ class TrigChangeMonitor:
             return None
         change = self.detector.check(found[0], found[2])
         if change is not None:
-            self.since = change.time + 0.05
+            self.since = change.time + TRIG_CHANGE_MARGIN_S
             self.detector = ChangeDetector()
             self._armed_by = None
         return change

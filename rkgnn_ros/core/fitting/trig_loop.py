@@ -54,8 +54,9 @@ import numpy as np
 from .controller_laws import ControllerLaw, TrigFeatures
 from .law_loop import LawLoop, PASSES
 from .linear import LinearDynamics, Samples, samples_from_datasets
+from .policy import INTEGRAL_GAIN, INTEGRAL_MIN_ERROR, LOOP_KI_ZERO, MIN_SEGMENT_SAMPLES
 from .torque_check import paired_torques, torque_error
-from .validation import MIN_SEGMENT_SAMPLES, split_validation
+from .validation import split_validation
 from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..integration.inputs import stage_inputs
@@ -64,8 +65,7 @@ from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
 from ..servo_law import compiled_pd_torque, pd_torque
 
-__all__ = ['INTEGRAL_GAIN', 'INTEGRAL_MIN_ERROR', 'KI_ZERO', 'MAX_SUBSTEPS', 'PASSES',
-           'YOUNG_DATA_S', 'TrigLoop', 'closed_loop_error', 'data_span',
+__all__ = ['MAX_SUBSTEPS', 'PASSES', 'TrigLoop', 'closed_loop_error', 'data_span',
            'fit_closed_trig_loop', 'fit_trig_loop', 'precompile_trig_loop', 'trig_torque_error']
 
 #: Most RKG steps per sampling interval (a stiffer loop is rolled out with this many).
@@ -83,25 +83,6 @@ SUBSTEPS_REUSE_RAD = 0.05
 
 #: A state component beyond this magnitude ends a rollout as diverged.
 DIVERGED = 1e6
-
-#: Case 3: an integral gain below this share of Kp (1/s), or negative, is a fitted zero
-#: (on a PD servo's data the fit gives |Ki| / Kp of 1e-3 to 3e-3 1/s; the PID servos of
-#: ``bench/online_servos.py`` have 0.5 1/s).
-KI_ZERO = 0.01
-
-#: Case 3: the PID form is kept when its held-out error is this many times smaller than the
-#: PD form's ...
-INTEGRAL_GAIN = 2.0
-
-#: ... and the PD form's is above this (a PD servo's data: 0.8-4.4 % on the paper's arm).
-INTEGRAL_MIN_ERROR = 0.01
-
-#: While the data span less than this (s) they are young: the fits on this basis that do
-#: not hold are retried every second, without doubling waits (cases 1 and 3: the first
-#: seconds of motion seldom excite the arm enough, and each second more is what makes the
-#: fit hold), and the search's equation-error fits are kept short so that those retries
-#: are not held back (:mod:`.online`).
-YOUNG_DATA_S = 15.0
 
 
 @njit(cache=True, nogil=True)
@@ -393,8 +374,8 @@ def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float
     error: RMS of M θ̈ + V + G + F minus the servo's torque over the servo torque's standard
     deviation, worst joint. Two forms are fitted, a PD servo and a PID with a constant
     (Ki ∫e + c); the PID is kept only where it explains the held-out data clearly better
-    (:data:`INTEGRAL_GAIN` times smaller error, from a PD error above
-    :data:`INTEGRAL_MIN_ERROR`): over a limited range of motion c trades with the slow
+    (:data:`~.policy.INTEGRAL_GAIN` times smaller error, from a PD error above
+    :data:`~.policy.INTEGRAL_MIN_ERROR`): over a limited range of motion c trades with the slow
     gravity terms, which would leave the closed loop right and the arm's torque wrong. The
     law's integral term holds at the end of ``segments``; ∫e runs on from one segment to the
     next (a gap adds nothing to it). ``prior``: older samples of the closed loop (the
@@ -434,7 +415,7 @@ def _closed_form(train, validation, integral: bool, prior=None) -> Optional[Trig
     ki = bias = grown = np.zeros(n)
     if integral:
         ki, bias, grown = arm.ki_, arm.bias_, every.error_integral[-1]
-    zero = ki < KI_ZERO * kp
+    zero = ki < LOOP_KI_ZERO * kp
     law_ki = np.where(zero, 0.0, ki)
     law = ControllerLaw(
         kp=kp, kd=kd, ki=law_ki, bias=bias + np.where(zero, ki * grown, 0.0),
