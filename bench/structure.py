@@ -53,6 +53,21 @@ Writes ``bench/results/structure.json`` with
   feed, the validation split); a tunable is a module-level UPPER_CASE name bound to a
   number (a literal, signed, or arithmetic on literals, or a call whose second argument is
   one: the policy table's rows);
+- ``max_function_parameters``: the most parameters a function or method under
+  ``rkgnn_ros/`` takes (every named one, ``*args`` and ``**kwargs`` one each, a method's
+  ``self`` or ``cls`` not), numba kernels (``@njit``, ``@jit`` ...: their arguments are
+  arrays by design) left out; the functions over :data:`PARAMETER_LIMIT` are listed
+  (``functions_over_parameter_limit``);
+- ``top_level_modules``: the Python modules directly in ``rkgnn_ros/`` (``__init__.py``
+  not counted);
+- ``core_folder_cycles``: how many pairs of folders of ``rkgnn_ros/core/`` import each
+  other (listed in ``core_folder_cycle_pairs``);
+- ``readme_lines``: the lines of ``README.md``;
+- ``duplicate_pairs``: the pairs of places in ``rkgnn_ros/`` that share six or more lines,
+  as the ``duplicates`` command counts them (None where it is not installed);
+- ``test_suite``: the last recorded run of the whole test suite, ``wall_s`` its wall time
+  (``test_suite_wall_s``), read from a pytest log given with ``--suite-log`` (its last
+  summary line), else kept from the JSON written before;
 
 and, to say where the limits (600 lines a module, 400 a class) are not met, every module
 and class over them. Nothing here imports the package: the files are parsed, not run.
@@ -64,11 +79,16 @@ import datetime
 import json
 import math
 import os
+import re
 import subprocess
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MODULE_LIMIT = 600
 CLASS_LIMIT = 400
+PARAMETER_LIMIT = 8
+
+#: Decorators of a numba kernel (left out of the parameter count).
+KERNEL_DECORATORS = {'njit', 'jit', 'vectorize', 'guvectorize', 'cfunc', 'stencil'}
 
 #: The modules of core/fitting/ that make up the online policy (see the module docstring).
 ONLINE_POLICY = ('online.py', 'online_records.py', 'online_rules.py', 'policy.py', 'case_one.py',
@@ -261,10 +281,92 @@ def numeric_constants(tree):
     return found
 
 
+def _decorator_name(node):
+    """Return the last name of a decorator (``numba.njit(cache=True)`` -> ``njit``)."""
+    node = node.func if isinstance(node, ast.Call) else node
+    return node.attr if isinstance(node, ast.Attribute) else getattr(node, 'id', '')
+
+
+def parameter_counts(tree, rel):
+    """Yield (parameters, 'file:qualified name') of every function but numba kernels."""
+    def walk(node, in_class, prefix):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if not any(_decorator_name(d) in KERNEL_DECORATORS
+                           for d in child.decorator_list):
+                    a = child.args
+                    names = [x.arg for x in a.posonlyargs + a.args + a.kwonlyargs]
+                    if in_class and names and names[0] in ('self', 'cls'):
+                        names = names[1:]
+                    count = len(names) + (a.vararg is not None) + (a.kwarg is not None)
+                    yield count, f'{rel}:{prefix}{child.name}'
+                yield from walk(child, False, f'{prefix}{child.name}.')
+            elif isinstance(child, ast.ClassDef):
+                yield from walk(child, True, f'{prefix}{child.name}.')
+            else:
+                yield from walk(child, in_class, prefix)
+    yield from walk(tree, False, '')
+
+
+def core_cycles(package):
+    """Return the pairs of folders of ``core/`` that import each other."""
+    core = os.path.join(package, 'core')
+    folders = {name for name in os.listdir(core)
+               if os.path.isdir(os.path.join(core, name)) and not name.startswith('_')}
+    edges = set()
+    for path in python_files(core):
+        parts = os.path.relpath(path, core).split(os.sep)
+        if len(parts) < 2:
+            continue
+        with open(path, encoding='utf-8') as f:
+            tree = ast.parse(f.read())
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.ImportFrom) or node.module is None:
+                continue
+            names = node.module.split('.')
+            if node.level == 2 and names[0] in folders:
+                target = names[0]
+            elif 'core' in names and names.index('core') + 1 < len(names):
+                target = names[names.index('core') + 1]
+            else:
+                continue
+            if target in folders and target != parts[0]:
+                edges.add((parts[0], target))
+    return sorted({tuple(sorted(e)) for e in edges if (e[1], e[0]) in edges})
+
+
+def duplicate_pairs(package):
+    """Return the pairs the ``duplicates`` command counts in ``package`` (None: no command)."""
+    try:
+        out = subprocess.run(['duplicates', '--repo', package, '--most', '200',
+                              '--seconds', '120'], capture_output=True, text=True,
+                             check=False).stdout
+    except OSError:
+        return None
+    first = out.strip().splitlines()[0] if out.strip() else ''
+    if first.startswith('no duplicates'):
+        return 0
+    match = re.match(r'(\d+) pairs? of places', first)
+    return int(match.group(1)) if match else None
+
+
+def suite_run(log):
+    """Return the summary of a pytest log: passed, failed, skipped and wall_s."""
+    with open(log, encoding='utf-8', errors='replace') as f:
+        lines = [line for line in f if re.search(r' in [\d.]+s', line)]
+    if not lines:
+        raise ValueError(f'{log}: no pytest summary line')
+    summary = lines[-1]
+    counts = re.findall(r'(\d+) (passed|failed|skipped|errors?)', summary)
+    run = {key: int(n) for n, key in counts}
+    run['wall_s'] = float(re.search(r' in ([\d.]+)s', summary).group(1))
+    return run
+
+
 def measure(root):
     """Return the measurements of the checkout at ``root`` as a dict."""
     package = os.path.join(root, 'rkgnn_ros')
-    modules, classes, gill, laws, policy = [], [], [], [], {}
+    modules, classes, gill, laws, policy, parameters = [], [], [], [], {}, []
     for path in python_files(package):
         rel = os.path.relpath(path, root)
         with open(path, encoding='utf-8') as f:
@@ -281,6 +383,7 @@ def measure(root):
                     gill.append(f'{rel}:{node.name}')
         laws += [f'{rel}:{name}' for name, node in qualified_functions(tree)
                  if writes_servo_law(node)]
+        parameters += parameter_counts(tree, rel)
         folder, name = os.path.split(rel)
         if folder == os.path.join('rkgnn_ros', 'core', 'fitting') and name in ONLINE_POLICY:
             constants = numeric_constants(tree)
@@ -293,6 +396,15 @@ def measure(root):
     if os.path.exists(node):
         with open(node, encoding='utf-8') as f:
             node_lines = f.read().count('\n')
+    parameters.sort(key=lambda item: (-item[0], item[1]))
+    cycles = core_cycles(package)
+    top = [name for name in os.listdir(package)
+           if name.endswith('.py') and name != '__init__.py']
+    readme = os.path.join(root, 'README.md')
+    readme_lines = None
+    if os.path.exists(readme):
+        with open(readme, encoding='utf-8') as f:
+            readme_lines = len(f.read().splitlines())
     return {
         'max_module_lines': modules[0][0],
         'max_module': modules[0][1],
@@ -305,6 +417,14 @@ def measure(root):
         'servo_law_definition_sites': laws,
         'online_policy_constant_modules': len(policy),
         'online_policy_constants': policy,
+        'max_function_parameters': parameters[0][0],
+        'functions_over_parameter_limit': {name: count for count, name in parameters
+                                           if count > PARAMETER_LIMIT},
+        'top_level_modules': len(top),
+        'core_folder_cycles': len(cycles),
+        'core_folder_cycle_pairs': [list(pair) for pair in cycles],
+        'readme_lines': readme_lines,
+        'duplicate_pairs': duplicate_pairs(package),
         'modules_over_limit': {name: lines for lines, name in modules if lines > MODULE_LIMIT},
         'classes_over_limit': {name: lines for lines, name in classes if lines > CLASS_LIMIT},
         'limits': {'module_lines': MODULE_LIMIT, 'class_lines': CLASS_LIMIT},
@@ -327,8 +447,19 @@ def main(argv=None):
                         help='checkout to measure (default: this one)')
     parser.add_argument('--out', default=os.path.join(HERE, 'results', 'structure.json'),
                         help="where to write the JSON ('-': print only)")
+    parser.add_argument('--suite-log', default=None,
+                        help='pytest log of a run of the whole suite (default: the run '
+                             'recorded in --out before)')
     args = parser.parse_args(argv)
     result = measure(os.path.abspath(args.root))
+    if args.suite_log is not None:
+        result['test_suite'] = dict(suite_run(args.suite_log),
+                                    log=os.path.basename(args.suite_log))
+    elif args.out != '-' and os.path.exists(args.out):
+        with open(args.out, encoding='utf-8') as f:
+            result['test_suite'] = json.load(f).get('test_suite')
+    suite = result.get('test_suite') or {}
+    result['test_suite_wall_s'] = suite.get('wall_s')
     result['commit'] = commit(args.root)
     result['date'] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')
     text = json.dumps(result, indent=2)
