@@ -114,8 +114,7 @@ from rkgnn_ros.identification.subscriptions import (quiet_events, subscribe_desc
                                                     subscribe_streams)
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.node.parameters import Change
-from rkgnn_ros.node.sigint import Interrupt
-from rkgnn_ros.node.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
+from rkgnn_ros.node.stacks import start_up, tear_down
 from std_srvs.srv import SetBool, Trigger
 
 __all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main',
@@ -321,12 +320,8 @@ class IdentifierNode(Node):
 
 def main(args=None):
     """Run the identifier node until SIGINT or shutdown; return the exit code."""
-    dump_stacks_on_sigusr1()
-    interrupt = Interrupt()
-    interrupt.install()                     # before rclpy.init: its handler chains to it
-    rclpy.init(args=args)
-    node = None
-    code = 0
+    interrupt = start_up(args)
+    node, code = None, 0
     try:
         node = IdentifierNode()
         interrupt.arm()                     # a SIGINT now ends the spin, raises nothing
@@ -343,14 +338,9 @@ def main(args=None):
         rclpy.logging.get_logger('identifier').fatal(f'refusing to start: {exc}')
         code = 1
     finally:
-        watchdog = TeardownWatchdog()
         if node is not None:
             node.stop()                     # the worker joined, the model file written
-        watchdog.arm()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        watchdog.disarm()
+        tear_down(node)
     return code
 
 

@@ -109,8 +109,7 @@ from rkgnn_ros.core.sim.arm_simulator import ArmSimulator, SimulationDiverged
 from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.receiver import FeedforwardReceiver
 from rkgnn_ros.node.parameters import Change
-from rkgnn_ros.node.sigint import Interrupt
-from rkgnn_ros.node.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
+from rkgnn_ros.node.stacks import start_up, tear_down
 from rkgnn_ros.sim_node.parameters import build_config, BY_NAME, ConfigurationError, PARAMETERS
 from rkgnn_ros.wire.cdr import (encapsulation_problem, joint_trajectory_cdr_size,
                                 parse_trajectory_efforts_cdr)
@@ -517,12 +516,8 @@ class SimArm(Node):
 
 def main(args=None) -> int:
     """Run the node until SIGINT, shutdown or ``duration``; return the exit code."""
-    dump_stacks_on_sigusr1()
-    interrupt = Interrupt()
-    interrupt.install()                     # before rclpy.init: its handler chains to it
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
+    interrupt = start_up(args)
+    node, exit_code = None, 0
     try:
         node = SimArm()
         interrupt.arm()                     # a SIGINT now ends the spin, raises nothing
@@ -539,12 +534,7 @@ def main(args=None) -> int:
         if rclpy.ok():
             raise
     finally:
-        watchdog = TeardownWatchdog()
-        watchdog.arm()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        watchdog.disarm()
+        tear_down(node)
     return exit_code
 
 

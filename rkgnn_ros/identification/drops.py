@@ -122,6 +122,13 @@ class DropAccount:
         self.count(stream, reason)
         self.log_drop(topic, reason, text)
 
+    def refused(self, topic: str, stream: str, sample) -> bool:
+        """Return whether ``sample`` (a parse's result) is a rejection; count it if so."""
+        if sample.ok:
+            return False
+        self.reject(topic, stream, sample.reason, sample.message)
+        return True
+
     def internal_error(self, where: str) -> None:
         """Count and log the exception being handled (unless shutting down)."""
         if not self._alive():

@@ -348,15 +348,9 @@ class Ingestion:
         checked before anything is built from the points) or a JointTrajectory.
         """
         try:
-            joints = self._joints
-            if joints is None:
-                self.drops.reject('reference_trajectory', 'reference', 'no_joints',
-                                  'joints not known yet (waiting for joint_states)')
-                return
-            sample = _read_trajectory(msg, joints, now)
-            if not sample.ok:
-                self.drops.reject('reference_trajectory', 'reference', sample.reason,
-                                  sample.message)
+            sample = self._parsed('reference_trajectory', 'reference',
+                                  lambda joints: _read_trajectory(msg, joints, now))
+            if sample is None:
                 return
             result = self._buffer.add_reference(sample.t0, sample.times, sample.positions,
                                                 sample.velocities)
@@ -365,6 +359,24 @@ class Ingestion:
                                     'rejected by the buffer')
         except Exception:  # noqa: B902 - bad input is counted, never raised
             self.drops.internal_error('reference_trajectory')
+
+    def _parsed(self, topic: str, stream: str, read):
+        """Return ``read(joints)``, or None if the joints are not known or it is refused."""
+        if self._joints is None:
+            self.drops.reject(topic, stream, 'no_joints',
+                              'joints not known yet (waiting for joint_states)')
+            return None
+        sample = read(self._joints)
+        return None if self.drops.refused(topic, stream, sample) else sample
+
+    def _buffered(self, topic: str, result, stamp: float) -> bool:
+        """Return whether the buffer took a sample; warn of a clock jump, log a refusal."""
+        if result.clock_jump:
+            self._warn_jump(topic, stamp)
+        if not result.accepted:
+            self.drops.log_drop(topic, result.reason,
+                                f'stamp {stamp:.6f} s rejected by the buffer')
+        return bool(result.accepted)
 
     def _handle_state(self, raw: bytes, received: int) -> None:
         cfg = self._config
@@ -377,15 +389,13 @@ class Ingestion:
             if sample.ok and len(names) > MAX_JOINTS:
                 sample = Rejection('over_budget', f'{len(names)} joints to learn, more than '
                                                   f'{MAX_JOINTS}: set the joints parameter')
-            if not sample.ok:
-                self.drops.reject('joint_states', 'state', sample.reason, sample.message)
+            if self.drops.refused('joint_states', 'state', sample):
                 return
             self._decide_case(sample.effort is not None)
             self.set_joints(names, 'the first joint_states message')
             joints = self._joints
         sample = read_joint_state(raw, joints, need_tau)
-        if not sample.ok:
-            self.drops.reject('joint_states', 'state', sample.reason, sample.message)
+        if self.drops.refused('joint_states', 'state', sample):
             return
         self._decide_case(sample.effort is not None)
         effort = sample.effort if sources.case == 'torque' else None
@@ -408,11 +418,7 @@ class Ingestion:
         result = self._buffer.add_state(
             sample.stamp, sample.position,
             np.zeros(len(joints)) if theta_dot is None else theta_dot, effort)
-        if result.clock_jump:
-            self._warn_jump('joint_states', sample.stamp)
-        if not result.accepted:
-            self.drops.log_drop('joint_states', result.reason,
-                                f'stamp {sample.stamp:.6f} s rejected by the buffer')
+        if not self._buffered('joint_states', result, sample.stamp):
             return
         now = self._clock()
         self._received['state'] = now
@@ -473,14 +479,9 @@ class Ingestion:
             self.feed.append(('command', stamp, theta_d[0]))
 
     def _handle_command(self, raw: bytes) -> None:
-        joints = self._joints
-        if joints is None:
-            self.drops.reject('joint_commands', 'command', 'no_joints',
-                              'joints not known yet (waiting for joint_states)')
-            return
-        sample = read_joint_state(raw, joints, False)
-        if not sample.ok:
-            self.drops.reject('joint_commands', 'command', sample.reason, sample.message)
+        sample = self._parsed('joint_commands', 'command',
+                              lambda joints: read_joint_state(raw, joints, False))
+        if sample is None:
             return
         if sample.velocity is None:
             self.drops.reject('joint_commands', 'command', 'missing_velocity',
@@ -497,11 +498,7 @@ class Ingestion:
     def _take_command(self, sample) -> None:
         """Buffer a plausible joint_commands sample; keep it as the newest command."""
         result = self._buffer.add_command(sample.stamp, sample.position, sample.velocity)
-        if result.clock_jump:
-            self._warn_jump('joint_commands', sample.stamp)
-        if not result.accepted:
-            self.drops.log_drop('joint_commands', result.reason,
-                                f'stamp {sample.stamp:.6f} s rejected by the buffer')
+        if not self._buffered('joint_commands', result, sample.stamp):
             return
         self.latest_command = sample.position
         now = self._clock()

@@ -73,6 +73,7 @@ from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
 from rkgnn_ros.identification.candidates import describe, Models, Slot
+from rkgnn_ros.identification.threads import ThreadPart
 from rkgnn_ros.wire.conversions import make_joint_state, serialize_joint_trajectory
 from sensor_msgs.msg import JointState
 
@@ -81,7 +82,6 @@ __all__ = ['LATENCY_WINDOW', 'JOINT_SCORE_COLUMNS', 'SCORE_LABELS', 'Prediction'
 
 LATENCY_WINDOW = 1000  # predictions whose latency the diagnostics summarise
 MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's bound)
-JOIN_TIMEOUT_S = 10.0
 DECIDE_EVERY_S = 0.1   # the publish decision is taken again at most this often (stamp time)
 RESCORE_EVERY_S = 0.1  # the self-check's scores are computed again at most this often
 #: A candidate model predicts beside the model at most this often (stamp time, s): its
@@ -197,7 +197,7 @@ class _Horizon(NamedTuple):
     what: str
 
 
-class Predictor:
+class Predictor(ThreadPart):
     """
     Predictions from the newest state, scored and chosen, in a thread of their own.
 
@@ -213,6 +213,8 @@ class Predictor:
         Returns the current parameters.
 
     """
+
+    thread_name = 'rkgnn_prediction'
 
     def __init__(self, ingestion, publish: Callable[[object], None], config: Callable):
         self._ingestion = ingestion
@@ -563,21 +565,9 @@ class Predictor:
 
     # ------------------------------------------------------------------ the thread
 
-    def start(self) -> None:
-        """Start the prediction thread."""
-        self._thread = threading.Thread(target=self._run, name='rkgnn_prediction',
-                                        daemon=True)
-        self._thread.start()
-
-    def stop(self) -> bool:
-        """Stop and join the prediction thread; return False if it did not stop in time."""
-        self._stop.set()
+    def _wake(self) -> None:
+        """Wake the thread from its wait for a request (:meth:`stop`)."""
         self._wanted.set()
-        thread = self._thread
-        if thread is not None and thread.is_alive():
-            thread.join(JOIN_TIMEOUT_S)
-            return not thread.is_alive()
-        return True
 
     def _run(self) -> None:
         """One prediction from the newest state per request, until stopped."""

@@ -92,7 +92,7 @@ Reading
 from dataclasses import dataclass
 import math
 import threading
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Dict, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 from rkgnn_ros.core.stamps import StampGrid
@@ -192,6 +192,18 @@ def _summed(drops: Dict[str, Dict[str, int]]) -> Dict[str, int]:
     return total
 
 
+class BufferLimits(NamedTuple):
+    """The limits of :class:`StreamBuffer` beyond its grid and what it pairs (see there)."""
+
+    reorder_tolerance: float = 0.01
+    clock_jump_threshold: float = 1.0
+    pair_tolerance: Optional[float] = None
+    max_abs_value: float = 1e6
+    max_samples: Optional[int] = None
+    jump_samples: int = 3
+    max_reference_points: int = 10_000
+
+
 class StreamBuffer:
     """
     Bounded, thread-safe window of joint states and commands for identification.
@@ -236,10 +248,9 @@ class StreamBuffer:
 
     def __init__(self, joints: Sequence[str], model_step: float, window: float,
                  gap_threshold: float, need_tau: bool, need_desired: bool,
-                 max_rate_hz: float = 2000.0, reorder_tolerance: float = 0.01,
-                 clock_jump_threshold: float = 1.0, pair_tolerance: Optional[float] = None,
-                 max_abs_value: float = 1e6, max_samples: Optional[int] = None,
-                 jump_samples: int = 3, max_reference_points: int = 10_000):
+                 max_rate_hz: float = 2000.0, **options):
+        (reorder_tolerance, clock_jump_threshold, pair_tolerance, max_abs_value, max_samples,
+         jump_samples, max_reference_points) = BufferLimits(**options)
         self.joints = tuple(str(joint) for joint in joints)
         if not self.joints or len(set(self.joints)) != len(self.joints):
             raise ValueError(f'joints must be non-empty and unique, got {self.joints}')

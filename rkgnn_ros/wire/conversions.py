@@ -277,7 +277,7 @@ def joint_state_to_arrays(
         stamp = msg.header.stamp
         return _joint_sample(tuple(msg.name), np.asarray(msg.position, dtype=float),
                              np.asarray(msg.velocity, dtype=float),
-                             np.asarray(msg.effort, dtype=float), stamp.sec, stamp.nanosec,
+                             np.asarray(msg.effort, dtype=float), (stamp.sec, stamp.nanosec),
                              tuple(joints), need_velocity, need_effort)
     except Exception as error:  # last resort: parsing must never raise
         return Rejection('malformed', f'cannot read JointState: {error!r}')
@@ -312,15 +312,16 @@ def joint_state_cdr_to_arrays(
         return None
     sec, nanosec, names, position, velocity, effort = parsed
     try:
-        return _joint_sample(names, position, velocity, effort, sec, nanosec,
+        return _joint_sample(names, position, velocity, effort, (sec, nanosec),
                              tuple(joints), need_velocity, need_effort)
     except Exception as error:  # last resort: parsing must never raise
         return Rejection('malformed', f'cannot read JointState: {error!r}')
 
 
-def _joint_sample(names, position, velocity, effort, sec, nanosec, joints, need_velocity,
+def _joint_sample(names, position, velocity, effort, stamp, joints, need_velocity,
                   need_effort) -> Union[JointSample, Rejection]:
     """Apply the JointState rules of the module docstring to fields already read."""
+    sec, nanosec = stamp     # the header's stamp: (s, ns)
     rejection = _names_rejection(names)
     if rejection is not None:
         return rejection

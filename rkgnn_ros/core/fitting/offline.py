@@ -72,12 +72,18 @@ class OfflineResult(NamedTuple):
     status: Status
 
 
+class OfflineOptions(NamedTuple):
+    """The progress, clock and description options of :func:`identify_offline` (see there)."""
+
+    progress_period_s: float = 2.0
+    wall: Callable[[], float] = time.monotonic
+    structure: object = None
+
+
 def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
                      budget_s: float = 90.0, max_generations: int = 0,
-                     progress: Optional[Callable[[Status, float], None]] = None,
-                     progress_period_s: float = 2.0,
-                     wall: Callable[[], float] = time.monotonic,
-                     structure=None) -> OfflineResult:
+                     progress: Optional[Callable[[Status, float], None]] = None, **options
+                     ) -> OfflineResult:
     """
     Run the online policy on a capture of recorded streams until the budget is spent.
 
@@ -109,6 +115,7 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
     OfflineResult
 
     """
+    progress_period_s, wall, structure = OfflineOptions(**options)
     clock = [0.0]
     status = [Status()]
     budget = Budget(budget_s, wall)

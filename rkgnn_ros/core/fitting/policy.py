@@ -18,18 +18,20 @@ The online policy's tunables, in one table, and the rules the policy's parts sha
 Every time constant and threshold with which the online identification decides what to do
 and when (:mod:`.online` and the keepers it runs: :mod:`.case_one`, :mod:`.case_three`,
 :mod:`.rigid_online`, the change detectors, the search's starts, the excitation memory's
-feed) is a row of :data:`TABLE`: its name, value, unit and why. The modules import the
-names from here; nothing else defines one. Times are seconds of the policy's clock unless
-the unit says otherwise; "share" is a fraction of what the row names.
+feed) is a row of the table below (:func:`table`): a module constant under a comment that
+says its unit and why. The modules import the names from here; nothing else defines one.
+Times are seconds of the policy's clock unless the unit says otherwise; "share" is a
+fraction of what the row names.
 
 The settings a user changes (the window, the validation share, the case ...) are not here:
 they are the identifier's parameters (:mod:`rkgnn_ros.identification.parameters`), handed
 to the policy as :class:`~.online_records.OnlineSettings`.
 """
 
+import re
 from typing import List, NamedTuple
 
-__all__ = ['TABLE', 'Tunable', 'retry_wait', 'still_holds']
+__all__ = ['Tunable', 'retry_wait', 'still_holds', 'table']
 
 
 class Tunable(NamedTuple):
@@ -41,195 +43,190 @@ class Tunable(NamedTuple):
     why: str
 
 
-#: Every tunable of the online policy, in the order below.
-TABLE: List[Tunable] = []
+def table() -> List[Tunable]:
+    """
+    Return the table: the tunables of this module in order, each with its comment.
 
-
-def _tunable(name: str, value, unit: str, why: str):
-    TABLE.append(Tunable(name, value, unit, why))
-    return value
+    A tunable is an UPPER_CASE name bound to a number, its ``#:`` comment above it reads
+    ``[unit] why``.
+    """
+    with open(__file__, encoding='utf-8') as f:
+        lines = f.read().splitlines()
+    rows, comment = [], []
+    for line in lines:
+        if line.startswith('#: '):
+            comment.append(line[3:])
+            continue
+        name = re.match(r'([A-Z][A-Z0-9_]*) = ', line)
+        if name and comment:
+            unit, why = re.match(r'\[([^]]+)\] (.*)', ' '.join(comment)).groups()
+            rows.append(Tunable(name.group(1), globals()[name.group(1)], unit, why))
+        comment = []
+    return rows
 
 
 # -- the search's schedule (online.py)
-DATA_REFRESH_S = _tunable(
-    'DATA_REFRESH_S', 1.0, 's', 'the buffered window is taken again at most this often')
-WAITING_REFRESH_S = _tunable(
-    'WAITING_REFRESH_S', 0.25, 's', 'while too little is buffered, look again this often')
-VALIDATION_EVERY = _tunable(
-    'VALIDATION_EVERY', 5, 'generations', 'between two validations of a changed best')
-EVOLUTION_MIN_PERIOD = _tunable(
-    'EVOLUTION_MIN_PERIOD', 0.05, 's', 'generation statistics are reported at most this often')
-MAX_CONSECUTIVE_ERRORS = _tunable(
-    'MAX_CONSECUTIVE_ERRORS', 3, 'steps', 'failed steps in a row after which the search '
-    'restarts')
-LOG_THROTTLE_S = _tunable(
-    'LOG_THROTTLE_S', 1.0, 's', 'a repeating warning is logged at most this often')
-YOUNG_DATA_S = _tunable(
-    'YOUNG_DATA_S', 15.0, 's of data', 'below this span the data are young: trigonometric '
-    'fits that do not hold are retried every second without doubling waits, and the '
-    "search's equation-error fits are kept short (YOUNG_WARM_START_S) so they do not hold "
-    'those retries back')
-YOUNG_WARM_START_S = _tunable(
-    'YOUNG_WARM_START_S', 1.0, 'real s', 'budget of one equation-error fit of the search '
-    'while the data are young; it runs in the worker thread between the trigonometric fits, '
-    'which wait for it')
+#: [s] The buffered window is taken again at most this often.
+DATA_REFRESH_S = 1.0
+#: [s] While too little is buffered, look again this often.
+WAITING_REFRESH_S = 0.25
+#: [generations] Between two validations of a changed best.
+VALIDATION_EVERY = 5
+#: [s] Generation statistics are reported at most this often.
+EVOLUTION_MIN_PERIOD = 0.05
+#: [steps] Failed steps in a row after which the search restarts.
+MAX_CONSECUTIVE_ERRORS = 3
+#: [s] A repeating warning is logged at most this often.
+LOG_THROTTLE_S = 1.0
+#: [s of data] Below this span the data are young: trigonometric fits that do not hold are retried
+#: every second without doubling waits, and the search's equation-error fits are kept short
+#: (YOUNG_WARM_START_S) so they do not hold those retries back.
+YOUNG_DATA_S = 15.0
+#: [real s] Budget of one equation-error fit of the search while the data are young; it runs in the
+#: worker thread between the trigonometric fits, which wait for it.
+YOUNG_WARM_START_S = 1.0
 
 # -- where a search starts (search_starts.py)
-WARM_START_S = _tunable(
-    'WARM_START_S', 5.0, 'real s', 'budget of one equation-error fit (the warm start)')
-WARM_START_NFEV = _tunable(
-    'WARM_START_NFEV', 300, 'evaluations', 'of the equation-error fit, at most')
-WARM_START_SIGMA = _tunable(
-    'WARM_START_SIGMA', 0.05, 'genome units', 'search spread around the warm start')
-REWARM_GROWTH = _tunable(
-    'REWARM_GROWTH', 1.5, 'ratio', 'the equation-error fit runs again when the window grew '
-    'this much since it last ran ...')
-REWARM_PERIOD_S = _tunable(
-    'REWARM_PERIOD_S', 10.0, 's', '... or when this long passed since it last ran')
+#: [real s] Budget of one equation-error fit (the warm start).
+WARM_START_S = 5.0
+#: [evaluations] Of the equation-error fit, at most.
+WARM_START_NFEV = 300
+#: [genome units] Search spread around the warm start.
+WARM_START_SIGMA = 0.05
+#: [ratio] The equation-error fit runs again when the window grew this much since it last ran ...
+REWARM_GROWTH = 1.5
+#: [s] ... or when this long passed since it last ran.
+REWARM_PERIOD_S = 10.0
 
 # -- what a fit must show on the newest data (shared by the laws and the gains)
-MIN_SEGMENT_SAMPLES = _tunable(
-    'MIN_SEGMENT_SAMPLES', 10, 'samples', 'shorter segments (training or validation) are '
-    'left out')
-NEWEST_SHARE = _tunable(
-    'NEWEST_SHARE', 0.5, 'share of the data', 'a law or gains fitted on the data are used '
-    'only when this newest share of the data gives the same ones (the data determine them)')
-KD_AGREEMENT_S = _tunable(
-    'KD_AGREEMENT_S', 0.1, 's', 'two Kd agree within rtol * (|Kd| + this * |Kp|): a small '
-    'derivative gain is noisy relative to itself but matters little against Kp')
-KI_AGREEMENT_PER_S = _tunable(
-    'KI_AGREEMENT_PER_S', 0.1, '1/s', 'two Ki agree within rtol * (|Ki| + this * |Kp|)')
+#: [samples] Shorter segments (training or validation) are left out.
+MIN_SEGMENT_SAMPLES = 10
+#: [share of the data] A law or gains fitted on the data are used only when this newest share of
+#: the data gives the same ones (the data determine them).
+NEWEST_SHARE = 0.5
+#: [s] Two Kd agree within rtol * (|Kd| + this * |Kp|): a small derivative gain is noisy relative
+#: to itself but matters little against Kp.
+KD_AGREEMENT_S = 0.1
+#: [1/s] Two Ki agree within rtol * (|Ki| + this * |Kp|).
+KI_AGREEMENT_PER_S = 0.1
 
 # -- case 1: the servo law learned from torque (case_one.py)
-MIN_LAW_SAMPLES = _tunable(
-    'MIN_LAW_SAMPLES', 50, 'filtered rows', 'before a law is fitted')
-MAX_LAW_FIT_RATIO = _tunable(
-    'MAX_LAW_FIT_RATIO', 0.1, 'share of the torque', 'a law explains the torque when its '
-    'RMS residual is below this')
-LAW_AGREEMENT_RTOL = _tunable(
-    'LAW_AGREEMENT_RTOL', 0.1, 'relative', 'the law fitted on the whole data and on its '
-    'newest share must have these gains in common: with many θ-terms a few seconds of '
-    'encoder noise fit almost any gains, and the residual alone does not show it')
-LAW_GAIN_RTOL = _tunable(
-    'LAW_GAIN_RTOL', 0.02, 'relative', 'a refit moving the gains more than this moves the '
-    'law (the running search restarts on it)')
-LAW_KI_ZERO = _tunable(
-    'LAW_KI_ZERO', 1e-3, '1/s (Ki / Kp)', 'a learned integral gain below this share of Kp '
-    'is a fitted zero')
-INTEGRAL_MIN_RESIDUAL = _tunable(
-    'INTEGRAL_MIN_RESIDUAL', 1e-3, 'share of the torque', 'a richer law (an integral, '
-    'θ-terms) is considered only where the simpler one leaves more than this ...')
-LAW_FORM_GAIN = _tunable(
-    'LAW_FORM_GAIN', 0.5, 'ratio', '... and kept only where it leaves at most this share '
-    'of what the simpler one leaves')
-LAW_THETA_SAMPLES = _tunable(
-    'LAW_THETA_SAMPLES', 2000, 'samples', "θ kept to project a law's θ-terms on a model's "
-    'units')
-TRIG_MIN_SAMPLES = _tunable(
-    'TRIG_MIN_SAMPLES', 200, 'samples', 'training samples with torque before the '
-    'trigonometric arm is tried')
-TRIG_MAX_TORQUE_ERROR = _tunable(
-    'TRIG_MAX_TORQUE_ERROR', 0.1, 'RMSE / std', 'the trigonometric arm predicts while its '
-    'held-out torque error (worst joint) is at most this')
-TRIG_FIRST_RETRY_S = _tunable(
-    'TRIG_FIRST_RETRY_S', 1.0, 's', 'a trigonometric arm that did not hold is fitted '
-    'again after this; once the data are not young the wait doubles with each failure ...')
-TRIG_RETRY_S = _tunable(
-    'TRIG_RETRY_S', 10.0, 's', '... up to this: an arm the planar basis does not hold '
-    'would pay the fit at every refresh for nothing')
+#: [filtered rows] Before a law is fitted.
+MIN_LAW_SAMPLES = 50
+#: [share of the torque] A law explains the torque when its RMS residual is below this.
+MAX_LAW_FIT_RATIO = 0.1
+#: [relative] The law fitted on the whole data and on its newest share must have these gains in
+#: common: with many θ-terms a few seconds of encoder noise fit almost any gains, and the residual
+#: alone does not show it.
+LAW_AGREEMENT_RTOL = 0.1
+#: [relative] A refit moving the gains more than this moves the law (the running search restarts on
+#: it).
+LAW_GAIN_RTOL = 0.02
+#: [1/s (Ki / Kp)] A learned integral gain below this share of Kp is a fitted zero.
+LAW_KI_ZERO = 0.001
+#: [share of the torque] A richer law (an integral, θ-terms) is considered only where the simpler
+#: one leaves more than this ...
+INTEGRAL_MIN_RESIDUAL = 0.001
+#: [ratio] ... and kept only where it leaves at most this share of what the simpler one leaves.
+LAW_FORM_GAIN = 0.5
+#: [samples] Θ kept to project a law's θ-terms on a model's units.
+LAW_THETA_SAMPLES = 2000
+#: [samples] Training samples with torque before the trigonometric arm is tried.
+TRIG_MIN_SAMPLES = 200
+#: [RMSE / std] The trigonometric arm predicts while its held-out torque error (worst joint) is at
+#: most this.
+TRIG_MAX_TORQUE_ERROR = 0.1
+#: [s] A trigonometric arm that did not hold is fitted again after this; once the data are not
+#: young the wait doubles with each failure ...
+TRIG_FIRST_RETRY_S = 1.0
+#: [s] ... up to this: an arm the planar basis does not hold would pay the fit at every refresh for
+#: nothing.
+TRIG_RETRY_S = 10.0
 
 # -- case 3: the linear closed loop and the gains (case_three.py, trig_loop.py)
-GAIN_AGREEMENT_RTOL = _tunable(
-    'GAIN_AGREEMENT_RTOL', 0.15, 'relative', 'the gains of the whole data and of its newest '
-    "share must agree this well (the share's are the noisier)")
-MIN_GAIN_SAMPLES = _tunable(
-    'MIN_GAIN_SAMPLES', 51, 'samples', "shorter segments are left out of the gains' fit")
-MAX_GAIN_FEATURES = _tunable(
-    'MAX_GAIN_FEATURES', 200, 'features', "the gains' fit uses the general trigonometric "
-    'basis up to this many features and the tied planar one beyond (the general basis '
-    'grows combinatorially with the joints, and its normal equations with it)')
-MAX_LOOP_ERROR = _tunable(
-    'MAX_LOOP_ERROR', 0.1, 'share of the servo torque', 'the linear closed loop predicts '
-    'while its held-out equation error (worst joint) is at most this')
-MIN_LOOP_SAMPLES = _tunable(
-    'MIN_LOOP_SAMPLES', 200, 'samples', 'training samples before the linear closed loop is '
-    'tried')
-REFIT_S = _tunable(
-    'REFIT_S', 5.0, 's', 'between fits while the linear closed loop holds (it is global: the '
-    'newest data change it little, and each fit holds the search back)')
-RETRY_S = _tunable(
-    'RETRY_S', 1.0, 's', 'a linear closed loop that did not hold is fitted again after '
-    'this; once the data are not young the wait doubles with each failure ...')
-RETRY_MAX_S = _tunable(
-    'RETRY_MAX_S', 30.0, 's', '... up to this')
-LOOP_KI_ZERO = _tunable(
-    'LOOP_KI_ZERO', 0.01, '1/s (Ki / Kp)', "the closed loop's integral gain below this share "
-    "of Kp, or negative, is a fitted zero (a PD servo's data give a small positive one)")
-INTEGRAL_GAIN = _tunable(
-    'INTEGRAL_GAIN', 2.0, 'ratio', "the closed loop's PID form is kept when its held-out "
-    "error is this many times smaller than the PD form's ...")
-INTEGRAL_MIN_ERROR = _tunable(
-    'INTEGRAL_MIN_ERROR', 0.01, 'share of the servo torque', "... and the PD form's is "
-    'above this')
+#: [relative] The gains of the whole data and of its newest share must agree this well (the share's
+#: are the noisier).
+GAIN_AGREEMENT_RTOL = 0.15
+#: [samples] Shorter segments are left out of the gains' fit.
+MIN_GAIN_SAMPLES = 51
+#: [features] The gains' fit uses the general trigonometric basis up to this many features and the
+#: tied planar one beyond (the general basis grows combinatorially with the joints, and its normal
+#: equations with it).
+MAX_GAIN_FEATURES = 200
+#: [share of the servo torque] The linear closed loop predicts while its held-out equation error
+#: (worst joint) is at most this.
+MAX_LOOP_ERROR = 0.1
+#: [samples] Training samples before the linear closed loop is tried.
+MIN_LOOP_SAMPLES = 200
+#: [s] Between fits while the linear closed loop holds (it is global: the newest data change it
+#: little, and each fit holds the search back).
+REFIT_S = 5.0
+#: [s] A linear closed loop that did not hold is fitted again after this; once the data are not
+#: young the wait doubles with each failure ...
+RETRY_S = 1.0
+#: [s] ... up to this.
+RETRY_MAX_S = 30.0
+#: [1/s (Ki / Kp)] The closed loop's integral gain below this share of Kp, or negative, is a fitted
+#: zero (a PD servo's data give a small positive one).
+LOOP_KI_ZERO = 0.01
+#: [ratio] The closed loop's PID form is kept when its held-out error is this many times smaller
+#: than the PD form's ...
+INTEGRAL_GAIN = 2.0
+#: [share of the servo torque] ... and the PD form's is above this.
+INTEGRAL_MIN_ERROR = 0.01
 
 # -- a robot description's rigid body (rigid_online.py, rigid_fit.py)
-RIGID_MIN_DATA_S = _tunable(
-    'RIGID_MIN_DATA_S', 2.0, 's of data', 'before the first fit (gaps left out)')
-RIGID_REFRESH_S = _tunable(
-    'RIGID_REFRESH_S', 1.0, 's', 'between two refits, at least')
-RIGID_MAX_ERROR = _tunable(
-    'RIGID_MAX_ERROR', 0.5, 'RMSE / std', 'a fit predicts while its held-out error (worst '
-    'joint) is at most this; it is published either way')
-FORMS_EVERY_S = _tunable(
-    'FORMS_EVERY_S', 10.0, 's', "between two choices of the closed loop's form (integral, "
-    'gravity compensation); in between only the chosen form is refitted')
-FORM_GAIN = _tunable(
-    'FORM_GAIN', 0.5, 'ratio', 'a richer closed-loop form is kept when its held-out error is '
-    "at most this share of the simpler one's ...")
-FORM_MIN_ERROR = _tunable(
-    'FORM_MIN_ERROR', 0.01, 'RMSE / std', '... and the simpler form leaves more than this '
-    '(worst joint)')
+#: [s of data] Before the first fit (gaps left out).
+RIGID_MIN_DATA_S = 2.0
+#: [s] Between two refits, at least.
+RIGID_REFRESH_S = 1.0
+#: [RMSE / std] A fit predicts while its held-out error (worst joint) is at most this; it is
+#: published either way.
+RIGID_MAX_ERROR = 0.5
+#: [s] Between two choices of the closed loop's form (integral, gravity compensation); in between
+#: only the chosen form is refitted.
+FORMS_EVERY_S = 10.0
+#: [ratio] A richer closed-loop form is kept when its held-out error is at most this share of the
+#: simpler one's ...
+FORM_GAIN = 0.5
+#: [RMSE / std] ... and the simpler form leaves more than this (worst joint).
+FORM_MIN_ERROR = 0.01
 
 # -- changes of the dynamics (change.py, rigid_online.py, rigid_change.py, trig_change.py)
-DETECT_MIN_S = _tunable(
-    'DETECT_MIN_S', 6.0, 's of data', "a fit needs this much before its residual's level "
-    'judges changes')
-CHECK_EVERY_S = _tunable(
-    'CHECK_EVERY_S', 0.25, 's', 'between two checks for a change, at least')
-CHECK_S = _tunable(
-    'CHECK_S', 1.0, 's of data', 'the newest stretch a check judges')
-CHANGE_ALARM = _tunable(
-    'CHANGE_ALARM', 25.0, 'mean squared normalised residual', "a block's level at or above "
-    'which the dynamics changed')
-CHANGE_MIN_ROWS = _tunable(
-    'CHANGE_MIN_ROWS', 5, 'samples', 'fewest new samples a block is judged on')
-CHANGE_ONSET = _tunable(
-    'CHANGE_ONSET', 3.0, 'normalised residual', 'above this marks where the change began')
-CHANGE_RELATIVE_FLOOR = _tunable(
-    'CHANGE_RELATIVE_FLOOR', 0.01, "share of the joint's torque std", 'smallest normal '
-    'residual level')
-CHANGE_MARGIN_SIGMAS = _tunable(
-    'CHANGE_MARGIN_SIGMAS', 2.0, "filter widths (the fit's sigma, s)", 'the data after a '
-    'change detected on a rigid body count from this far after its onset, clear of the '
-    "filter's reach back")
-TRIG_CHANGE_MARGIN_S = _tunable(
-    'TRIG_CHANGE_MARGIN_S', 0.05, 's', 'the data after a change detected on the '
-    'trigonometric arm count from this far after its onset')
-PAYLOAD_MIN_S = _tunable(
-    'PAYLOAD_MIN_S', 1.0, 's of data', 'after a change before the last body is refitted ...')
-FULL_REFIT_S = _tunable(
-    'FULL_REFIT_S', 8.0, 's of data', '... and before the whole model is (from then on, only '
-    'on data after the change)')
-BODY_RIDGE = _tunable(
-    'BODY_RIDGE', 1e-3, 'relative, per row', "the last body's refit after a change is pulled "
-    "towards the body before it by this ridge, relative to each column's scale")
+#: [s of data] A fit needs this much before its residual's level judges changes.
+DETECT_MIN_S = 6.0
+#: [s] Between two checks for a change, at least.
+CHECK_EVERY_S = 0.25
+#: [s of data] The newest stretch a check judges.
+CHECK_S = 1.0
+#: [mean squared normalised residual] A block's level at or above which the dynamics changed.
+CHANGE_ALARM = 25.0
+#: [samples] Fewest new samples a block is judged on.
+CHANGE_MIN_ROWS = 5
+#: [normalised residual] Above this marks where the change began.
+CHANGE_ONSET = 3.0
+#: [share of the joint's torque std] Smallest normal residual level.
+CHANGE_RELATIVE_FLOOR = 0.01
+#: [filter widths (the fit's sigma, s)] The data after a change detected on a rigid body count from
+#: this far after its onset, clear of the filter's reach back.
+CHANGE_MARGIN_SIGMAS = 2.0
+#: [s] The data after a change detected on the trigonometric arm count from this far after its
+#: onset.
+TRIG_CHANGE_MARGIN_S = 0.05
+#: [s of data] After a change before the last body is refitted ...
+PAYLOAD_MIN_S = 1.0
+#: [s of data] ... and before the whole model is (from then on, only on data after the change).
+FULL_REFIT_S = 8.0
+#: [relative, per row] The last body's refit after a change is pulled towards the body before it by
+#: this ridge, relative to each column's scale.
+BODY_RIDGE = 0.001
 
 # -- the excitation memory's feed (memory.py)
-OFFER_EVERY = _tunable(
-    'OFFER_EVERY', 5, 'samples', 'one new sample in this many is offered to the memory '
-    '(neighbouring samples say nearly the same)')
-MEMORY_CAPACITY = _tunable(
-    'MEMORY_CAPACITY', 500, 'samples', "the identifier's memory keeps")
+#: [samples] One new sample in this many is offered to the memory (neighbouring samples say nearly
+#: the same).
+OFFER_EVERY = 5
+#: [samples] The identifier's memory keeps.
+MEMORY_CAPACITY = 500
 
 
 def retry_wait(failures: int, young: bool, first_s: float, longest_s: float) -> float:

@@ -322,7 +322,7 @@ def _closed_columns(structure, samples: FilteredRows, features, kp, kd, integral
 
 
 def _law_of(layout: dict, k: np.ndarray, n: int, kp, kd, features, gravity,
-            samples: FilteredRows, count: int) -> ControllerLaw:
+            samples: FilteredRows) -> ControllerLaw:
     def part(name):
         return k[layout[name]] if name in layout else None
 
@@ -341,7 +341,7 @@ def _law_of(layout: dict, k: np.ndarray, n: int, kp, kd, features, gravity,
                          else np.zeros((n, 0)),
                          theta_input=gravity if with_gravity else 'measured',
                          features=features if with_gravity else None,
-                         fit_ratio=np.zeros(n), samples=count)
+                         fit_ratio=np.zeros(n), samples=samples.n_samples)
 
 
 def servo_torque(law: ControllerLaw, samples: FilteredRows) -> np.ndarray:
@@ -396,11 +396,19 @@ def _normal_level(arm: RigidArm, law, samples: Optional[FilteredRows]) -> None:
     arm.info['torque_spread'] = np.std(reference, axis=0).tolist()
 
 
+class ClosedFitOptions(NamedTuple):
+    """The basis, prior and filter options of :func:`fit_closed` (see there)."""
+
+    features: Optional[GravityFeatures] = None
+    prior: object = None
+    sigma: Optional[float] = None
+    measured_velocity: bool = False
+    min_samples: int = 50
+
+
 def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
                validation: Sequence[Dataset] = (), kp=None, kd=None, integral: bool = False,
-               gravity: Optional[str] = None, features: Optional[GravityFeatures] = None,
-               prior=None, sigma: Optional[float] = None, measured_velocity: bool = False,
-               min_samples: int = 50) -> Optional[RigidFit]:
+               gravity: Optional[str] = None, **options) -> Optional[RigidFit]:
     """
     Return the arm and servo of the closed loop fitted on ``train`` (cases 2 and 3).
 
@@ -408,6 +416,7 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
     ``integral``: a PID servo; ``gravity``: a gravity compensation on 'measured' θ or
     'desired' θd (None: none). None with too few samples or a fit that fails.
     """
+    features, prior, sigma, measured_velocity, min_samples = ClosedFitOptions(**options)
     need = ('theta_d', 'theta_d_dot')
     train = [seg for seg in train if all(getattr(seg, k) is not None for k in need)]
     validation = [seg for seg in validation if all(getattr(seg, k) is not None for k in need)]
@@ -438,7 +447,7 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
                                 cols.normalise, prior=prior, extra_ridge=1e-8)
     except (ValueError, np.linalg.LinAlgError):
         return None
-    law = _law_of(cols.layout, result.extra, n, kp, kd, features, gravity, fit, fit.n_samples)
+    law = _law_of(cols.layout, result.extra, n, kp, kd, features, gravity, fit)
     if not (np.all(np.isfinite(law.kp)) and np.all(law.kp > 0.0)):
         return None
     parameters = result.parameters
@@ -496,11 +505,17 @@ def _case_three_start(structure, rows, extras, normalise, prior, n):
     return weights, scale
 
 
+class FormsOptions(NamedTuple):
+    """The filter and prior options of :func:`fit_closed_forms` (see there)."""
+
+    sigma: Optional[float] = None
+    measured_velocity: bool = False
+    prior: object = None
+
+
 def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
                      validation: Sequence[Dataset], kp=None, kd=None,
-                     features: Optional[GravityFeatures] = None,
-                     sigma: Optional[float] = None,
-                     measured_velocity: bool = False, prior=None) -> Optional[RigidFit]:
+                     features: Optional[GravityFeatures] = None, **options) -> Optional[RigidFit]:
     """
     Return the closed-loop fit of the form the held-out data support best.
 
@@ -508,12 +523,14 @@ def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
     only where the held-out error is at most :data:`~.policy.FORM_GAIN` of the simpler form's and
     that one leaves more than :data:`~.policy.FORM_MIN_ERROR`.
     """
+    sigma, measured_velocity, prior = FormsOptions(**options)
     if features is None:
         features = GravityFeatures(structure)
 
     def attempt(integral, gravity):
-        return fit_closed(structure, train, validation, kp, kd, integral, gravity, features,
-                          prior=prior, sigma=sigma, measured_velocity=measured_velocity)
+        return fit_closed(structure, train, validation, kp, kd, integral, gravity,
+                          features=features, prior=prior, sigma=sigma,
+                          measured_velocity=measured_velocity)
 
     best = attempt(False, None)
     for integral, gravity in ((False, 'measured'), (False, 'desired'), (True, None),

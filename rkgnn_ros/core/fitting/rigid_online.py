@@ -252,7 +252,7 @@ class RigidKeeper:
             return fit
         integral, gravity = self.form
         return fit_closed(self.structure, train, validation, kp, kd, integral, gravity,
-                          self.features, prior=prior)
+                          features=self.features, prior=prior)
 
 
 def refresh_events(keeper: RigidKeeper, settings, capture, now: float, publish: bool):

@@ -48,8 +48,8 @@ import numpy as np
 
 from .plant import PlanarArm
 from .plant_kernels import forward_dynamics_into
-from .simulate import MAX_SPEED
-from .tracking import TrackingProblem
+from .simulate import MAX_SPEED, sample_count
+from .tracking import diverged, planar_joints, sample_error, TrackingProblem
 from .trajectories import Reference
 from ..integration.rkg import gill_stage, rkg_step
 from ..servo_law import compiled_pd_torque, pd_torque
@@ -110,17 +110,10 @@ def _sampled_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, p,
                 tau[i] = min(max(u, -limit[i]), limit[i])
         _held_torque_step(x, tau, h, d, gh, viscous, coulomb, coulomb_velocity, xs, f, q,
                           work)
-        for i in range(n):
-            if not (abs(om[i]) <= max_speed and math.isfinite(th[i])):
-                return math.inf
+        if diverged(th, om, n, max_speed):
+            return math.inf
         if (step + 1) % per_sample == 0:
-            j = (step + 1) // per_sample
-            e_theta = 0.0
-            e_rate = 0.0
-            for i in range(n):
-                e_theta += (sample_ref[j, 0, i] - th[i]) ** 2
-                e_rate += (sample_ref[j, 1, i] - om[i]) ** 2
-            total += math.sqrt(e_theta) + math.sqrt(e_rate)
+            total += sample_error(sample_ref, (step + 1) // per_sample, th, om, n)
     return total / (sample_ref.shape[0] - 1)
 
 
@@ -192,20 +185,13 @@ class SampledTrackingProblem:
     def __init__(self, arm: PlanarArm, reference: Reference, duration: float,
                  servo_rate: float, torque_limit=None, rate: float = 100.0,
                  step: float = DEFAULT_STEP, max_speed: float = MAX_SPEED):
-        if not isinstance(arm, PlanarArm):
-            raise TypeError(f'arm must be a PlanarArm, got {type(arm).__name__}')
         self.arm = arm
-        self.n = n = arm.n_joints
-        if reference.n_joints != n:
-            raise ValueError(f'reference has {reference.n_joints} joints, the arm {n}')
+        self.n = n = planar_joints(arm, reference)
         for name, value in (('duration', duration), ('servo_rate', servo_rate), ('rate', rate),
                             ('step', step), ('max_speed', max_speed)):
             if not (np.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be positive, got {value}')
-        n_samples = int(np.floor(duration * rate + 1e-9)) + 1
-        if n_samples < 2:
-            raise ValueError(f'duration {duration} s at rate {rate} Hz gives fewer than 2 '
-                             'samples')
+        n_samples = sample_count(duration, rate)
         self.rate, self.servo_rate = float(rate), float(servo_rate)
         self.max_speed = float(max_speed)
         self.per_servo, self.per_sample, self.h = _grid(self.rate, self.servo_rate, step)
@@ -233,16 +219,8 @@ class SampledTrackingProblem:
         """
         Return the tracking error of eq. (10) of every candidate (compiled, parallel).
 
-        Parameters
-        ----------
-        gains : array_like, shape (P, 2n)
-            Rows [Kp_1 .. Kp_n, Kd_1 .. Kd_n] of diagonal gains.
-
-        Returns
-        -------
-        ndarray, shape (P,)
-            Costs; +inf for a candidate whose rollout diverges, never NaN.
-
+        ``gains``: (P, 2n) rows as for :meth:`.tracking.TrackingProblem.cost`. Returns the
+        (P,) costs; +inf for a candidate whose rollout diverges, never NaN.
         """
         g = self._gains(gains)
         out = np.empty(g.shape[0])
