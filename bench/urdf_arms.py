@@ -341,6 +341,18 @@ def _fmt(value):
     return 'n/a' if value is None else f'{value:.4%}'
 
 
+def save(results, table, args):
+    """Write ``results`` to ``--out`` with ``table``'s summary and the run's settings."""
+    table.update(summary(table))
+    table['meta'] = {'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
+                     'duration_s': args.duration, 'horizon_s': args.horizon,
+                     'perturbed_seed': args.seed if args.perturbed else None,
+                     'metric': 'module docstring of bench/urdf_arms.py'}
+    os.makedirs(os.path.dirname(args.out), exist_ok=True)
+    with open(args.out, 'w', encoding='utf-8') as f:
+        json.dump(results, f, indent=2)
+
+
 def main(argv=None):
     """Run the cells; return the exit code."""
     parser = argparse.ArgumentParser(description='URDF arms online, arm x servo x sensors')
@@ -378,6 +390,7 @@ def main(argv=None):
             if description is not None:
                 os.unlink(description)
         table.setdefault(arm, {}).setdefault(servo, {})[sensors] = cell
+        save(results, table, args)      # each cell kept as it ends
         if 'error' in cell:
             print(f"  {cell['error']}", flush=True)
             continue
@@ -389,14 +402,7 @@ def main(argv=None):
               f"{cell['first_model_prediction_s']} s  torque {cell['torque_nrmse']}  "
               f"published {cell['published_sources']}  load {cell['load_average']}",
               flush=True)
-    table.update(summary(table))
-    table['meta'] = {'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
-                     'duration_s': args.duration, 'horizon_s': args.horizon,
-                     'perturbed_seed': args.seed if args.perturbed else None,
-                     'metric': 'module docstring of bench/urdf_arms.py'}
-    os.makedirs(os.path.dirname(args.out), exist_ok=True)
-    with open(args.out, 'w', encoding='utf-8') as f:
-        json.dump(results, f, indent=2)
+    save(results, table, args)
     print(json.dumps({k: v for k, v in table.items() if k not in ARMS}, indent=1), flush=True)
     return 0
 

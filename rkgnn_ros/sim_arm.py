@@ -421,9 +421,11 @@ class SimArm(Node):
             return 'payload.mass is 0: nothing to attach'
         self._payload_on = on
         self.sim.set_payload(mass if on else 0.0, com)
-        text = (f'payload of {mass:g} kg at {list(com)} m attached ({why}), at simulation time '
-                f'{self.sim.t:.3f} s' if on else
-                f'payload released ({why}), at simulation time {self.sim.t:.3f} s')
+        when = f'at simulation time {self.sim.t:.3f} s' + (
+            '' if self._origin_ns is None else
+            f', stamp {self._origin_ns / _NANO + self.sim.t:.6f} s')
+        text = (f'payload of {mass:g} kg at {list(com)} m attached ({why}), {when}' if on else
+                f'payload released ({why}), {when}')
         self.get_logger().info(text)
         return text
 

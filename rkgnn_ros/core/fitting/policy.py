@@ -213,8 +213,9 @@ CHANGE_MARGIN_SIGMAS = 2.0
 #: [s] The data after a change detected on the trigonometric arm count from this far after its
 #: onset.
 TRIG_CHANGE_MARGIN_S = 0.05
-#: [s of data] After a change before the last body is refitted ...
-PAYLOAD_MIN_S = 1.0
+#: [s of data] After a change before the last body is refitted (more where the filter of noisy
+#: data needs them: the fit waits for its rows) ...
+PAYLOAD_MIN_S = 0.5
 #: [s of data] ... and before the whole model is (from then on, only on data after the change).
 FULL_REFIT_S = 8.0
 #: [relative, per row] The last body's refit after a change is pulled towards the body before it by

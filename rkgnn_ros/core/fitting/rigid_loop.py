@@ -26,64 +26,62 @@ other terms are handled by :class:`~.law_loop.LawLoop`.
 
 The number of RKG steps per sample interval follows the stiffness of the linearised closed
 loop at the start state: the largest |eigenvalue| of [[0, I], [−M⁻¹Kp, −M⁻¹(Kd + fv +
-fc / v_c)]] (the Coulomb term's slope at rest counts as damping), at :data:`SAFETY` of RKG's
-stability limit, at most :data:`MAX_SUBSTEPS`.
+fc / v_c)]] (the Coulomb term's slope at rest counts as damping), at
+:data:`~.law_loop.SAFETY` of RKG's stability limit, at most
+:data:`~.law_loop.MAX_SUBSTEPS`.
 """
 
-import math
 from typing import Optional
 
 from numba import njit
 import numpy as np
 
 from .controller_laws import ControllerLaw
-from .law_loop import LawLoop
+from .law_loop import LawLoop, MAX_SUBSTEPS
 from .rigid_fit import RigidArm
 from .rigid_law import GravityFeatures
 from ..integration.inputs import stage_inputs
-from ..integration.rkg import choose_substeps, gill_node, gill_stage
+from ..integration.rkg import gill_node, gill_stage
 from ..rigid.kernels import _crba, _rnea, cholesky_solve, gravity_pass, N_INERTIAL
 from ..servo_law import compiled_pd_torque
 
 __all__ = ['MAX_SUBSTEPS', 'RigidLoop', 'precompile_rigid_loop']
-
-#: Most RKG steps per sampling interval.
-MAX_SUBSTEPS = 64
-
-#: Share of RKG's stability limit a rollout's step uses at its start state's stiffness.
-SAFETY = 0.7
-
-#: A start within this (rad, every joint) of the last keeps its number of RKG steps.
-SUBSTEPS_REUSE_RAD = 0.05
 
 #: A state component beyond this magnitude ends a rollout as diverged.
 DIVERGED = 1e6
 
 
 @njit(cache=True, nogil=True)
-def _rates(x, u, n, parent, col, trot, pos, axis, gravity, vc, pi, kp, kd, law_pi, law_on,
-           rot, w, v, wd, al, fn, ff, tmp, comp, mass, bias, grav, zeros, rate):
-    """Write ẋ of the closed loop into ``rate``; return False where M is not positive."""
+def _rates(x, u, ue, n, parent, col, trot, pos, axis, gravity, vc, pi, kp, kd, ki, law_pi,
+           law_on, rot, w, v, wd, al, fn, ff, tmp, comp, mass, bias, grav, zeros, rate):
+    """Write ẋ (3n,) of the closed loop into ``rate``; return False where M is not positive."""
     q = x[:n]
-    qd = x[n:]
+    qd = x[n:2 * n]
     _rnea(parent, col, trot, pos, axis, gravity, vc, pi, q, qd, zeros, True, rot, w, v, wd,
           al, fn, ff, tmp, bias)
     _crba(parent, col, rot, pos, axis, pi, comp, fn, ff, tmp, mass)
     if law_on:
         gravity_pass(parent, col, rot, pos, axis, gravity, law_pi, al, fn, ff, tmp, grav)
     for i in range(n):
-        tau = compiled_pd_torque(kp[i], kd[i], u[i] - x[i], u[n + i] - x[n + i])
+        tau = compiled_pd_torque(kp[i], kd[i], u[i] - x[i], u[n + i] - x[n + i]) + x[2 * n + i]
         if law_on:
             tau += grav[i]
         rate[n + i] = tau - bias[i]
         rate[i] = x[n + i]
-    return cholesky_solve(mass, rate[n:])
+        rate[2 * n + i] = ki[i] * (ue[i] - x[i])
+    return cholesky_solve(mass, rate[n:2 * n])
 
 
 @njit(cache=True, nogil=True)
-def _rollout(x0, u, h, parent, col, trot, pos, axis, gravity, vc, pi, kp, kd, law_pi, law_on,
-             out):
-    """Roll out over ``u`` (K-1, substeps, 3, 2n) into ``out`` (K, 2n); NaN after divergence."""
+def _rollout(x0, u, ue, h, parent, col, trot, pos, axis, gravity, vc, pi, kp, kd, ki, law_pi,
+             law_on, out):
+    """
+    Roll out over ``u`` (K-1, substeps, 3, 2n) into ``out`` (K, 2n); NaN after divergence.
+
+    The state carries the growth of the integral term (N m, from 0 at the start): its rate
+    is ``ki`` (θd − θ) with θd the first n columns of ``ue`` (the unshifted commands, shaped
+    as ``u``), and it adds to the servo's torque.
+    """
     n = kp.shape[0]
     nb = parent.shape[0]
     rot = np.empty((nb, 3, 3))
@@ -92,22 +90,24 @@ def _rollout(x0, u, h, parent, col, trot, pos, axis, gravity, vc, pi, kp, kd, la
     comp = np.empty(N_INERTIAL * nb)
     mass = np.zeros((n, n))
     bias, grav, zeros = np.empty(n), np.empty(n), np.zeros(n)
-    x, xs = x0.copy(), np.empty(2 * n)
-    rate, acc = np.empty(2 * n), np.zeros(2 * n)
-    out[0] = x
+    x, xs = np.zeros(3 * n), np.empty(3 * n)
+    x[:2 * n] = x0
+    rate, acc = np.empty(3 * n), np.zeros(3 * n)
+    out[0] = x0
     for i in range(u.shape[0]):
         for s in range(u.shape[1]):
             xs[:] = x
             for stage in range(4):
-                if not _rates(xs, u[i, s, gill_node(stage)], n, parent, col, trot, pos, axis,
-                              gravity, vc, pi, kp, kd, law_pi, law_on, rot, w, v, wd, al, fn,
-                              ff, tmp, comp, mass, bias, grav, zeros, rate):
+                node = gill_node(stage)
+                if not _rates(xs, u[i, s, node], ue[i, s, node], n, parent, col, trot, pos,
+                              axis, gravity, vc, pi, kp, kd, ki, law_pi, law_on, rot, w, v,
+                              wd, al, fn, ff, tmp, comp, mass, bias, grav, zeros, rate):
                     return
                 gill_stage(stage, h, x, xs, rate, acc)
-        for j in range(2 * n):
+        for j in range(3 * n):
             if not abs(x[j]) <= DIVERGED:
                 return
-        out[i + 1] = x
+        out[i + 1] = x[:2 * n]
 
 
 class RigidLoop(LawLoop):
@@ -128,23 +128,11 @@ class RigidLoop(LawLoop):
     """
 
     def __init__(self, arm: RigidArm, law: ControllerLaw, substeps: Optional[int] = None):
-        if not np.all(law.kp > 0.0):
-            raise ValueError(f'the law needs Kp > 0 on every joint, got {law.kp.tolist()}')
-        if law.n_joints != arm.n_joints:
-            raise ValueError(f'the law is for {law.n_joints} joints, the arm has '
-                             f'{arm.n_joints}')
-        self.arm, self.law = arm, law
-        self.substeps = None if substeps is None else max(1, int(substeps))
-        self.torque_error = math.inf
+        super().__init__(arm, law, substeps)
         tree = arm.structure.tree
         self._tree = tree
         self._pi = np.ascontiguousarray(arm.parameters, dtype=float)
         self._set_law_terms()
-
-    @property
-    def n_joints(self) -> int:
-        """Return the number of joints n."""
-        return self.arm.n_joints
 
     def _set_law_terms(self) -> None:
         law = self.law
@@ -153,6 +141,7 @@ class RigidLoop(LawLoop):
         self._law_pi = np.zeros(self.arm.structure.n_parameters)
         self._law_on = False
         self._terms_compiled = True
+        self._integral_compiled = True
         if law.theta_input == 'measured' and law.theta_weights.size:
             weights = law.theta_weights
             tied = bool(np.all(weights == weights[:1]))
@@ -163,19 +152,19 @@ class RigidLoop(LawLoop):
             else:
                 self._terms_compiled = False     # by passes along the previous one
 
-    def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
-        n = self.n_joints
-        dt = float(t[-1] - t[0]) / (t.size - 1)
-        substeps = self.substeps
-        if substeps is None:
-            substeps = self._substeps_at(np.asarray(x0, dtype=float)[:n], dt)
-        u = stage_inputs('pd_gains', t, substeps, theta_d=theta_d, theta_d_dot=theta_d_dot)
+    def _once(self, x0, t, theta_d, theta_d_dot, raw=None) -> np.ndarray:
+        n, dt, substeps, u = self._inputs(x0, t, theta_d, theta_d_dot)
+        if raw is None:
+            ue, ki = u, np.zeros(n)
+        else:
+            ue = stage_inputs('pd_gains', t, substeps, theta_d=raw, theta_d_dot=theta_d_dot)
+            ki = np.ascontiguousarray(self.law.ki, dtype=float)
         out = np.full((t.size, 2 * n), np.nan)
         tree = self._tree
-        _rollout(np.asarray(x0, dtype=float), np.ascontiguousarray(u), dt / substeps,
-                 tree.parent, tree.col, tree.rot, tree.pos, tree.axis, tree.gravity,
-                 float(tree.coulomb_velocity), self._pi, self._kp, self._kd, self._law_pi,
-                 self._law_on, out)
+        _rollout(np.asarray(x0, dtype=float), np.ascontiguousarray(u), np.ascontiguousarray(ue),
+                 dt / substeps, tree.parent, tree.col, tree.rot, tree.pos, tree.axis,
+                 tree.gravity, float(tree.coulomb_velocity), self._pi, self._kp, self._kd, ki,
+                 self._law_pi, self._law_on, out)
         return out
 
     def stiffness(self, theta) -> float:
@@ -192,20 +181,8 @@ class RigidLoop(LawLoop):
         a[n:, n:] = -inverse * damping
         return float(np.max(np.abs(np.linalg.eigvals(a))))
 
-    def _substeps_at(self, theta: np.ndarray, dt: float) -> int:
-        """Return the RKG steps per ``dt`` the stiffness at ``theta`` needs (kept nearby)."""
-        cached = getattr(self, '_substeps_cache', None)
-        if cached is not None and cached[1] == dt and \
-                np.max(np.abs(theta - cached[0])) <= SUBSTEPS_REUSE_RAD:
-            return cached[2]
-        try:
-            stiffness = self.stiffness(theta)
-        except np.linalg.LinAlgError:
-            stiffness = math.inf
-        substeps = (MAX_SUBSTEPS if not math.isfinite(stiffness)
-                    else min(MAX_SUBSTEPS, choose_substeps(dt, stiffness, safety=SAFETY)))
-        self._substeps_cache = (theta.copy(), dt, substeps)
-        return substeps
+    def _stiffness_at(self, theta) -> float:
+        return self.stiffness(theta)
 
 
 def precompile_rigid_loop(structure) -> None:
@@ -213,7 +190,8 @@ def precompile_rigid_loop(structure) -> None:
     n = structure.n_joints
     tree = structure.tree
     out = np.full((3, 2 * n), np.nan)
-    _rollout(np.zeros(2 * n), np.zeros((2, 1, 3, 2 * n)), 0.01, tree.parent, tree.col,
-             tree.rot, tree.pos, tree.axis, tree.gravity, float(tree.coulomb_velocity),
-             np.ascontiguousarray(structure.prior), np.ones(n), np.ones(n),
+    u = np.zeros((2, 1, 3, 2 * n))
+    _rollout(np.zeros(2 * n), u, u, 0.01, tree.parent, tree.col, tree.rot, tree.pos,
+             tree.axis, tree.gravity, float(tree.coulomb_velocity),
+             np.ascontiguousarray(structure.prior), np.ones(n), np.ones(n), np.zeros(n),
              np.zeros(structure.n_parameters), True, out)

@@ -20,8 +20,10 @@ torque residual on the newest data is what :class:`.change.ChangeDetector` judge
 measured torque against the arm's inverse dynamics at the measured states, θ̈ the centred
 derivative of θ̇ as the torque gate takes it (:func:`~.torque_check.paired_torques`), so the
 normal level (the residual's RMS on the held-out part of the fit, once the data span
-:data:`~.policy.DETECT_MIN_S`) has the same noise in it. A change is said with its
-time; the policy then drops what the data before it built (:mod:`.online`).
+:data:`~.policy.DETECT_MIN_S`) has the same noise in it. The newest data are judged
+with the arm that level was taken from, kept while the keeper drops its loop (a change
+makes the loop stop explaining the data, which is when it is dropped). A change is said
+with its time; the policy then drops what the data before it built (:mod:`.online`).
 """
 
 import math
@@ -89,7 +91,9 @@ class TrigChangeMonitor:
         if not self.due(now):
             return []
         self._last_check = now
-        change = self.check(loop, segments, origin)
+        # judged with the arm whose residual's level the detector holds, which may be one
+        # the keeper has already dropped for no longer explaining the newest data
+        change = self.check(self._armed_by, segments, origin)
         if change is None:
             return []
         names = tuple(joints[j] for j in change.joints)

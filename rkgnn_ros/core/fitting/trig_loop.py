@@ -52,34 +52,20 @@ from numba import njit
 import numpy as np
 
 from .controller_laws import ControllerLaw, TrigFeatures
-from .law_loop import LawLoop, PASSES
+from .law_loop import LawLoop, MAX_SUBSTEPS, PASSES
 from .linear import LinearDynamics, Samples, samples_from_datasets
 from .policy import INTEGRAL_GAIN, INTEGRAL_MIN_ERROR, LOOP_KI_ZERO, MIN_SEGMENT_SAMPLES
 from .torque_check import paired_torques, torque_error
 from .validation import split_validation
 from ..data import Dataset
 from ..differentiate import centred_derivative
-from ..integration.inputs import stage_inputs
-from ..integration.rkg import choose_substeps, gill_node, gill_stage
+from ..integration.rkg import gill_node, gill_stage
 from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
 from ..servo_law import compiled_pd_torque, pd_torque
 
 __all__ = ['MAX_SUBSTEPS', 'PASSES', 'TrigLoop', 'closed_loop_error', 'data_span',
            'fit_closed_trig_loop', 'fit_trig_loop', 'precompile_trig_loop', 'trig_torque_error']
-
-#: Most RKG steps per sampling interval (a stiffer loop is rolled out with this many).
-MAX_SUBSTEPS = 64
-
-#: Share of RKG's stability limit a rollout's step uses at its start state's stiffness. The
-#: step's own error is far below any model's there (the paper's arm, 2 s: 2.5e-6 % of the
-#: range at 0.7, against 2.4e-7 % at 0.5 and 0.01 % for the fitted model), and 0.7 leaves
-#: room for the stiffness to grow by 1.4x along the rollout (1.26x over the paper arm's
-#: data); 0.5 took 5 steps per interval where 3 do, the most of a prediction's cost.
-SAFETY = 0.7
-
-#: A start within this (rad, every joint) of the last keeps its number of RKG steps.
-SUBSTEPS_REUSE_RAD = 0.05
 
 #: A state component beyond this magnitude ends a rollout as diverged.
 DIVERGED = 1e6
@@ -189,10 +175,10 @@ def _rollout(x0, u, h, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, 
     rate, q = np.empty(2 * n), np.zeros(2 * n)
     out[0] = x
     for i in range(u.shape[0]):
-        for s in range(u.shape[1]):
+        for stages in u[i]:             # the substeps of interval i
             xs[:] = x
             for stage in range(4):
-                if not _rates(xs, u[i, s, gill_node(stage)], n, freq, kinds, w_mass, w_pot,
+                if not _rates(xs, stages[gill_node(stage)], n, freq, kinds, w_mass, w_pot,
                               viscous, coulomb, vc, kp, kd, law_codes, law_w, phi, grad,
                               law_phi, m, dm, trig, rate):
                     return
@@ -241,15 +227,7 @@ class TrigLoop(LawLoop):
 
     def __init__(self, arm: LinearDynamics, law: ControllerLaw,
                  substeps: Optional[int] = None):
-        if not np.all(law.kp > 0.0):
-            raise ValueError(f'the law needs Kp > 0 on every joint, got {law.kp.tolist()}')
-        if law.n_joints != arm.n_joints:
-            raise ValueError(f'the law is for {law.n_joints} joints, the arm has '
-                             f'{arm.n_joints}')
-        self.arm, self.law = arm, law
-        self.substeps = None if substeps is None else max(1, int(substeps))
-        #: held-out torque error of the arm (worst joint, RMSE / std; set by the fit)
-        self.torque_error = math.inf
+        super().__init__(arm, law, substeps)
         self._stiff = copy.copy(arm)          # the arm with the law's gains: its stiffness
         self._stiff.kp_, self._stiff.kd_ = np.asarray(law.kp), np.asarray(law.kd)
         basis = arm.basis
@@ -272,18 +250,8 @@ class TrigLoop(LawLoop):
         self._law_codes, self._law_w = terms if terms is not None else (
             np.zeros((0, n), dtype=np.int64), np.zeros((n, 0)))
 
-    @property
-    def n_joints(self) -> int:
-        """Return the number of joints n."""
-        return self.arm.n_joints
-
     def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
-        n = self.n_joints
-        dt = float(t[-1] - t[0]) / (t.size - 1)
-        substeps = self.substeps
-        if substeps is None:
-            substeps = self._substeps_at(np.asarray(x0, dtype=float)[:n], dt)
-        u = stage_inputs('pd_gains', t, substeps, theta_d=theta_d, theta_d_dot=theta_d_dot)
+        n, dt, substeps, u = self._inputs(x0, t, theta_d, theta_d_dot)
         out = np.full((t.size, 2 * n), np.nan)
         h = dt / substeps
         _rollout(np.asarray(x0, dtype=float), np.ascontiguousarray(u), h, n, self._freq,
@@ -292,26 +260,8 @@ class TrigLoop(LawLoop):
                  self._law_w, out)
         return out
 
-    def _substeps_at(self, theta: np.ndarray, dt: float) -> int:
-        """
-        Return the RKG steps per ``dt`` that the stiffness at ``theta`` needs.
-
-        Kept for starts within :data:`SUBSTEPS_REUSE_RAD` of the one it was computed at (M(θ)
-        changes little over such a move, and :data:`SAFETY` covers it): predictions from
-        every state of a 1 kHz stream spent 6 % of their time on it.
-        """
-        cached = getattr(self, '_substeps_cache', None)
-        if cached is not None and cached[1] == dt and \
-                np.max(np.abs(theta - cached[0])) <= SUBSTEPS_REUSE_RAD:
-            return cached[2]
-        try:
-            stiffness = self._stiff.stiffness(theta)
-        except np.linalg.LinAlgError:
-            stiffness = math.inf
-        substeps = (MAX_SUBSTEPS if not math.isfinite(stiffness)
-                    else min(MAX_SUBSTEPS, choose_substeps(dt, stiffness, safety=SAFETY)))
-        self._substeps_cache = (theta.copy(), dt, substeps)
-        return substeps
+    def _stiffness_at(self, theta) -> float:
+        return self._stiff.stiffness(theta)
 
 
 def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],

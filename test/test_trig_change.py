@@ -1,0 +1,66 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""A change of the dynamics without a robot description: the planar arm's residual judged."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from rkgnn_ros.core.fitting.online_records import DynamicsChange
+from rkgnn_ros.core.fitting.trig_change import TrigChangeMonitor
+from rkgnn_ros.core.sim.payload import with_payload
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm
+from rkgnn_ros.core.sim.simulate import simulate
+from rkgnn_ros.core.sim.trajectories import paper_reference
+from rkgnn_ros.stream_buffer import StreamBuffer
+
+JOINTS = ('j1', 'j2', 'j3')
+AT, T0 = 12.0, 1000.0
+
+
+@pytest.fixture(scope='module')
+def released():
+    """Return the paper's arm carrying 2 kg at its tip for 12 s, then 6 s without it."""
+    arm, pd, ref = PlanarArm.paper(), PDController.paper(), paper_reference(3)
+    loaded = with_payload(arm, 2.0)
+    before = simulate(loaded, pd, ref, AT, rate=100.0, joint_names=JOINTS)
+    x0 = np.concatenate([before.theta[-1], before.theta_dot[-1]])
+    after = simulate(arm, pd, ref, 6.0, rate=100.0, x0=x0, t0=AT, joint_names=JOINTS)
+    return loaded, before, after
+
+
+def test_a_change_is_said_with_the_arm_it_was_armed_on_after_the_loop_is_dropped(released):
+    loaded, before, after = released
+    buffer = StreamBuffer(JOINTS, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+    monitor = TrigChangeMonitor()
+    loop = SimpleNamespace(arm=loaded)       # the trigonometric arm the keeper predicted with
+    said = []
+    samples = [(d, k) for d in (before, after) for k in range(d.n_samples - (d is before))]
+    fed = 0
+    for step in range(int(17.9 / 0.25)):
+        now = step * 0.25
+        while fed < len(samples) and samples[fed][0].t[samples[fed][1]] <= now:
+            d, k = samples[fed]
+            buffer.add_state(T0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
+            buffer.add_command(T0 + d.t[k], d.theta_d[k], d.theta_d_dot[k])
+            fed += 1
+        # the keeper drops its loop as soon as it stops explaining the newest data
+        events = monitor.observe(buffer.capture(), loop if now < AT else None, 0.2,
+                                 100.0 + now, JOINTS)
+        said += [(now, e) for e in events if isinstance(e, DynamicsChange)]
+    assert len(said) == 1, said                     # none before the release, one after
+    now, change = said[0]
+    # the change time within the centred derivative's half window before it, or after
+    assert AT - 0.15 <= change.time - T0 <= AT + 0.5 and now - AT <= 1.0
