@@ -51,8 +51,7 @@ Writes ``bench/results/structure.json`` with
   when (:data:`ONLINE_POLICY`: ``online*.py``, ``policy.py``, the keepers, the rigid
   body's form choice, the change detectors, the search's starts, the excitation memory's
   feed, the validation split); a tunable is a module-level UPPER_CASE name bound to a
-  number (a literal, signed, or arithmetic on literals, or a call whose second argument is
-  one: the policy table's rows);
+  number (a literal, signed, or arithmetic on literals);
 - ``max_function_parameters``: the most parameters a function or method under
   ``rkgnn_ros/`` takes (every named one, ``*args`` and ``**kwargs`` one each, a method's
   ``self`` or ``cls`` not), numba kernels (``@njit``, ``@jit`` ...: their arguments are
@@ -261,8 +260,6 @@ def _is_number(node):
         return _is_number(node.operand)
     if isinstance(node, ast.BinOp):
         return _is_number(node.left) and _is_number(node.right)
-    if isinstance(node, ast.Call) and len(node.args) >= 2:
-        return _is_number(node.args[1])
     return False
 
 
