@@ -428,6 +428,16 @@ class StateBytes:
         return bytes(out)
 
 
+def _played(j: int, n: int):
+    """Return the sample index and the sign of θ̇ of step ``j`` of ``n`` samples played to and fro.
+
+    Forward, then backward with the velocities negated: the stream stays continuous where
+    a loop back to the first sample would jump (a jump the plausibility filter drops).
+    """
+    m = j % (2 * (n - 1))
+    return (m, 1.0) if m < n - 1 else (2 * (n - 1) - m, -1.0)
+
+
 def drop_burst_stream(identifier_cls, domain, log_dir, data, minutes, seed=0):
     """Joint states and commands at 1 kHz with random drops and bursts; count tracebacks."""
     from sensor_msgs.msg import JointState
@@ -447,13 +457,15 @@ def drop_burst_stream(identifier_cls, domain, log_dir, data, minutes, seed=0):
                 k += int(rng.integers(1, 300))
             burst = int(rng.integers(2, 50)) if rng.random() < 0.002 else 1
             for _ in range(burst):        # a burst: samples sent back to back, early
-                i = (k // 10) % data.n_samples
+                i, sign = _played(k // 10, data.n_samples)
+                after, _ = _played(k // 10 + 1, data.n_samples)
                 stamp = t_base + 0.001 * k
                 frac = (k % 10) / 10.0
-                theta = data.theta[i] + frac * (data.theta[(i + 1) % data.n_samples]
-                                                - data.theta[i])
-                states.publish(state_bytes(stamp, theta, data.theta_dot[i], data.tau[i]))
-                commands.publish(state_bytes(stamp, data.theta_d[i], data.theta_d_dot[i], nan))
+                theta = data.theta[i] + frac * (data.theta[after] - data.theta[i])
+                states.publish(state_bytes(stamp, theta, sign * data.theta_dot[i],
+                                           data.tau[i]))
+                commands.publish(state_bytes(stamp, data.theta_d[i],
+                                             sign * data.theta_d_dot[i], nan))
                 sent += 1
                 k += 1
             time.sleep(max(0.0, start + 0.001 * k - time.monotonic()))

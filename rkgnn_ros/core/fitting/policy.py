@@ -191,6 +191,10 @@ FORMS_EVERY_S = 10.0
 FORM_GAIN = 0.5
 #: [RMSE / std] ... and the simpler form leaves more than this (worst joint).
 FORM_MIN_ERROR = 0.01
+#: [solver evaluations] Of a form's consistent fit while the forms are compared ...
+SELECT_EVALUATIONS = 40
+#: [solver evaluations] ... and of the chosen form's fit when it had not converged within them.
+FULL_EVALUATIONS = 200
 
 # -- changes of the dynamics (change.py, rigid_online.py, rigid_change.py, trig_change.py)
 #: [s of data] A fit needs this much before its residual's level judges changes.

@@ -46,7 +46,7 @@ from typing import NamedTuple, Optional, Sequence, Tuple
 import numpy as np
 
 from .controller_laws import ControllerLaw
-from .policy import FORM_GAIN, FORM_MIN_ERROR
+from .policy import FORM_GAIN, FORM_MIN_ERROR, FULL_EVALUATIONS, SELECT_EVALUATIONS
 from .rigid_data import choose_sigma, filtered_rows, FilteredRows
 from .rigid_law import GravityFeatures
 from ..data import Dataset
@@ -404,6 +404,7 @@ class ClosedFitOptions(NamedTuple):
     sigma: Optional[float] = None
     measured_velocity: bool = False
     min_samples: int = 50
+    max_evaluations: int = 200
 
 
 def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
@@ -414,9 +415,11 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
 
     ``kp``, ``kd`` (n,) known (case 2) or None (case 3: fitted, module docstring).
     ``integral``: a PID servo; ``gravity``: a gravity compensation on 'measured' θ or
-    'desired' θd (None: none). None with too few samples or a fit that fails.
+    'desired' θd (None: none); ``max_evaluations``: the consistent solver's budget. None
+    with too few samples or a fit that fails.
     """
-    features, prior, sigma, measured_velocity, min_samples = ClosedFitOptions(**options)
+    (features, prior, sigma, measured_velocity, min_samples,
+     max_evaluations) = ClosedFitOptions(**options)
     need = ('theta_d', 'theta_d_dot')
     train = [seg for seg in train if all(getattr(seg, k) is not None for k in need)]
     validation = [seg for seg in validation if all(getattr(seg, k) is not None for k in need)]
@@ -444,7 +447,8 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
     w = np.tile(weights, fit.n_samples)
     try:
         result = fit_consistent(structure, rows * w[:, None], target * w, extras * w[:, None],
-                                cols.normalise, prior=prior, extra_ridge=1e-8)
+                                cols.normalise, prior=prior, extra_ridge=1e-8,
+                                max_evaluations=max_evaluations)
     except (ValueError, np.linalg.LinAlgError):
         return None
     law = _law_of(cols.layout, result.extra, n, kp, kd, features, gravity, fit)
@@ -520,26 +524,32 @@ def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
     Return the closed-loop fit of the form the held-out data support best.
 
     A PD first; a gravity compensation (on θ, then on θd) and an integral are each kept
-    only where the held-out error is at most :data:`~.policy.FORM_GAIN` of the simpler form's and
-    that one leaves more than :data:`~.policy.FORM_MIN_ERROR`.
+    only where the held-out error is at most :data:`~.policy.FORM_GAIN` of the simpler
+    form's and that one leaves more than :data:`~.policy.FORM_MIN_ERROR`. The forms are
+    compared on fits of at most :data:`~.policy.SELECT_EVALUATIONS` solver evaluations; the
+    chosen one, unless its fit converged within them, is fitted again with
+    :data:`~.policy.FULL_EVALUATIONS`.
     """
     sigma, measured_velocity, prior = FormsOptions(**options)
     if features is None:
         features = GravityFeatures(structure)
 
-    def attempt(integral, gravity):
+    def attempt(integral, gravity, budget):
         return fit_closed(structure, train, validation, kp, kd, integral, gravity,
                           features=features, prior=prior, sigma=sigma,
-                          measured_velocity=measured_velocity)
+                          measured_velocity=measured_velocity, max_evaluations=budget)
 
-    best = attempt(False, None)
+    form = (False, None)
+    best = attempt(*form, SELECT_EVALUATIONS)
     for integral, gravity in ((False, 'measured'), (False, 'desired'), (True, None),
                               (True, 'measured')):
         if best is not None and not best.error > FORM_MIN_ERROR:
             break
-        other = attempt(integral, gravity)
+        other = attempt(integral, gravity, SELECT_EVALUATIONS)
         if other is None:
             continue
         if best is None or other.error <= FORM_GAIN * best.error:
-            best = other
+            best, form = other, (integral, gravity)
+    if best is not None and best.arm.info['evaluations'] >= SELECT_EVALUATIONS:
+        best = attempt(*form, FULL_EVALUATIONS) or best     # not converged: its full fit
     return best
