@@ -429,7 +429,8 @@ class StateBytes:
 
 
 def _played(j: int, n: int):
-    """Return the sample index and the sign of θ̇ of step ``j`` of ``n`` samples played to and fro.
+    """
+    Return the sample index and the sign of θ̇ of step ``j`` of ``n`` samples played to and fro.
 
     Forward, then backward with the velocities negated: the stream stays continuous where
     a loop back to the first sample would jump (a jump the plausibility filter drops).
