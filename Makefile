@@ -1,5 +1,6 @@
 # rkgnn_ros: one command sets a fresh machine up, one runs the tests, one the main job.
 #   make test    set up (if needed), build with colcon, run the whole test suite
+#   make test-fast  the same without the tests marked slow (test/conftest.py): minutes
 #   (make build also compiles the numba kernels into their cache: seconds once cached)
 #   make demo    set up (if needed), run sim_arm + identifier, write a figure
 #   make paper   reproduce the paper's three cases (figures + table in bench/results)
@@ -16,7 +17,7 @@ export ROS_DOMAIN_ID ?= $(shell echo $$(( ($$$$ % 200) + 20 )))
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup build test demo paper bench soak killtest lint clean
+.PHONY: setup build test test-fast demo paper bench soak killtest lint clean
 
 setup: $(STAMP) build
 
@@ -32,7 +33,7 @@ build: $(STAMP)
 	@$(VENV)/bin/colcon --log-base log build --symlink-install --base-paths . \
 		--event-handlers console_cohesion- status- summary+ 2>&1 | grep -v '^$$' || \
 		{ echo 'colcon build failed: see log/latest_build'; exit 1; }
-	@source install/setup.bash && $(VPY) -m rkgnn_ros.precompile | tail -n 1 || \
+	@source install/setup.bash && $(VPY) tools/precompile.py | tail -n 1 || \
 		echo 'precompile failed: the first identifier run compiles the kernels itself'
 
 test: setup
@@ -40,6 +41,10 @@ test: setup
 		--event-handlers console_direct+ status- summary- \
 		--pytest-args -p no:cacheprovider $(PYTEST_ARGS)
 	@$(VENV)/bin/colcon --log-base log test-result --test-result-base build/rkgnn_ros --verbose
+
+test-fast: setup
+	@source install/setup.bash && $(VPY) -m pytest -q -p no:cacheprovider -m 'not slow' test/ \
+		$(PYTEST_ARGS)
 
 demo: setup
 	@source install/setup.bash && $(VPY) tools/demo.py $(DEMO_ARGS)

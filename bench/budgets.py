@@ -90,8 +90,8 @@ def as_dataset(folder: str):
 def write_bag(folder: str, path: str) -> int:
     """Write the raw samples as joint_states into a new rosbag2 at ``path``; return count."""
     from rclpy.serialization import serialize_message
-    from rkgnn_ros.conversions import make_joint_state, seconds_to_stamp
-    from rkgnn_ros.recording import RecordingWriter
+    from rkgnn_ros.wire.conversions import make_joint_state, seconds_to_stamp
+    from rkgnn_ros.recordings.reader import RecordingWriter
     t, theta, theta_dot, tau = recording(folder)
     with RecordingWriter(path, 'mcap') as bag:
         for k in range(t.size):

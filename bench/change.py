@@ -51,6 +51,7 @@ import sys
 import threading
 import time
 
+from monitor import config, Monitor, NodeProcesses  # bench/monitor.py
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -58,7 +59,6 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from rkgnn_ros.core.scoring import ahead_errors  # noqa: E402
-from rkgnn_ros.monitor import config, Monitor, NodeProcesses  # noqa: E402
 from urdf_arms import wait_for_identifier  # noqa: E402
 
 ARMS = {'paper': {'files': [], 'mass': 2.0, 'com': [0.0, 0.0, 0.0]},

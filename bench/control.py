@@ -73,10 +73,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.control.feedforward import plan_feedforward  # noqa: E402
-from rkgnn_ros.core.control.gate import paired_torques, torque_error  # noqa: E402
 from rkgnn_ros.core.control.model import feedforward_model  # noqa: E402
 from rkgnn_ros.core.differentiate import centred_derivative  # noqa: E402
 from rkgnn_ros.core.fitting.identify import fit_best  # noqa: E402
+from rkgnn_ros.core.fitting.torque_check import paired_torques, torque_error  # noqa: E402
 from rkgnn_ros.core.fitting.validation import split_validation  # noqa: E402
 from rkgnn_ros.core.sim.parameters import ArmParameters  # noqa: E402
 from rkgnn_ros.core.sim.plant import PlanarArm  # noqa: E402

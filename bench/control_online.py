@@ -45,12 +45,12 @@ import os
 import sys
 import time
 
+from monitor import identifier_arguments, NodeProcesses  # bench/monitor.py
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.monitor import identifier_arguments, NodeProcesses  # noqa: E402
 
 FEEDFORWARD_STATUS = 'identifier: feedforward'
 SETTLED_AFTER = 5.0  # s: also reported, the after-window without its first seconds

@@ -53,7 +53,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.monitor import NodeProcesses  # noqa: E402
+from monitor import NodeProcesses  # noqa: E402
 
 JOINTS = ('j1', 'j2', 'j3')
 PATIENCE = 90.0
@@ -227,7 +227,7 @@ def live_breaks(model_path, data, domain, log_dir, folder, flood_minutes):
     """Feed the breaks that need a running node with a good model; return the results."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
-    from rkgnn_ros.conversions import make_joint_state
+    from rkgnn_ros.wire.conversions import make_joint_state
     from sensor_msgs.msg import JointState
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
     node = Identifier('live', domain, log_dir, ['-p', f'model_file:={model_path}'])

@@ -59,7 +59,7 @@ sys.exit(os.waitstatus_to_exitcode(status))
 
 def run(name, args, domain, timeout=HANG_S):
     """Run an installed executable to its end; return code, output, seconds, peak RSS."""
-    from rkgnn_ros.monitor import executable
+    from monitor import executable
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
     with tempfile.TemporaryFile('w+', encoding='utf-8') as out:
         start = time.monotonic()
@@ -195,11 +195,11 @@ def urdf_breaks(domain, folder):
 def still_joints_break(domain, folder):
     """Feed break 8: a recording where 7 of 10 joints never move: identify_bag refuses it."""
     from rclpy.serialization import serialize_message
-    from rkgnn_ros.conversions import make_joint_state, seconds_to_stamp
+    from rkgnn_ros.wire.conversions import make_joint_state, seconds_to_stamp
     from rkgnn_ros.core.sim.plant import PDController, PlanarArm
     from rkgnn_ros.core.sim.simulate import simulate
     from rkgnn_ros.core.sim.trajectories import paper_reference
-    from rkgnn_ros.recording import RecordingWriter
+    from rkgnn_ros.recordings.reader import RecordingWriter
     data = simulate(PlanarArm.paper(), PDController.paper(), paper_reference(3), 20.0,
                     rate=100.0)
     names = [f'joint{i + 1}' for i in range(10)]
@@ -239,7 +239,7 @@ def _encapsulation_7(raw):
 def garbage_break(identifier_cls, domain, log_dir, data, seconds):
     """Feed break 1 (and 3 to the identifier): finite garbage, the feed-forward on; CDR 7."""
     from rclpy.serialization import serialize_message
-    from rkgnn_ros.conversions import make_joint_state
+    from rkgnn_ros.wire.conversions import make_joint_state
     from sensor_msgs.msg import JointState
     node = identifier_cls('garbage', domain, log_dir, [
         '-p', 'case:=torque', '-p', 'feedforward.enabled:=true',
@@ -317,7 +317,7 @@ def sim_arm_breaks(domain, log_dir):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
-    from rkgnn_ros.monitor import NodeProcesses
+    from monitor import NodeProcesses
     from sensor_msgs.msg import JointState
     from trajectory_msgs.msg import JointTrajectory
     from hostile import wait_for
@@ -410,7 +410,7 @@ class StateBytes:
 
     def __init__(self, names):
         from rclpy.serialization import serialize_message
-        from rkgnn_ros.conversions import make_joint_state
+        from rkgnn_ros.wire.conversions import make_joint_state
         n = len(names)
         marks = [np.arange(n) + 1000.25 + 100 * field for field in range(3)]
         raw = serialize_message(make_joint_state(0.0, names, *marks))

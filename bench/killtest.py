@@ -39,13 +39,13 @@ import sys
 import tempfile
 import time
 
+from monitor import config, executable, NodeProcesses  # bench/monitor.py
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.model.model import RKGNNModel  # noqa: E402
-from rkgnn_ros.monitor import config, executable, NodeProcesses  # noqa: E402
 
 
 def main(argv=None):

@@ -47,12 +47,11 @@ import sys
 import threading
 import time
 
+from monitor import NodeProcesses  # bench/monitor.py
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
-
-from rkgnn_ros.monitor import NodeProcesses  # noqa: E402
 
 END_EXCLUDED_S = 0.25
 

@@ -37,13 +37,13 @@ import os
 import sys
 import time
 
+from monitor import identifier_arguments, Monitor, NodeProcesses  # bench/monitor.py
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.evaluation import ahead_errors  # noqa: E402
-from rkgnn_ros.monitor import identifier_arguments, Monitor, NodeProcesses  # noqa: E402
+from rkgnn_ros.core.selfcheck import ahead_errors  # noqa: E402
 
 
 def run_case(case, duration, horizon, domain, log_dir, switch_at=0.0, identifier_params=(),

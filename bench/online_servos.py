@@ -64,13 +64,13 @@ import sys
 import threading
 import time
 
+from monitor import identifier_arguments, Monitor, NodeProcesses  # bench/monitor.py
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
 from rkgnn_ros.core.selfcheck import ahead_errors  # noqa: E402
-from rkgnn_ros.monitor import identifier_arguments, Monitor, NodeProcesses  # noqa: E402
 
 SERVOS = {'pd': [],
           'pd_gravity': ['-p', 'gravity_compensation:=measured'],

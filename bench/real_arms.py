@@ -60,13 +60,13 @@ import sys
 import threading
 import time
 
+from monitor import identifier_arguments, Monitor, NodeProcesses  # bench/monitor.py
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.evaluation import ahead_errors  # noqa: E402
-from rkgnn_ros.monitor import identifier_arguments, Monitor, NodeProcesses  # noqa: E402
+from rkgnn_ros.core.selfcheck import ahead_errors  # noqa: E402
 
 RESULTS = os.path.join(HERE, 'results', 'real_arms.json')
 UR5_CONFIG = 'sim_arm_ur5.yaml'
@@ -127,7 +127,7 @@ def run_urdf_case(case, duration, horizon, domain, log_dir, extra=()):
     """Run sim_arm (UR5) + identifier (``extra``: its parameters) for one case."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rkgnn_ros.monitor import config
+    from monitor import config
     sim_args = ['--params-file', config(UR5_CONFIG)]
     nodes = NodeProcesses([('sim_arm', sim_args),
                            ('identifier', identifier_arguments(case, horizon, extra))],
@@ -230,7 +230,7 @@ class Recorder:
 
     def write(self, path):
         """Write what was recorded as an MCAP recording at ``path``."""
-        from rkgnn_ros.recording import RecordingWriter
+        from rkgnn_ros.recordings.reader import RecordingWriter
         with self.lock:
             messages = sorted(self.messages, key=lambda m: m[2])
         with RecordingWriter(path, 'mcap') as bag:
@@ -246,7 +246,7 @@ def part_bag(args, log_dir):
     import tempfile
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rkgnn_ros.monitor import config, executable
+    from monitor import config, executable
     domain = args.domain
     folder = tempfile.mkdtemp(prefix='real_arms_bag_')
     bag = os.path.join(folder, 'sim_arm_60s')

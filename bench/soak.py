@@ -41,7 +41,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from rkgnn_ros.monitor import NodeProcesses  # noqa: E402
+from monitor import NodeProcesses  # noqa: E402
 
 
 def proc_status(pid):

@@ -60,6 +60,7 @@ import threading
 import time
 import xml.etree.ElementTree as ElementTree
 
+from monitor import config, Monitor, NodeProcesses  # bench/monitor.py
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -67,7 +68,6 @@ sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
 from online_servos import MAX_WALL_FACTOR, score  # noqa: E402
-from rkgnn_ros.monitor import config, Monitor, NodeProcesses  # noqa: E402
 
 ARMS = {'ur5': 'sim_arm_ur5.yaml', 'panda': 'sim_arm_panda.yaml'}
 SERVOS = ('pd', 'pd_gravity', 'pid')

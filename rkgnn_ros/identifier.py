@@ -29,11 +29,11 @@ Subscribed (:mod:`~rkgnn_ros.identification.subscriptions`: QoS, who reads each)
     ``joint_commands`` where that topic is silent, and predictions end where it ends.
     ``controller_state`` parameter's topic (control_msgs, optional): θd, θ̇d of a
     joint_trajectory_controller (:mod:`~rkgnn_ros.identification.ros2_control`).
-    Size budgets (:mod:`rkgnn_ros.conversions`): a JointState of at most 64 KiB, a
+    Size budgets (:mod:`rkgnn_ros.wire.conversions`): a JointState of at most 64 KiB, a
     JointTrajectory of at most 8 MiB and 10,000 points, at most 256 joint names of at most
     256 bytes each; a message over any is dropped, counted as ``over_budget``. A stamp far
     from its stream (more than 1 s) is dropped as ``stamp_outlier`` unless three in a row
-    show that the stream itself moved (a clock jump, :mod:`rkgnn_ros.stream_buffer`); the
+    show that the stream itself moved (a clock jump, :mod:`rkgnn_ros.streams.buffer`); the
     node clock jumping back by more than 1 s (``/clock`` under ``use_sim_time``) clears the
     buffer too.
 Published
@@ -113,9 +113,8 @@ from rkgnn_ros.identification.publishing import (create_forward_publisher, creat
 from rkgnn_ros.identification.subscriptions import (quiet_events, subscribe_description,
                                                     subscribe_streams)
 from rkgnn_ros.identification.worker import SearchWorker
-from rkgnn_ros.parameters import Change
-from rkgnn_ros.sigint import Interrupt
-from rkgnn_ros.stacks import dump_stacks_on_sigusr1, TeardownWatchdog
+from rkgnn_ros.node.parameters import Change
+from rkgnn_ros.node.stacks import start_up, tear_down
 from std_srvs.srv import SetBool, Trigger
 
 __all__ = ['EVOLUTION_LABELS', 'SCORE_LABELS', 'ConfigurationError', 'IdentifierNode', 'main',
@@ -237,7 +236,7 @@ class IdentifierNode(Node):
                 self._make_prediction_timer()
             self._configure_description()
         except Exception:  # noqa: B902 - a callback must never raise
-            self._ingestion.internal_error('parameters')
+            self._ingestion.drops.internal_error('parameters')
 
     def _feedforward_model(self, train, case, kp, kd):
         """Return the feed-forward's model: the description's rigid body where there is one."""
@@ -253,10 +252,10 @@ class IdentifierNode(Node):
         try:
             self._description.take_message(description_text(raw))
         except ValueError as problem:
-            self._ingestion.reject('robot_description', 'robot_description', 'over_budget'
-                                   if 'bytes' in str(problem) else 'malformed', str(problem))
+            self._ingestion.drops.reject('robot_description', 'robot_description', 'over_budget'
+                                         if 'bytes' in str(problem) else 'malformed', str(problem))
         except Exception:  # noqa: B902 - a callback must never raise
-            self._ingestion.internal_error('robot_description')
+            self._ingestion.drops.internal_error('robot_description')
 
     def _make_prediction_timer(self) -> None:
         if self._prediction_timer is not None:
@@ -321,12 +320,8 @@ class IdentifierNode(Node):
 
 def main(args=None):
     """Run the identifier node until SIGINT or shutdown; return the exit code."""
-    dump_stacks_on_sigusr1()
-    interrupt = Interrupt()
-    interrupt.install()                     # before rclpy.init: its handler chains to it
-    rclpy.init(args=args)
-    node = None
-    code = 0
+    interrupt = start_up(args)
+    node, code = None, 0
     try:
         node = IdentifierNode()
         interrupt.arm()                     # a SIGINT now ends the spin, raises nothing
@@ -343,14 +338,9 @@ def main(args=None):
         rclpy.logging.get_logger('identifier').fatal(f'refusing to start: {exc}')
         code = 1
     finally:
-        watchdog = TeardownWatchdog()
         if node is not None:
             node.stop()                     # the worker joined, the model file written
-        watchdog.arm()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        watchdog.disarm()
+        tear_down(node)
     return code
 
 

@@ -20,7 +20,7 @@ Record once, identify offline and reproducibly::
     ros2 bag record /joint_states /joint_commands        # or a controller's controller_state
     ros2 run rkgnn_ros identify_bag my_bag --params-file config/identifier.yaml
 
-The recording (a folder, an ``.mcap`` or a ``.db3`` file; :mod:`rkgnn_ros.recording`) is
+The recording (a folder, an ``.mcap`` or a ``.db3`` file; :mod:`rkgnn_ros.recordings.reader`) is
 read in order into the node's own ingestion (:class:`~rkgnn_ros.identification.ingest.
 Ingestion`: every drop rule of the live node, counted per reason), the last ``--heldout``
 seconds kept apart, and the node's online policy fits the rest
@@ -56,8 +56,7 @@ import time
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
-
-from rkgnn_ros.identify_bag_report import markdown, write_figures
+from rkgnn_ros.offline.report import markdown, write_figures
 
 __all__ = ['main', 'IdentifyError', 'read_parameters', 'EXIT_WORSE_THAN_BASELINE']
 
@@ -175,8 +174,8 @@ def _ingestion(config, log):
 def _feed(ingestion, messages, topics, recording, until_ns=None, from_ns=None) -> Dict[str, int]:
     """Feed the recorded messages into an ingestion; return how many were handed over."""
     from rclpy.serialization import serialize_message
-    from rkgnn_ros.controller_state import controller_state_to_joint_state
-    from rkgnn_ros.conversions import Rejection
+    from rkgnn_ros.wire.controller_state import controller_state_to_joint_state
+    from rkgnn_ros.wire.conversions import Rejection
     counts = {'states': 0, 'commands': 0, 'controller_states': 0, 'undecodable': 0}
     for message in messages:
         if until_ns is not None and message.log_ns >= until_ns:
@@ -194,12 +193,12 @@ def _feed(ingestion, messages, topics, recording, until_ns=None, from_ns=None) -
                 decoded = recording.decode(message)
             except Exception:  # noqa: B902 - a message the definitions cannot decode
                 counts['undecodable'] += 1
-                ingestion.count('command', 'malformed')
+                ingestion.drops.count('command', 'malformed')
                 continue
             command = controller_state_to_joint_state(decoded)
             if isinstance(command, Rejection):
-                ingestion.reject(topics.controller_state, 'command', command.reason,
-                                 command.message)
+                ingestion.drops.reject(topics.controller_state, 'command', command.reason,
+                                       command.message)
             else:
                 ingestion.handle_command(serialize_message(command), message.log_ns)
                 counts['controller_states'] += 1
@@ -346,7 +345,8 @@ def identify(args, started: Optional[float] = None) -> dict:
     from rkgnn_ros.core.fitting.offline import (heldout_baselines, heldout_prediction,
                                                 identify_offline, judge)
     from rkgnn_ros.core.fitting.validation import MIN_SEGMENT_SAMPLES
-    from rkgnn_ros.recording import find_topics, open_recording, read_messages, RecordingError
+    from rkgnn_ros.recordings.reader import (find_topics, open_recording, read_messages,
+                                             RecordingError)
     values = read_parameters(args.params_file, args.node_name) if args.params_file else {}
     try:
         recording = open_recording(args.bag)
@@ -396,7 +396,7 @@ def identify(args, started: Optional[float] = None) -> dict:
     if held_in is not None:
         _feed(held_in, messages, topics, recording, from_ns=split_ns)
     recording.close()
-    drops = {k: v for k, v in train_in.drop_counts().items() if v}
+    drops = {k: v for k, v in train_in.drops.counts().items() if v}
     joints = train_in.joints
     config = train_in.view()[0]  # case 'auto': the case the recorded streams decided
     capture = train_in.capture()
@@ -504,7 +504,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     None), the budget counts from the process's start.
     """
     from rkgnn_ros.core.fitting.budget import process_age
-    from rkgnn_ros.identify_bag_args import parser
+    from rkgnn_ros.offline.args import parser
     started = time.monotonic() - (process_age() if argv is None else 0.0)
     args = parser(NODE_NAME).parse_args(argv)
     if not args.out:

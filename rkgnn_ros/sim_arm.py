@@ -42,7 +42,7 @@ Topics (published)
     that state's command). Transient local so that a late subscriber gets the current one
     at once; a volatile subscriber is compatible too.
 ``robot_description`` (std_msgs/String, reliable, transient local, depth 1)
-    With a URDF arm (:mod:`rkgnn_ros.arm_model`): its URDF with the locked joints fixed,
+    With a URDF arm (:mod:`rkgnn_ros.sim_node.arm_model`): its URDF with the locked joints fixed,
     once at start, for robot_state_publisher and rviz.
 
 Topics (subscribed)
@@ -58,9 +58,9 @@ Topics (subscribed)
     repeated joints, a point without efforts, NaN or inf, an effort beyond ``tau_limit``,
     times not increasing, its last point in the past) is not applied and drops the one
     before: the servo runs alone, and the reason is counted and logged (at most once a
-    second per reason; :mod:`rkgnn_ros.core.control.receiver`); a clock jumping back drops
+    second per reason; :mod:`rkgnn_ros.core.sim.receiver`); a clock jumping back drops
     it too (its times are on the old timeline). The subscription is raw:
-    the size budgets of every JointTrajectory input (:mod:`rkgnn_ros.conversions`: 8 MiB,
+    the size budgets of every JointTrajectory input (:mod:`rkgnn_ros.wire.conversions`: 8 MiB,
     10,000 points, 256 names of at most 256 bytes) are checked on the bytes first, and a
     message over one is refused as ``over_budget``, plain CDR that is no JointTrajectory
     as ``bad_shape``, both before rclpy builds the message.
@@ -85,7 +85,7 @@ The arm under its servo is advanced by fixed Runge-Kutta-Gill steps of at most
 with ``control_rate`` = 0, else a digital one that holds its torque between ticks at
 ``control_rate``. ``integration_step`` is checked at start against the closed-loop
 stiffness at the start state (:meth:`PlanarArm.stable_step`); an unstable step is refused.
-The parameter table and these checks are :mod:`rkgnn_ros.sim_arm_parameters`.
+The parameter table and these checks are :mod:`rkgnn_ros.sim_node.parameters`.
 
 All parameters are read-only (set them at start; they define the simulated system)
 except ``noise.theta_std`` and ``noise.theta_dot_std``, which can be changed at any time.
@@ -105,21 +105,21 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rclpy.time import Time
+from rkgnn_ros.core.sim.arm_simulator import ArmSimulator, SimulationDiverged
+from rkgnn_ros.core.sim.plant import PlanarArm
+from rkgnn_ros.core.sim.receiver import FeedforwardReceiver
+from rkgnn_ros.node.parameters import Change
+from rkgnn_ros.node.stacks import start_up, tear_down
+from rkgnn_ros.sim_node.parameters import build_config, BY_NAME, ConfigurationError, PARAMETERS
+from rkgnn_ros.wire.cdr import (encapsulation_problem, joint_trajectory_cdr_size,
+                                parse_trajectory_efforts_cdr)
+from rkgnn_ros.wire.conversions import (make_joint_state, make_joint_trajectory,
+                                        MAX_MESSAGE_JOINTS, MAX_NAME_BYTES, MAX_TRAJECTORY_BYTES,
+                                        MAX_TRAJECTORY_POINTS)
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory
-
-from .cdr import encapsulation_problem, joint_trajectory_cdr_size, parse_trajectory_efforts_cdr
-from .conversions import (make_joint_state, make_joint_trajectory, MAX_MESSAGE_JOINTS,
-                          MAX_NAME_BYTES, MAX_TRAJECTORY_BYTES, MAX_TRAJECTORY_POINTS)
-from .core.control.receiver import FeedforwardReceiver
-from .core.sim.arm_simulator import ArmSimulator, SimulationDiverged
-from .core.sim.plant import PlanarArm
-from .parameters import Change
-from .sigint import Interrupt
-from .sim_arm_parameters import build_config, BY_NAME, ConfigurationError, PARAMETERS
-from .stacks import dump_stacks_on_sigusr1, TeardownWatchdog
 
 NODE_NAME = 'sim_arm'
 
@@ -155,12 +155,12 @@ def read_feedforward(raw: bytes):
     Return the :class:`FeedforwardMessage` in ``raw`` (CDR bytes), or ``(reason, message)``.
 
     The reason is ``'over_budget'`` (bytes, names or points over the budgets of
-    :mod:`rkgnn_ros.conversions`, checked before anything is built from the points) or
+    :mod:`rkgnn_ros.wire.conversions`, checked before anything is built from the points) or
     ``'bad_shape'`` (plain CDR that does not form a JointTrajectory, or bytes of another
-    encapsulation than plain CDR). The bytes are read by :mod:`rkgnn_ros.cdr`, never by
+    encapsulation than plain CDR). The bytes are read by :mod:`rkgnn_ros.wire.cdr`, never by
     rclpy: its deserializer prints on stderr for each malformed message, and building a
     10,000-point message and its efforts took a third of a second, time the simulation
-    fell behind by (:func:`~rkgnn_ros.cdr.parse_trajectory_efforts_cdr`: milliseconds).
+    fell behind by (:func:`~rkgnn_ros.wire.cdr.parse_trajectory_efforts_cdr`: milliseconds).
     """
     if len(raw) > MAX_TRAJECTORY_BYTES:
         return 'over_budget', f'{len(raw)} bytes, over the budget of {MAX_TRAJECTORY_BYTES}'
@@ -518,12 +518,8 @@ class SimArm(Node):
 
 def main(args=None) -> int:
     """Run the node until SIGINT, shutdown or ``duration``; return the exit code."""
-    dump_stacks_on_sigusr1()
-    interrupt = Interrupt()
-    interrupt.install()                     # before rclpy.init: its handler chains to it
-    rclpy.init(args=args)
-    node = None
-    exit_code = 0
+    interrupt = start_up(args)
+    node, exit_code = None, 0
     try:
         node = SimArm()
         interrupt.arm()                     # a SIGINT now ends the spin, raises nothing
@@ -540,12 +536,7 @@ def main(args=None) -> int:
         if rclpy.ok():
             raise
     finally:
-        watchdog = TeardownWatchdog()
-        watchdog.arm()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        watchdog.disarm()
+        tear_down(node)
     return exit_code
 
 

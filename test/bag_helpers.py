@@ -16,12 +16,12 @@
 
 import numpy as np
 from rclpy.serialization import serialize_message
-from rkgnn_ros.conversions import make_joint_state, seconds_to_stamp
 from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.servo import Servo
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.recording import RecordingWriter
+from rkgnn_ros.recordings.reader import RecordingWriter
+from rkgnn_ros.wire.conversions import make_joint_state, seconds_to_stamp
 
 #: Where recorded time starts (s): a wall-clock-like stamp.
 T0 = 1_700_000_000.0

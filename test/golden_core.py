@@ -110,8 +110,8 @@ def compute():
         u = (np.zeros((d.n_samples, N)) if spec.case == 'torque'
              else np.hstack([d.theta_d, d.theta_d_dot]))
         for compiled in (True, False):
-            r = equation_residuals(spec, scales, pop, d.state, acc, u, _torque(spec, d), KP, KD,
-                                   compiled=compiled)
+            r = equation_residuals(spec, scales, pop, (d.state, acc, u, _torque(spec, d)), KP,
+                                   KD, compiled=compiled)
             entry[f'equation_{compiled}'] = r[:, ::7].tolist()
         if spec.inertia == 'penalty' and spec.velocity == 'learned':
             entry['least_squares'] = least_squares_genome(spec, [d], scales, kp=KP,

@@ -16,12 +16,15 @@
 
 import importlib.util
 import os
+import sys
 
 import numpy as np
 import pytest
 
-_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'bench',
-                     'online_servos.py')
+_BENCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'bench')
+_PATH = os.path.join(_BENCH, 'online_servos.py')
+if _BENCH not in sys.path:
+    sys.path.insert(0, _BENCH)  # its sibling bench/monitor.py
 _SPEC = importlib.util.spec_from_file_location('online_servos', _PATH)
 online_servos = importlib.util.module_from_spec(_SPEC)
 _SPEC.loader.exec_module(online_servos)

@@ -182,7 +182,7 @@ def test_the_policy_hands_the_learned_chain_to_the_rigid_body_policy(servoed):
     from rkgnn_ros.core.fitting.online import OnlineIdentification
     from rkgnn_ros.core.fitting.online_records import ModelUpdate, Observation, OnlineSettings
     from rkgnn_ros.core.fitting.rigid_model import RigidModel
-    from rkgnn_ros.stream_buffer import StreamBuffer
+    from rkgnn_ros.streams.buffer import StreamBuffer
     data = servoed
     buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
     now = [100.0]
@@ -239,7 +239,7 @@ def test_fit_best_and_identify_bag_learn_the_chain_when_asked(monkeypatch):
 def test_no_generation_runs_while_the_fit_does(learning):
     from rkgnn_ros.core.fitting.online import OnlineIdentification
     from rkgnn_ros.core.fitting.online_records import Observation, OnlineSettings
-    from rkgnn_ros.stream_buffer import StreamBuffer
+    from rkgnn_ros.streams.buffer import StreamBuffer
     data = arm_data(8.0)
     buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=True, need_desired=False)
     for k in range(data.n_samples):

@@ -16,9 +16,9 @@
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.control.gate import (FeedforwardGate, GateSettings, model_case,
-                                         paired_torques, torque_error)
+from rkgnn_ros.core.control.gate import FeedforwardGate, GateSettings
 from rkgnn_ros.core.control.model import feedforward_model
+from rkgnn_ros.core.fitting.torque_check import model_case, paired_torques, torque_error
 from rkgnn_ros.core.fitting.validation import split_validation
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate

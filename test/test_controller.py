@@ -21,8 +21,7 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.fitting.controller import (closed_loop, closed_loop_model, fit_controller,
                                                fit_pd_law)
-from rkgnn_ros.core.fitting.controller_laws import (ControllerLaw, PDLaw, RBFFeatures,
-                                                    TrigFeatures)
+from rkgnn_ros.core.fitting.controller_laws import ControllerLaw, PDLaw, RBFFeatures, TrigFeatures
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.model.scales import Scales
 from rkgnn_ros.core.model.spec import NetworkSpec
@@ -31,7 +30,7 @@ from rkgnn_ros.core.sim.sensors import SensorModel
 from rkgnn_ros.core.sim.servo import Servo
 from rkgnn_ros.core.sim.simulate import NoiseModel, simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference, SumOfSines
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
 
 N = 3
 SCALES = Scales(theta_center=[-1.5, 0.0, 0.0], theta_spread=[0.3, 0.3, 0.3],

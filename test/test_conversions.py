@@ -28,8 +28,8 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
-from rkgnn_ros import conversions as conv
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
+from rkgnn_ros.wire import conversions as conv
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint

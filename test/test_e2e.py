@@ -159,7 +159,7 @@ def test_installed_nodes_predict_from_the_measured_state_and_stop_cleanly(runnin
             assert horizon == pytest.approx(2.0, abs=0.011)
             assert np.all(np.isfinite([v for p in msg.points for v in p.positions]))
         # the error of each prediction against what the arm then actually did
-        from rkgnn_ros.evaluation import ahead_errors
+        from rkgnn_ros.core.selfcheck import ahead_errors
         stamps = sorted(states)
         meas_t = 1e-9 * np.array(stamps, dtype=float)
         meas_theta = np.array([states[k][0] for k in stamps])

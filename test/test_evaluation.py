@@ -16,7 +16,7 @@
 
 import numpy as np
 import pytest
-from rkgnn_ros.evaluation import ahead_errors, range_normalised_rmse
+from rkgnn_ros.core.selfcheck import ahead_errors, range_normalised_rmse
 
 
 def test_perfect_prediction_scores_zero_and_offset_scores_offset():

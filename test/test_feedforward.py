@@ -113,7 +113,7 @@ def test_computed_torque_with_the_true_model_gives_the_chosen_error_dynamics():
 
     def rate(s, x):
         theta_d, theta_d_dot, acc = exact_plan(reference, np.array([s]))
-        tau = computed_torque(arm, x[:3], x[3:], theta_d[0], theta_d_dot[0], acc[0], kp, kd)
+        tau = computed_torque(arm, x[:3], x[3:], theta_d[0], theta_d_dot[0], acc[0], (kp, kd))
         return arm.dynamics(x, tau)
 
     theta_d, theta_d_dot, _ = exact_plan(reference, np.array([0.0]))
@@ -141,7 +141,7 @@ def test_bad_plans_are_refused_with_the_reason():
     with pytest.raises(ValueError, match='shape'):
         plan_feedforward(arm, t, theta, theta[:, :2])
     with pytest.raises(ValueError, match='kp must be >= 0'):
-        computed_torque(arm, theta, theta, theta, theta, theta, -1.0, 1.0)
+        computed_torque(arm, theta, theta, theta, theta, theta, (-1.0, 1.0))
 
     class WrongShape:
 

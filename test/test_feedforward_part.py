@@ -39,7 +39,7 @@ from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identification.feedforward import FeedforwardSender, RAMP_S
 from rkgnn_ros.identification.parameters import ConfigurationError, make_config
-from rkgnn_ros.stream_capture import PlannedReference
+from rkgnn_ros.streams.capture import PlannedReference
 from trajectory_msgs.msg import JointTrajectory
 
 pytestmark = pytest.mark.ros
@@ -84,6 +84,7 @@ class FakeIngestion:
         self.config, self.joints, self.data = config, JOINTS, data
         self.plan = None
         self.errors = 0
+        self.drops = self  # its drop accounting: internal_error
 
     def view(self):
         return self.config, self.joints, None, {'state': self.seconds()}

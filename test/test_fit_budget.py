@@ -34,7 +34,7 @@ from rkgnn_ros.core.fitting.online import OnlineIdentification, OnlineSettings
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
 
 JOINTS = ('joint1', 'joint2', 'joint3')
 

@@ -19,9 +19,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from rkgnn_ros.core.control.feedforward import plan_feedforward
-from rkgnn_ros.core.control.gate import (FeedforwardGate, GateSettings,
-                                         torque_scale_from_effort, torque_scale_problem)
+from rkgnn_ros.core.control.gate import FeedforwardGate, GateSettings, torque_scale_problem
 from rkgnn_ros.core.data import Dataset
+from rkgnn_ros.core.fitting.torque_check import torque_scale_from_effort
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.model.scales import Scales
 from rkgnn_ros.core.model.spec import NetworkSpec

@@ -15,7 +15,7 @@
 """
 Reading a reference JointTrajectory from its CDR bytes, and the size budgets.
 
-The raw path (:func:`~rkgnn_ros.conversions.joint_trajectory_cdr_to_arrays`) must give
+The raw path (:func:`~rkgnn_ros.wire.conversions.joint_trajectory_cdr_to_arrays`) must give
 exactly what the message path gives on the deserialized message, for any message; any
 bytes at all (truncated, corrupted, random) give a result or a rejection, never an
 exception; a message over a budget is refused from its first bytes.
@@ -26,9 +26,9 @@ import math
 from hypothesis import given, HealthCheck, settings, strategies as st
 import numpy as np
 from rclpy.serialization import serialize_message
-from rkgnn_ros.cdr import joint_trajectory_cdr_size, parse_joint_trajectory_cdr
-from rkgnn_ros.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
-                                   MAX_TRAJECTORY_POINTS, Rejection, REJECTION_REASONS)
+from rkgnn_ros.wire.cdr import joint_trajectory_cdr_size, parse_joint_trajectory_cdr
+from rkgnn_ros.wire.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
+                                        MAX_TRAJECTORY_POINTS, Rejection, REJECTION_REASONS)
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 JOINTS = ('j1', 'j2', 'j3')

@@ -34,7 +34,7 @@ import pytest
 pytest.importorskip('rosbags')
 
 from rkgnn_ros.identify_bag import main  # noqa: E402
-from rkgnn_ros.recording import open_recording, RecordingError  # noqa: E402
+from rkgnn_ros.recordings.reader import open_recording, RecordingError  # noqa: E402
 
 PATIENCE = 60.0
 

@@ -42,7 +42,6 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.serialization import serialize_message
-from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.optimizers import make_optimizer
 from rkgnn_ros.core.model.network import NetworkSpec
@@ -51,10 +50,10 @@ from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identification.model_file import save_model_file
 from rkgnn_ros.identification.parameters import (make_config, MAX_POPULATION,
-                                                 MAX_PREDICTION_POINTS, network_spec,
-                                                 PARAMETERS)
+                                                 MAX_PREDICTION_POINTS, network_spec, PARAMETERS)
 from rkgnn_ros.identifier import IdentifierNode
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
+from rkgnn_ros.wire.conversions import make_joint_state
 from ros_helpers import Rosout, Spinner, wait_for
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory

@@ -42,17 +42,17 @@ from rclpy.serialization import serialize_message
 pytest.importorskip('pinocchio')
 
 from rkgnn_ros import sim_arm  # noqa: E402
-from rkgnn_ros.cdr import parse_trajectory_efforts_cdr  # noqa: E402
-from rkgnn_ros.core.control.receiver import FeedforwardReceiver  # noqa: E402
 from rkgnn_ros.core.rigid.urdf import MAX_URDF_BYTES  # noqa: E402
 from rkgnn_ros.core.sim.arm_simulator import ArmSimulator  # noqa: E402
 from rkgnn_ros.core.sim.parameters import ArmParameters  # noqa: E402
 from rkgnn_ros.core.sim.plant import PlanarArm  # noqa: E402
+from rkgnn_ros.core.sim.receiver import FeedforwardReceiver  # noqa: E402
 from rkgnn_ros.core.sim.torque_scale import torque_scale  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import SumOfSines  # noqa: E402
 from rkgnn_ros.core.sim.urdf_arm import UrdfArm, UrdfError  # noqa: E402
-from rkgnn_ros.sim_arm_parameters import build_config, ConfigurationError  # noqa: E402
-from rkgnn_ros.sim_arm_parameters import PARAMETERS  # noqa: E402
+from rkgnn_ros.sim_node.parameters import build_config, ConfigurationError  # noqa: E402
+from rkgnn_ros.sim_node.parameters import PARAMETERS  # noqa: E402
+from rkgnn_ros.wire.cdr import parse_trajectory_efforts_cdr  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 from urdf_helpers import planar_urdf  # noqa: E402
 

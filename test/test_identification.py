@@ -36,7 +36,6 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
-from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
 from rkgnn_ros.core.differentiate import causal_derivative
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification, Status
@@ -51,7 +50,8 @@ from rkgnn_ros.identification.parameters import (ConfigurationError, IdentifierP
 from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import Outbox
 from rkgnn_ros.identification.worker import SearchWorker
-from rkgnn_ros.parameters import Change, ParameterSpec
+from rkgnn_ros.node.parameters import Change, ParameterSpec
+from rkgnn_ros.wire.conversions import make_joint_state, make_joint_trajectory
 from ros_helpers import wait_for
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
@@ -196,7 +196,7 @@ def test_the_ingest_thread_takes_the_streams_without_any_executor(context, data)
         # loopback may still lose a few of the burst
         assert wait_for(lambda: ingestion.samples_buffered() >= 30
                         and ingestion.buffer.stats()['command_samples'] >= 30, 60.0)
-        assert ingestion.drop_counts()['internal_error'] == 0
+        assert ingestion.drops.counts()['internal_error'] == 0
         assert ingestion.latest_state.received_ns > 0
     finally:
         assert ingestion.stop()
@@ -211,14 +211,14 @@ def test_joints_are_learned_from_the_first_state_and_a_rebuild_keeps_the_counter
     assert ingestion.joints is None
     ingestion.handle_command(serialize_message(make_joint_state(
         T0, JOINTS, data.theta_d[0], data.theta_d_dot[0])))
-    assert ingestion.drop_counts()['no_joints'] == 1
+    assert ingestion.drops.counts()['no_joints'] == 1
     _feed(ingestion, data, 0, 50)
     assert ingestion.joints == JOINTS and ingestion.samples_buffered() == 50
     assert 'joints from the first joint_states message' in lines[-1]
     ingestion.handle_state(b'\x00\x01\x00\x00 not a JointState')
     ingestion.reconfigure(make_config(window=6.0), rebuild=True)
     assert ingestion.samples_buffered() == 0 and ingestion.joints == JOINTS
-    assert ingestion.drop_counts()['malformed'] == 1  # counted before the rebuild, kept
+    assert ingestion.drops.counts()['malformed'] == 1  # counted before the rebuild, kept
 
 
 def test_a_prediction_is_asked_for_on_accepted_states_at_most_once_per_model_step(data):
@@ -260,7 +260,7 @@ def test_case_auto_follows_the_effort_with_a_second_of_hysteresis(data):
         clock[0] += 0.01
         ingestion.handle_state(_state(data, k, effort=False))
     assert ingestion.view()[0].settings.case == 'torque'
-    assert ingestion.drop_counts()['missing_effort'] == 90
+    assert ingestion.drops.counts()['missing_effort'] == 90
     for k in range(140, 160):  # ... then case 3 (no gains given), the buffer rebuilt
         clock[0] += 0.01
         ingestion.handle_state(_state(data, k, effort=False))
@@ -288,7 +288,7 @@ def test_without_velocity_the_start_state_gets_the_causal_estimate(data):
     assert np.abs(latest.theta_dot - data.theta_dot[299]).max() < 0.05 * np.ptp(
         data.theta_dot)
     assert 'estimated from position' in ingestion.sources.describe()['velocity_source']
-    assert ingestion.drop_counts()['missing_velocity'] == 0
+    assert ingestion.drops.counts()['missing_velocity'] == 0
 
 
 def test_without_joint_commands_the_plan_gives_the_commands(data):
@@ -448,7 +448,7 @@ def test_the_worker_logs_counts_and_survives_a_failing_step(data):
     worker = SearchWorker(ingestion, predictor, outbox, policy=_Failing)
     worker.start()
     try:
-        assert wait_for(lambda: ingestion.drop_counts()['worker_error'] >= 2, 60.0)
+        assert wait_for(lambda: ingestion.drops.counts()['worker_error'] >= 2, 60.0)
         assert worker.status.state == 'error' and 'injected' in worker.status.detail
     finally:
         assert worker.stop()

@@ -46,12 +46,12 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rkgnn_ros.conversions import make_joint_state, make_joint_trajectory
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode, SCORE_LABELS, score_labels
+from rkgnn_ros.wire.conversions import make_joint_state, make_joint_trajectory
 from ros_helpers import retire_node, run_in_executor, Spinner, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String

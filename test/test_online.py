@@ -26,20 +26,19 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.differentiate import centred_derivative
 from rkgnn_ros.core.fitting import case_one
-from rkgnn_ros.core.fitting.case_three import REFIT_S
 from rkgnn_ros.core.fitting.global_fit import is_global
 from rkgnn_ros.core.fitting.identify import Evolution
 from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
                                            Observation, OnlineIdentification, OnlineSettings,
                                            split_validation)
-from rkgnn_ros.core.fitting.search_starts import REWARM_PERIOD_S
+from rkgnn_ros.core.fitting.policy import REFIT_S, REWARM_PERIOD_S
 from rkgnn_ros.core.fitting.trig_loop import TrigLoop
 from rkgnn_ros.core.fitting.validation import validation_nrmse
 from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
 
 JOINTS = ('j1', 'j2', 'j3')
 T0 = 1000.0

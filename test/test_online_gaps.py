@@ -23,12 +23,11 @@ The clock is a fake one moved 0.1 s per step, and the stream is fed up to it.
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.fitting.online import (Observation, OnlineIdentification, OnlineSettings,
-                                           Status)
+from rkgnn_ros.core.fitting.online import Observation, OnlineIdentification, OnlineSettings, Status
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
 
 JOINTS = ('j1', 'j2', 'j3')
 T0 = 1000.0

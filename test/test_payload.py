@@ -16,12 +16,11 @@
 
 import numpy as np
 import pytest
-
 from rkgnn_ros.core.sim.arm_simulator import ArmSimulator
 from rkgnn_ros.core.sim.payload import with_payload
 from rkgnn_ros.core.sim.plant import PlanarArm
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.sim_arm_parameters import build_config, ConfigurationError, PARAMETERS
+from rkgnn_ros.sim_node.parameters import build_config, ConfigurationError, PARAMETERS
 
 
 def test_the_planar_payload_is_a_mass_at_the_last_tip():

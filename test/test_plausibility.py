@@ -27,7 +27,6 @@ import tracemalloc
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
-from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.core.control.model import feedforward_model
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.validation import MIN_SEGMENT_SAMPLES, split_validation
@@ -39,6 +38,7 @@ from rkgnn_ros.identification.feedforward import rollout_error
 from rkgnn_ros.identification.ingest import Ingestion
 from rkgnn_ros.identification.parameters import make_config
 from rkgnn_ros.identification.plausibility import PLAUSIBILITY_REASONS, PlausibilityFilter
+from rkgnn_ros.wire.conversions import make_joint_state
 
 JOINTS = ('j1', 'j2', 'j3')
 T0 = 1000.0
@@ -81,7 +81,7 @@ def fitted(ingestion):
 def test_garbage_among_the_stream_is_dropped_counted_and_fits_as_clean_data(data):
     clean = ingest(data)
     dirty = ingest(data, every=50, rng=np.random.default_rng(0))  # 2 messages a second
-    drops = dirty.drop_counts()
+    drops = dirty.drops.counts()
     assert sum(drops[reason] for reason in PLAUSIBILITY_REASONS) == 40
     assert drops['duplicate_stamp'] == 0  # no garbage took a good sample's place
     assert dirty.samples_buffered() == clean.samples_buffered() == data.n_samples

@@ -14,10 +14,16 @@
 
 """The set-up precompile drives the online policy to a published, predicting model."""
 
-from rkgnn_ros import precompile
-from rkgnn_ros.core.sim.plant import PDController, PlanarArm
-from rkgnn_ros.core.sim.simulate import simulate
-from rkgnn_ros.core.sim.trajectories import paper_reference
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                'tools'))
+
+import precompile  # noqa: E402, I100  (tools/precompile.py, run by make build)
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
+from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
+from rkgnn_ros.core.sim.trajectories import paper_reference  # noqa: E402
 
 
 def test_the_precompile_reaches_a_published_model_in_every_case():

@@ -25,9 +25,9 @@ import pytest
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.identifier import ConfigurationError, IdentifierNode
 from rkgnn_ros.identify_bag import main as identify_bag
+from rkgnn_ros.wire.conversions import make_joint_state
 from ros_helpers import retire_node, spinning_context, stamp_ns, wait_for
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory

@@ -79,6 +79,7 @@ class Arm:
         self.feed = deque()
         self.now = 0.0
         self.rejected = []
+        self.drops = self  # its drop accounting: reject, warn_throttled, internal_error
 
     def reference(self):
         return Plan(self.now)

@@ -76,8 +76,8 @@ def test_equation_residuals_compiled_match_numpy(case, velocity, inertia):
     tau = None if case == 'unknown' else rng.standard_normal((60, 3))
     genomes = spec.initial_genome() + 0.3 * rng.standard_normal((4, spec.genome_size))
     kp, kd = np.array([30.0, 40.0, 40.0]), np.array([40.0, 1.0, 5.0])
-    fast = equation_residuals(spec, scales, genomes, x, acc, u, tau, kp, kd)
-    ref = equation_residuals(spec, scales, genomes, x, acc, u, tau, kp, kd, compiled=False)
+    fast = equation_residuals(spec, scales, genomes, (x, acc, u, tau), kp, kd)
+    ref = equation_residuals(spec, scales, genomes, (x, acc, u, tau), kp, kd, compiled=False)
     assert fast.shape == (4, 60 * 3 + (case == 'unknown'))
     np.testing.assert_allclose(fast, ref, rtol=0.0, atol=1e-10)
 
@@ -89,8 +89,8 @@ def test_equation_residuals_vanish_for_the_generating_genome():
     x = np.hstack([theta, theta_dot])
     g = _true_genome(spec)
     tau, _ = _inverse_dynamics(spec, scales, g, x, acc, np.zeros(3))
-    r = equation_residuals(spec, scales, np.vstack([g, spec.initial_genome()]), x, acc,
-                           np.zeros((50, 3)), tau)
+    r = equation_residuals(spec, scales, np.vstack([g, spec.initial_genome()]),
+                           (x, acc, np.zeros((50, 3)), tau))
     assert np.max(np.abs(r[0])) < 1e-12
     assert np.max(np.abs(r[1])) > 1e-2
 

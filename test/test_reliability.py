@@ -53,7 +53,6 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
-from rkgnn_ros.conversions import make_joint_state
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
 from rkgnn_ros.core.fitting.identify import Evolution, precompile
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification
@@ -69,7 +68,8 @@ from rkgnn_ros.identification.prediction import Prediction, Predictor
 from rkgnn_ros.identification.publishing import Outbox
 from rkgnn_ros.identification.worker import SearchWorker
 from rkgnn_ros.identifier import EVOLUTION_LABELS, IdentifierNode
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
+from rkgnn_ros.wire.conversions import make_joint_state
 from ros_helpers import Rosout, Spinner, wait_for
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
@@ -166,7 +166,7 @@ class Streams:
                                               data.theta_d_dot[k]))
 
     def drops(self):
-        return self.ingestion.drop_counts()
+        return self.ingestion.drops.counts()
 
     def buffered(self):
         return self.ingestion.samples_buffered()
@@ -410,7 +410,7 @@ def test_item_13_clock_jump_back_clears_and_identification_continues(data):
     s.feed(data, 0, 200)
     assert s.ingestion.samples_buffered() == 200
     s.feed(data, 0, 200, t0=T0 - 100.0)  # a simulator restarted 100 s earlier
-    assert s.ingestion.drop_counts()['clock_jump'] >= 1
+    assert s.ingestion.drops.counts()['clock_jump'] >= 1
     assert s.ingestion.samples_buffered() == 200  # only the new timeline is kept
     assert s.log_lines('joint_states: the clock jumped', 'identification continues')
     s.feed(data, 200, 400, t0=T0 - 100.0)
@@ -1162,7 +1162,7 @@ def test_hostile_optimizer_assertion_keeps_the_best_without_a_traceback(data, mo
     s.feed(data, 300, 600)
     assert len(calls) > 3  # the failing generations ran, and later ones too
     assert s.status.state == 'evolving' and s.status.generation > generation + 3
-    assert s.ingestion.drop_counts()['worker_error'] == 0
+    assert s.ingestion.drops.counts()['worker_error'] == 0
     lines = s.log_lines('failed numerically', 'restarted around the best genome')
     assert 1 <= len(lines) <= 3 and not s.log_lines('Traceback')
     assert not s.log_lines('restarting the search')

@@ -22,15 +22,14 @@ pytest.importorskip('pinocchio')
 from rkgnn_ros.core.fitting.change import ChangeDetector  # noqa: E402
 from rkgnn_ros.core.fitting.online import OnlineIdentification  # noqa: E402
 from rkgnn_ros.core.fitting.online_records import (DynamicsChange, ModelUpdate,  # noqa: E402
-                                                   Observation, OnlineSettings,
-                                                   PayloadEstimate)
+                                                   Observation, OnlineSettings, PayloadEstimate)
 from rkgnn_ros.core.rigid.structure import RigidStructure  # noqa: E402
 from rkgnn_ros.core.sim.payload import with_payload  # noqa: E402
 from rkgnn_ros.core.sim.servo import Servo  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import SumOfSines  # noqa: E402
 from rkgnn_ros.core.sim.urdf_arm import UrdfArm  # noqa: E402
-from rkgnn_ros.stream_buffer import StreamBuffer  # noqa: E402
+from rkgnn_ros.streams.buffer import StreamBuffer  # noqa: E402
 
 UR5 = 'example-robot-data:ur_description/urdf/ur5_robot.urdf'
 KP = np.array([400.0, 400.0, 200.0, 40.0, 40.0, 10.0])

@@ -29,7 +29,7 @@ from rkgnn_ros.core.sim.servo import Servo  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.trajectories import SumOfSines  # noqa: E402
 from rkgnn_ros.core.sim.urdf_arm import UrdfArm  # noqa: E402
-from rkgnn_ros.stream_buffer import StreamBuffer  # noqa: E402
+from rkgnn_ros.streams.buffer import StreamBuffer  # noqa: E402
 import yaml  # noqa: E402
 
 UR5 = 'example-robot-data:ur_description/urdf/ur5_robot.urdf'

@@ -23,12 +23,12 @@ import numpy as np
 import pytest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rkgnn_ros.controller_state import (control_msgs_available, CONTROL_MSGS_REASON,
-                                        controller_state_to_joint_state)
-from rkgnn_ros.conversions import joint_state_to_arrays, Rejection, seconds_to_stamp
 from rkgnn_ros.identification.parameters import ConfigurationError
 from rkgnn_ros.identification.ros2_control import controller_gains
 from rkgnn_ros.identifier import IdentifierNode
+from rkgnn_ros.wire.controller_state import (control_msgs_available, CONTROL_MSGS_REASON,
+                                             controller_state_to_joint_state)
+from rkgnn_ros.wire.conversions import joint_state_to_arrays, Rejection, seconds_to_stamp
 from ros_helpers import retire_node, Rosout, spinning_context, wait_for
 
 DOMAIN_ID = int(os.environ.get('ROS_DOMAIN_ID') or random.SystemRandom().randint(150, 199))
@@ -150,7 +150,7 @@ def test_without_control_msgs_the_controller_state_input_is_off_and_says_why(ros
 def test_a_live_controller_state_feeds_the_command_stream(ros):
     from control_msgs.msg import JointTrajectoryControllerState
     from diagnostic_msgs.msg import DiagnosticArray
-    from rkgnn_ros.conversions import make_joint_state
+    from rkgnn_ros.wire.conversions import make_joint_state
     from sensor_msgs.msg import JointState
     from trajectory_msgs.msg import JointTrajectoryPoint
     context, executor = ros

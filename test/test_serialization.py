@@ -29,9 +29,9 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message, serialize_message
-from rkgnn_ros.conversions import (joint_state_cdr_to_arrays, joint_state_to_arrays,
-                                   make_joint_trajectory, parse_joint_state_cdr,
-                                   serialize_joint_trajectory)
+from rkgnn_ros.wire.conversions import (joint_state_cdr_to_arrays, joint_state_to_arrays,
+                                        make_joint_trajectory, parse_joint_state_cdr,
+                                        serialize_joint_trajectory)
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 

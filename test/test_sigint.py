@@ -17,7 +17,7 @@ SIGINT during a spin prints no traceback (issue 31: a flaky test_item_24 under l
 
 Under load a SIGINT landed in rclpy's ``Task.__del__``; Python's KeyboardInterrupt cannot
 be raised there and was printed as "Exception ignored in ... Traceback". The cause is in
-the node, not the test: :class:`~rkgnn_ros.sigint.Interrupt` makes the signal end the spin
+the node, not the test: :class:`~rkgnn_ros.node.sigint.Interrupt` makes the signal end the spin
 through rclpy's shutdown alone. The signal is delivered inside a ``__del__`` here on
 purpose, which is what the load made happen by chance.
 """
@@ -30,7 +30,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 SCRIPT = """
 import os, signal, sys
-from rkgnn_ros.sigint import Interrupt
+from rkgnn_ros.node.sigint import Interrupt
 interrupt = Interrupt()
 if sys.argv[1] == 'node':
     interrupt.install()
@@ -67,7 +67,7 @@ def test_the_armed_handler_records_sigint_and_prints_nothing():
 
 
 def test_before_arming_sigint_still_interrupts():
-    script = ('import os, signal\nfrom rkgnn_ros.sigint import Interrupt\n'
+    script = ('import os, signal\nfrom rkgnn_ros.node.sigint import Interrupt\n'
               'Interrupt().install()\n'
               'try:\n    os.kill(os.getpid(), signal.SIGINT)\n    for _ in range(10**6): pass\n'
               'except KeyboardInterrupt:\n    print("interrupted")\n')

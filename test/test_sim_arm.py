@@ -44,7 +44,7 @@ from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.sim_arm import SimArm
-from rkgnn_ros.sim_arm_parameters import ConfigurationError, PARAMETERS
+from rkgnn_ros.sim_node.parameters import ConfigurationError, PARAMETERS
 from ros_helpers import retire_node, Spinner
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState

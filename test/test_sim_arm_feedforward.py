@@ -15,7 +15,7 @@
 """
 sim_arm's feed-forward input: the receiver's rules, the simulator's sum, the node's topic.
 
-The receiver (:mod:`rkgnn_ros.core.control.receiver`) with plain arrays; the simulator
+The receiver (:mod:`rkgnn_ros.core.sim.receiver`) with plain arrays; the simulator
 with a feed-forward against the accurate simulation; the node through its topics only:
 what it applied is read back from what it publishes (``joint_states`` effort minus the PD
 torque of ``joint_commands``; no sensor noise by default), and why it refused from
@@ -32,15 +32,15 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
-from rkgnn_ros.conversions import MAX_TRAJECTORY_BYTES, MAX_TRAJECTORY_POINTS
 from rkgnn_ros.core.control.feedforward import plan_feedforward
-from rkgnn_ros.core.control.receiver import FeedforwardReceiver, REASONS
 from rkgnn_ros.core.sim.arm_simulator import ArmSimulator
 from rkgnn_ros.core.sim.plant import PlanarArm
+from rkgnn_ros.core.sim.receiver import FeedforwardReceiver, REASONS
 from rkgnn_ros.core.sim.servo import FeedforwardTrack, Servo
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.sim_arm import FeedforwardMessage, read_feedforward, SimArm
+from rkgnn_ros.wire.conversions import MAX_TRAJECTORY_BYTES, MAX_TRAJECTORY_POINTS
 from ros_helpers import retire_node, Rosout, spinning_context, stamp_ns, wait_for
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint

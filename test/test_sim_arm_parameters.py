@@ -17,7 +17,7 @@
 import numpy as np
 import pytest
 from rkgnn_ros.core.sim.trajectories import hanging_pose, Switched
-from rkgnn_ros.sim_arm_parameters import build_config, ConfigurationError, PARAMETERS
+from rkgnn_ros.sim_node.parameters import build_config, ConfigurationError, PARAMETERS
 
 
 def values(**overrides):

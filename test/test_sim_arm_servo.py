@@ -35,7 +35,7 @@ from rkgnn_ros.core.sim.servo import Servo
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
 from rkgnn_ros.sim_arm import SimArm
-from rkgnn_ros.sim_arm_parameters import ConfigurationError
+from rkgnn_ros.sim_node.parameters import ConfigurationError
 from ros_helpers import retire_node, spinning_context, stamp_ns, wait_for
 from sensor_msgs.msg import JointState
 

@@ -33,8 +33,8 @@ from rkgnn_ros.core.sim.servo import Servo  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
 from rkgnn_ros.core.sim.urdf_arm import UrdfArm  # noqa: E402
 from rkgnn_ros.sim_arm import SimArm  # noqa: E402
-from rkgnn_ros.sim_arm_parameters import (build_config, ConfigurationError,  # noqa: E402
-                                          PARAMETERS)
+from rkgnn_ros.sim_node.parameters import (build_config, ConfigurationError,  # noqa: E402
+                                           PARAMETERS)
 from ros_helpers import retire_node, spinning_context, wait_for  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import String  # noqa: E402

@@ -27,7 +27,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rkgnn_ros.core.fitting.identify import RKGNNModel
 from rkgnn_ros.identification.clock import NodeSeconds
 from rkgnn_ros.identifier import IdentifierNode
-from rkgnn_ros.recording_player import RecordingPlayer
+from rkgnn_ros.recordings.player import RecordingPlayer
 from ros_helpers import retire_node, Rosout, spinning_context, wait_for
 from std_msgs.msg import String
 

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""A hung node can be asked where it waits, and a hung teardown ends (rkgnn_ros.stacks)."""
+"""A hung node can be asked where it waits, and a hung teardown ends (rkgnn_ros.node.stacks)."""
 
 import os
 import signal
@@ -35,7 +35,7 @@ def _python(code):
 def test_sigusr1_prints_every_threads_stack_and_the_process_goes_on():
     p = _python("""
         import threading, time
-        from rkgnn_ros.stacks import dump_stacks_on_sigusr1
+        from rkgnn_ros.node.stacks import dump_stacks_on_sigusr1
         assert dump_stacks_on_sigusr1()
         def waiting_in_a_side_thread():
             time.sleep(60)
@@ -64,7 +64,7 @@ def test_a_stream_of_sigusr1_beside_busy_threads_does_not_crash_the_process():
     p = _python("""
         import threading, time
         import numpy as np
-        from rkgnn_ros.stacks import dump_stacks_on_sigusr1
+        from rkgnn_ros.node.stacks import dump_stacks_on_sigusr1
         dump_stacks_on_sigusr1()
         stop = threading.Event()
         def busy(seed):
@@ -97,7 +97,7 @@ def test_a_stream_of_sigusr1_beside_busy_threads_does_not_crash_the_process():
 def test_a_hung_teardown_ends_with_the_stacks():
     p = _python("""
         import time
-        from rkgnn_ros.stacks import TeardownWatchdog
+        from rkgnn_ros.node.stacks import TeardownWatchdog
         watchdog = TeardownWatchdog(grace=0.5)
         watchdog.arm()
         def teardown_that_hangs():
@@ -113,7 +113,7 @@ def test_a_hung_teardown_ends_with_the_stacks():
 def test_a_teardown_in_time_is_left_alone():
     p = _python("""
         import time
-        from rkgnn_ros.stacks import TeardownWatchdog
+        from rkgnn_ros.node.stacks import TeardownWatchdog
         watchdog = TeardownWatchdog(grace=0.5)
         watchdog.arm()
         watchdog.disarm()

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 import numpy as np
 import pytest
 from rkgnn_ros.core.data import Dataset
-from rkgnn_ros.stream_buffer import DROP_REASONS, StreamBuffer
+from rkgnn_ros.streams.buffer import DROP_REASONS, StreamBuffer
 
 JOINTS = ('joint1', 'joint2')
 T0 = 1000.0

@@ -24,7 +24,7 @@ from rkgnn_ros.core.sim.payload import with_payload
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
 from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.stream_buffer import StreamBuffer
+from rkgnn_ros.streams.buffer import StreamBuffer
 
 JOINTS = ('j1', 'j2', 'j3')
 AT, T0 = 12.0, 1000.0

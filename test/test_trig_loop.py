@@ -24,11 +24,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from rkgnn_ros.core.fitting.case_one import (fit_law, LawKeeper, TRIG_FIRST_RETRY_S,
-                                             TRIG_MAX_TORQUE_ERROR, TRIG_MIN_SAMPLES,
-                                             TRIG_RETRY_S)
-from rkgnn_ros.core.fitting.case_three import (ArmKeeper, MAX_LOOP_ERROR, REFIT_S, RETRY_S,
-                                               YOUNG_DATA_S)
+from rkgnn_ros.core.fitting.case_one import fit_law, LawKeeper
+from rkgnn_ros.core.fitting.case_three import ArmKeeper
+from rkgnn_ros.core.fitting.policy import (MAX_LOOP_ERROR, REFIT_S, RETRY_S, TRIG_FIRST_RETRY_S,
+                                           TRIG_MAX_TORQUE_ERROR, TRIG_MIN_SAMPLES, TRIG_RETRY_S,
+                                           YOUNG_DATA_S)
 from rkgnn_ros.core.fitting.trig_loop import (closed_loop_error, fit_closed_trig_loop,
                                               fit_trig_loop, trig_torque_error)
 from rkgnn_ros.core.fitting.validation import split_validation

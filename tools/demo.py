@@ -38,13 +38,13 @@ import os
 import sys
 import time
 
-import numpy as np
-
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, os.path.join(os.path.dirname(HERE), 'bench'))  # bench/monitor.py
 
-from rkgnn_ros.monitor import (CASES, field, identifier_arguments, Monitor,  # noqa: E402
-                               NodeProcesses, prediction_score)
+from monitor import (CASES, field, identifier_arguments, Monitor, NodeProcesses,  # noqa: E402
+                     prediction_score)
+import numpy as np  # noqa: E402
 
 
 class Companions:

@@ -545,7 +545,8 @@ def main(argv=None):
         runs = {'paper_ea': run_paper_ea(case, fit_data, kp, kd, args.generations, args.seed,
                                          log)}
         log(f'  case {case} ours: closed form, LM, CMA-ES, at most {args.best_budget:.0f} s')
-        res = fit_best(fit_data, CASES[case], args.best_budget, kp=kp, kd=kd, seed=args.seed)
+        res = fit_best(fit_data, CASES[case], time_budget=args.best_budget, kp=kp, kd=kd,
+                       seed=args.seed)
         runs['best'] = {'model': res.model, 'history': res.history, 'wall_s': res.wall_s,
                         'evaluations': res.evaluations, 'final_cost': res.final_cost,
                         'start_cost': res.history[0]['cost']}

@@ -25,6 +25,29 @@ from typing import Optional, Tuple
 import numpy as np
 
 
+def finite_array(name: str, value, shape: Optional[Tuple[int, ...]] = None,
+                 ndim: Optional[int] = None, min_ndim: int = 0) -> np.ndarray:
+    """
+    Return ``value`` as a finite float array, or raise a ValueError naming ``name``.
+
+    Checked in this order: numeric, ``shape`` (if given), exactly ``ndim`` dimensions (if
+    given), at least ``min_ndim`` (1: a joint axis), then no NaN or inf.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f'{name} must be numeric: {exc}') from None
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f'{name} must have shape {shape}, got {arr.shape}')
+    if ndim is not None and arr.ndim != ndim:
+        raise ValueError(f'{name} must be {ndim}-D, got shape {arr.shape}')
+    if arr.ndim < min_ndim:
+        raise ValueError(f'{name} must have a joint axis, got a scalar')
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f'{name} must be finite (no NaN or inf)')
+    return arr
+
+
 @dataclass(frozen=True)
 class Dataset:
     """

@@ -110,6 +110,16 @@ class Verdict(NamedTuple):
     why: str = ''       # why it did not earn the swap
 
 
+class CheckLimits(NamedTuple):
+    """What :class:`SelfCheck` judges on beyond its horizons and margin (see there)."""
+
+    min_scored: int = 10
+    recent: float = 2.0
+    max_gap: float = 0.25
+    rescore_every: float = 0.0
+    joint_names: Optional[Sequence[str]] = None
+
+
 class SelfCheck(PredictionRecord):
     """
     Continuous scoring of predictions against the baselines, and the publish decision.
@@ -142,10 +152,9 @@ class SelfCheck(PredictionRecord):
 
     """
 
-    def __init__(self, n_joints: int, horizons: Sequence[float] = HORIZONS,
-                 window: float = 10.0, margin: float = 0.2, min_scored: int = 10,
-                 recent: float = 2.0, max_gap: float = 0.25, rescore_every: float = 0.0,
-                 joint_names: Optional[Sequence[str]] = None):
+    def __init__(self, n_joints: int, horizons: Sequence[float] = HORIZONS, window: float = 10.0,
+                 margin: float = 0.2, **options):
+        min_scored, recent, max_gap, rescore_every, joint_names = CheckLimits(**options)
         super().__init__(n_joints, horizons, window, max_gap, rescore_every)
         if not (math.isfinite(margin) and 0.0 <= margin < 1.0):
             raise ValueError(f'margin must be in [0, 1), got {margin}')

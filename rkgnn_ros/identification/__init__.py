@@ -16,7 +16,8 @@
 The parts of the ``identifier`` node, one job each; :mod:`rkgnn_ros.identifier` wires them.
 
 - :mod:`.parameters`: the parameter table, its checks and the consistent snapshots.
-- :mod:`.ingest`: joint streams in (the raw-CDR ingest thread), drop accounting.
+- :mod:`.ingest`: joint streams in (the raw-CDR ingest thread).
+- :mod:`.drops`: the node's drop accounting: a counter per reason, throttled warnings.
 - :mod:`.worker`: the thread that runs the online policy
   (:mod:`rkgnn_ros.core.fitting.online`) and queues its events.
 - :mod:`.prediction`: the prediction thread.

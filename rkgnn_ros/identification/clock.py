@@ -79,7 +79,7 @@ def watch_clock_jumps(node, ingestion, jump_s: float = CLOCK_JUMP_S):
         try:
             ingestion.clock_reset(-jump.delta.nanoseconds * 1e-9)
         except Exception:  # noqa: B902 - a callback must never raise
-            ingestion.internal_error('clock')
+            ingestion.drops.internal_error('clock')
 
     return node.get_clock().create_jump_callback(
         JumpThreshold(min_forward=None, min_backward=Duration(seconds=-jump_s),

@@ -75,11 +75,11 @@ from typing import Callable, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
-from rkgnn_ros.conversions import make_joint_trajectory
 from rkgnn_ros.core.control.feedforward import plan_feedforward
 from rkgnn_ros.core.control.gate import FeedforwardGate, GateSettings
 from rkgnn_ros.core.control.model import FEEDFORWARD_CASES, feedforward_model
 from rkgnn_ros.core.fitting.validation import MIN_SEGMENT_SAMPLES, split_validation
+from rkgnn_ros.wire.conversions import make_joint_trajectory
 from trajectory_msgs.msg import JointTrajectory
 
 __all__ = ['FeedforwardSender', 'PERIOD_S', 'REFIT_PERIOD_S']
@@ -361,7 +361,7 @@ class FeedforwardSender:
                 else:
                     self._node.get_logger().error(item[2])
             except Exception:  # noqa: B902 - a callback must never raise
-                self._ingestion.internal_error('feedforward')
+                self._ingestion.drops.internal_error('feedforward')
 
     def diagnostics(self) -> DiagnosticArray:
         """Return the feed-forward's status: on or off and why, its model's verdict."""

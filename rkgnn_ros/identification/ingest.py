@@ -16,11 +16,12 @@
 Ingestion: the joint streams into the buffer, every rejection counted and logged.
 
 :class:`Ingestion` turns joint_states and joint_commands (raw CDR bytes) and the reference
-trajectory into buffered arrays (:class:`~rkgnn_ros.stream_buffer.StreamBuffer`), learns the
-joints from the first message when none are configured, keeps the newest state and command
-for predictions, and owns the drop accounting of the whole node: a counter per reason
-(shown in ``/diagnostics``) and a log line at most once a second per topic and reason,
-naming both. Nothing it is given raises: bad bytes are a counted reason.
+trajectory into buffered arrays (:class:`~rkgnn_ros.streams.buffer.StreamBuffer`), learns
+the joints from the first message when none are configured, and keeps the newest state and
+command for predictions. It holds the node's drop accounting
+(:class:`~rkgnn_ros.identification.drops.DropAccount`, :attr:`Ingestion.drops`), which
+every other part reports to as well. Nothing it is given raises: bad bytes are a counted
+reason.
 
 The two streams can come at 1 kHz each. Waking rclpy's executor for every message costs
 more than handling the message (README, *Responsiveness*), so their subscriptions sit in a
@@ -41,30 +42,25 @@ from dataclasses import replace
 import math
 import threading
 import time
-import traceback
 from typing import Callable, Dict, NamedTuple, Optional, Tuple
 
 import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
-from rkgnn_ros.cdr import encapsulation_problem
-from rkgnn_ros.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
-                                   parse_joint_state_cdr, Rejection, REJECTION_REASONS)
+from rkgnn_ros.identification.drops import DropAccount
 from rkgnn_ros.identification.parameters import MAX_JOINTS
-from rkgnn_ros.identification.plausibility import PLAUSIBILITY_REASONS, PlausibilityFilter
+from rkgnn_ros.identification.plausibility import PlausibilityFilter
 from rkgnn_ros.identification.sources import read_joint_state, Sources
-from rkgnn_ros.stream_buffer import Capture, DROP_REASONS, PlannedReference, StreamBuffer
+from rkgnn_ros.streams.buffer import Capture, PlannedReference, StreamBuffer
+from rkgnn_ros.wire.cdr import encapsulation_problem
+from rkgnn_ros.wire.conversions import (joint_trajectory_cdr_to_arrays, joint_trajectory_to_arrays,
+                                        parse_joint_state_cdr, Rejection)
 
-__all__ = ['NODE_REASONS', 'INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'StateSample']
-
-#: Drop reasons the node adds to the buffer's and the conversions' own.
-NODE_REASONS = ('no_joints', 'internal_error', 'prediction_non_finite',
-                'worker_error') + PLAUSIBILITY_REASONS
+__all__ = ['INGEST_PERIOD_S', 'Ingestion', 'PolledGroup', 'StateSample']
 
 DRAIN_LIMIT = 100        # queued stream messages taken per stream and pass
 FEED_LIMIT = 20000       # states and commands kept for the self-check (at 1 kHz: 10 s)
 INGEST_PERIOD_S = 0.001  # the ingest thread takes the queued stream messages this often
-LOG_THROTTLE_S = 1.0
 JOIN_TIMEOUT_S = 10.0
 
 
@@ -187,6 +183,11 @@ class Ingestion:
     clock : callable
         Monotonic seconds (staleness, log throttling).
 
+    Attributes
+    ----------
+    drops : DropAccount
+        The node's drop accounting: every part reports its drops here.
+
     """
 
     def __init__(self, config, log: Callable[[str, str], None],
@@ -201,14 +202,11 @@ class Ingestion:
         # held while a stream message is handled, and while the joints, the buffer or the
         # settings they depend on change
         self.lock = threading.RLock()
-        self._counts_lock = threading.Lock()
         self._joints: Optional[Tuple[str, ...]] = None
         self._buffer: Optional[StreamBuffer] = None
         # per stream: what no arm could produce is dropped before the buffer
         self._plausible = {stream: PlausibilityFilter(()) for stream in ('state', 'command')}
-        self._retired_drops: Dict[str, int] = {}
-        self._extra_drops: Dict[str, int] = {}
-        self._log_times: Dict[Tuple[str, str], float] = {}
+        self.drops = DropAccount(log, lambda: self._buffer, alive, clock)
         self._received: Dict[str, float] = {}
         self._last_state_prediction = -math.inf
         self.latest_state: Optional[StateSample] = None
@@ -301,11 +299,8 @@ class Ingestion:
                                       max_rate_hz=cfg['max_rate_hz'])
             self._plausible = {stream: PlausibilityFilter(joints or ())
                                for stream in ('state', 'command')}
-            with self._counts_lock:
-                old = self._buffer
-                if old is not None:
-                    for reason, count in old.counters.items():
-                        self._retired_drops[reason] = self._retired_drops.get(reason, 0) + count
+            with self.drops.lock:
+                self.drops.retire(self._buffer)
                 changed = joints != self._joints
                 self._joints = joints
                 self._buffer = buffer
@@ -327,60 +322,6 @@ class Ingestion:
         if buffer is not None:
             buffer.clear()
 
-    # ------------------------------------------------------------------ drop accounting
-
-    def count(self, stream: str, reason: str) -> None:
-        """Count one drop of ``reason`` (shown in /diagnostics as ``drops.<reason>``)."""
-        buffer = self._buffer
-        if buffer is not None:
-            buffer.count_drop(stream, reason)
-        else:
-            with self._counts_lock:
-                self._extra_drops[reason] = self._extra_drops.get(reason, 0) + 1
-
-    def drop_counts(self) -> Dict[str, int]:
-        """Return the drops per reason since start (every stream, every buffer)."""
-        counts = dict.fromkeys(REJECTION_REASONS + DROP_REASONS + NODE_REASONS, 0)
-        with self._counts_lock:
-            buffer = self._buffer
-            sources = (dict(self._retired_drops), dict(self._extra_drops))
-        live = buffer.counters if buffer is not None else {}
-        for source in sources + (live,):
-            for reason, count in source.items():
-                counts[reason] = counts.get(reason, 0) + count
-        return counts
-
-    def log_drop(self, topic: str, reason: str, text: str) -> None:
-        """
-        Log a drop at most once a second per topic and reason.
-
-        rclpy's ``throttle_duration_sec`` throttles per call site, which would hide every
-        reason but the first one seen.
-        """
-        self.warn_throttled((topic, reason), f'{topic}: dropped a message ({reason}): {text}')
-
-    def warn_throttled(self, key, text: str) -> None:
-        """Log a warning unless one with the same ``key`` was logged in the last second."""
-        now = self._clock()
-        with self._counts_lock:
-            if now - self._log_times.get(key, -math.inf) < LOG_THROTTLE_S:
-                return
-            self._log_times[key] = now
-        self._log('warning', text)
-
-    def reject(self, topic: str, stream: str, reason: str, text: str) -> None:
-        """Count a drop and log it (throttled)."""
-        self.count(stream, reason)
-        self.log_drop(topic, reason, text)
-
-    def internal_error(self, where: str) -> None:
-        """Count and log the exception being handled (unless shutting down)."""
-        if not self._alive():
-            return  # shutting down (SIGINT): a publish that fails now is not an error
-        self.count('node', 'internal_error')
-        self.log_drop(where, 'internal_error',
-                      f'unexpected error (counted as internal_error)\n{traceback.format_exc()}')
-
     # ------------------------------------------------------------------ messages
 
     def handle_state(self, raw: bytes, received: int = 0) -> None:
@@ -389,7 +330,7 @@ class Ingestion:
             with self.lock:
                 self._handle_state(raw, received or time.time_ns())
         except Exception:  # noqa: B902 - bad input is counted, never raised
-            self.internal_error('joint_states')
+            self.drops.internal_error('joint_states')
 
     def handle_command(self, raw: bytes, received: int = 0) -> None:
         """Take one joint_commands message (CDR bytes)."""
@@ -397,7 +338,7 @@ class Ingestion:
             with self.lock:
                 self._handle_command(raw)
         except Exception:  # noqa: B902 - bad input is counted, never raised
-            self.internal_error('joint_commands')
+            self.drops.internal_error('joint_commands')
 
     def handle_reference(self, msg, now: float) -> None:
         """
@@ -407,22 +348,35 @@ class Ingestion:
         checked before anything is built from the points) or a JointTrajectory.
         """
         try:
-            joints = self._joints
-            if joints is None:
-                self.reject('reference_trajectory', 'reference', 'no_joints',
-                            'joints not known yet (waiting for joint_states)')
-                return
-            sample = _read_trajectory(msg, joints, now)
-            if not sample.ok:
-                self.reject('reference_trajectory', 'reference', sample.reason,
-                            sample.message)
+            sample = self._parsed('reference_trajectory', 'reference',
+                                  lambda joints: _read_trajectory(msg, joints, now))
+            if sample is None:
                 return
             result = self._buffer.add_reference(sample.t0, sample.times, sample.positions,
                                                 sample.velocities)
             if not result.accepted:
-                self.log_drop('reference_trajectory', result.reason, 'rejected by the buffer')
+                self.drops.log_drop('reference_trajectory', result.reason,
+                                    'rejected by the buffer')
         except Exception:  # noqa: B902 - bad input is counted, never raised
-            self.internal_error('reference_trajectory')
+            self.drops.internal_error('reference_trajectory')
+
+    def _parsed(self, topic: str, stream: str, read):
+        """Return ``read(joints)``, or None if the joints are not known or it is refused."""
+        if self._joints is None:
+            self.drops.reject(topic, stream, 'no_joints',
+                              'joints not known yet (waiting for joint_states)')
+            return None
+        sample = read(self._joints)
+        return None if self.drops.refused(topic, stream, sample) else sample
+
+    def _buffered(self, topic: str, result, stamp: float) -> bool:
+        """Return whether the buffer took a sample; warn of a clock jump, log a refusal."""
+        if result.clock_jump:
+            self._warn_jump(topic, stamp)
+        if not result.accepted:
+            self.drops.log_drop(topic, result.reason,
+                                f'stamp {stamp:.6f} s rejected by the buffer')
+        return bool(result.accepted)
 
     def _handle_state(self, raw: bytes, received: int) -> None:
         cfg = self._config
@@ -435,26 +389,24 @@ class Ingestion:
             if sample.ok and len(names) > MAX_JOINTS:
                 sample = Rejection('over_budget', f'{len(names)} joints to learn, more than '
                                                   f'{MAX_JOINTS}: set the joints parameter')
-            if not sample.ok:
-                self.reject('joint_states', 'state', sample.reason, sample.message)
+            if self.drops.refused('joint_states', 'state', sample):
                 return
             self._decide_case(sample.effort is not None)
             self.set_joints(names, 'the first joint_states message')
             joints = self._joints
         sample = read_joint_state(raw, joints, need_tau)
-        if not sample.ok:
-            self.reject('joint_states', 'state', sample.reason, sample.message)
+        if self.drops.refused('joint_states', 'state', sample):
             return
         self._decide_case(sample.effort is not None)
         effort = sample.effort if sources.case == 'torque' else None
         if sources.case == 'torque' and effort is None:
-            self.reject('joint_states', 'state', 'missing_effort',
-                        f'effort is empty or NaN (case torque, {sources.case_reason})')
+            self.drops.reject('joint_states', 'state', 'missing_effort',
+                              f'effort is empty or NaN (case torque, {sources.case_reason})')
             return
         passed, dropped = self._plausible['state'].offer(
             (sample, effort, received), sample.stamp, sample.position, sample.velocity, effort)
         for _, reason, why in dropped:
-            self.reject('joint_states', 'state', reason, f'{why}: no arm does that')
+            self.drops.reject('joint_states', 'state', reason, f'{why}: no arm does that')
         for item in passed:
             self._take_state(*item)
 
@@ -466,11 +418,7 @@ class Ingestion:
         result = self._buffer.add_state(
             sample.stamp, sample.position,
             np.zeros(len(joints)) if theta_dot is None else theta_dot, effort)
-        if result.clock_jump:
-            self._warn_jump('joint_states', sample.stamp)
-        if not result.accepted:
-            self.log_drop('joint_states', result.reason,
-                          f'stamp {sample.stamp:.6f} s rejected by the buffer')
+        if not self._buffered('joint_states', result, sample.stamp):
             return
         now = self._clock()
         self._received['state'] = now
@@ -485,10 +433,10 @@ class Ingestion:
             self._on_state()
 
     def _warn_jump(self, topic: str, stamp: float) -> None:
-        self.warn_throttled((topic, 'clock_jump'),
-                            f'{topic}: the clock jumped (the stream moved to stamp '
-                            f'{stamp:.3f} s): buffered data cleared, identification continues '
-                            'on the new timeline')
+        self.drops.warn_throttled((topic, 'clock_jump'),
+                                  f'{topic}: the clock jumped (the stream moved to stamp '
+                                  f'{stamp:.3f} s): buffered data cleared, identification '
+                                  'continues on the new timeline')
 
     def clock_reset(self, seconds: float) -> None:
         """
@@ -503,9 +451,9 @@ class Ingestion:
             buffer.clock_reset()
             self.latest_state = None
             self.latest_command = None
-        self.warn_throttled(('clock', 'clock_jump'),
-                            f'the node clock jumped back by {seconds:.3f} s: buffered data '
-                            'cleared, identification continues on the new timeline')
+        self.drops.warn_throttled(('clock', 'clock_jump'),
+                                  f'the node clock jumped back by {seconds:.3f} s: buffered data '
+                                  'cleared, identification continues on the new timeline')
 
     def _decide_case(self, effort: bool) -> None:
         """Let ``case: auto`` follow the streams; a switch rebuilds the buffer and says so."""
@@ -531,34 +479,26 @@ class Ingestion:
             self.feed.append(('command', stamp, theta_d[0]))
 
     def _handle_command(self, raw: bytes) -> None:
-        joints = self._joints
-        if joints is None:
-            self.reject('joint_commands', 'command', 'no_joints',
-                        'joints not known yet (waiting for joint_states)')
-            return
-        sample = read_joint_state(raw, joints, False)
-        if not sample.ok:
-            self.reject('joint_commands', 'command', sample.reason, sample.message)
+        sample = self._parsed('joint_commands', 'command',
+                              lambda joints: read_joint_state(raw, joints, False))
+        if sample is None:
             return
         if sample.velocity is None:
-            self.reject('joint_commands', 'command', 'missing_velocity',
-                        'velocity (θ̇d) is empty or NaN')
+            self.drops.reject('joint_commands', 'command', 'missing_velocity',
+                              'velocity (θ̇d) is empty or NaN')
             return
         passed, dropped = self._plausible['command'].offer(
             sample, sample.stamp, sample.position, sample.velocity)
         for _, reason, why in dropped:
-            self.reject('joint_commands', 'command', reason, f'{why}: no servo is asked that')
+            self.drops.reject('joint_commands', 'command', reason,
+                              f'{why}: no servo is asked that')
         for item in passed:
             self._take_command(item)
 
     def _take_command(self, sample) -> None:
         """Buffer a plausible joint_commands sample; keep it as the newest command."""
         result = self._buffer.add_command(sample.stamp, sample.position, sample.velocity)
-        if result.clock_jump:
-            self._warn_jump('joint_commands', sample.stamp)
-        if not result.accepted:
-            self.log_drop('joint_commands', result.reason,
-                          f'stamp {sample.stamp:.6f} s rejected by the buffer')
+        if not self._buffered('joint_commands', result, sample.stamp):
             return
         self.latest_command = sample.position
         now = self._clock()
@@ -572,7 +512,7 @@ class Ingestion:
         """Start the ingest thread on the two raw subscriptions (in a :class:`PolledGroup`)."""
         self._thread = IngestThread(((state_sub, self.handle_state),
                                      (command_sub, self.handle_command)),
-                                    self._alive, self.internal_error)
+                                    self._alive, self.drops.internal_error)
 
     def stop(self) -> bool:
         """Stop and join the ingest thread; return False if it did not stop in time."""

@@ -54,11 +54,11 @@ import os
 import stat
 from typing import Callable, List, Optional, Tuple
 
-from rkgnn_ros.conversions import MAX_NAME_BYTES
 from rkgnn_ros.core.input_files import file_kind, InputFileError, read_bounded
 from rkgnn_ros.core.model.files import remove_stale_temp_files, save_text_atomic
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.identification.parameters import MAX_GAIN, MAX_JOINTS, network_specs, PARAMETERS
+from rkgnn_ros.wire.conversions import MAX_NAME_BYTES
 import yaml
 
 __all__ = ['MAX_DEPTH', 'MAX_MODEL_BYTES', 'MAX_NODES', 'LoadWork', 'ModelFileError',

@@ -15,7 +15,7 @@
 """
 The identifier's parameters: the table, the checks, and one consistent snapshot per change.
 
-:data:`PARAMETERS` and :data:`OUTPUTS` are the node's rows (:class:`~rkgnn_ros.parameters.
+:data:`PARAMETERS` and :data:`OUTPUTS` are the node's rows (:class:`~rkgnn_ros.node.parameters.
 ParameterSpec`), each saying what a change does. :func:`check_parameters` is the on-set
 validation rclpy cannot do (open bounds, cross-parameter rules, the optimizer's own rules);
 its reasons name the parameter and its bound. :class:`IdentifierParameters` holds the
@@ -36,14 +36,14 @@ from rclpy.exceptions import InvalidTopicNameException
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.parameter import Parameter
 from rclpy.validate_full_topic_name import validate_full_topic_name
-from rkgnn_ros.conversions import MAX_NAME_BYTES
 from rkgnn_ros.core.fitting.identify import normalize_case
 from rkgnn_ros.core.fitting.online import AUTO_BASIS, OnlineSettings
 from rkgnn_ros.core.fitting.optimizers import CMAES, OPTIMIZERS, PaperEA
 from rkgnn_ros.core.model.spec import CASES, INERTIA_MODES, NetworkSpec, VELOCITY_MODES
 from rkgnn_ros.identification.description import MAX_DESCRIPTION_BYTES
 from rkgnn_ros.identification.ros2_control import declare_controller_gains
-from rkgnn_ros.parameters import Change, ParameterSpec
+from rkgnn_ros.node.parameters import Change, ParameterSpec
+from rkgnn_ros.wire.conversions import MAX_NAME_BYTES
 
 __all__ = ['PARAMETERS', 'OUTPUTS', 'PARAMETER_CASES', 'Config', 'ConfigurationError',
            'IdentifierParameters', 'auto_case', 'check_parameters', 'make_config',
@@ -70,6 +70,11 @@ _ES_NOTE = 'Applied between generations.'
 BEYOND_PLAN = ('stop', 'hold')
 VELOCITY_ESTIMATES = ('buffered', 'missing', 'always')
 
+#: The online policy's own defaults (:class:`OnlineSettings`): the parameters that set the
+#: policy's settings take theirs from it, so each default is declared once (the core cannot
+#: read this table: its layers point down).
+_POLICY = OnlineSettings()
+
 PARAMETERS = (
     ParameterSpec('case', 'auto',
                   "Identification case: 'auto' (from the streams: effort in joint_states -> "
@@ -93,13 +98,15 @@ PARAMETERS = (
     ParameterSpec('window', 20.0,
                   'Seconds of newest data the search uses (training plus validation). '
                   'Changing it rebuilds the buffer.', 1.0, 600.0, change=Change.BUFFER),
-    ParameterSpec('min_window', 5.0, 'Seconds of buffered data needed before generations run.',
+    ParameterSpec('min_window', _POLICY.min_window,
+                  'Seconds of buffered data needed before generations run.',
                   0.1, 600.0, constraints='<= window'),
     ParameterSpec('model_step', 0.01,
                   'Grid step (s) of the resampled data, the model and ~/prediction. Changing '
                   'it clears the buffer and restarts the search.', 0.001, 0.1, change=_REBUILD),
-    ParameterSpec('substeps', 0, 'RKG steps per model_step (0: automatic). ' + _RESTARTS,
-                  0, 64, change=_RESTART),
+    ParameterSpec('substeps', _POLICY.substeps,
+                  'RKG steps per model_step (0: automatic). ' + _RESTARTS, 0, 64,
+                  change=_RESTART),
     ParameterSpec('gap_threshold', 0.1,
                   'Longer intervals (s) between samples split the data into segments. '
                   'Changing it rebuilds the buffer.', 0.001, 10.0, change=Change.BUFFER),
@@ -108,15 +115,15 @@ PARAMETERS = (
                   'are decimated (counted as rate_limited), which bounds the buffer memory '
                   'whatever the input rate. Read-only: set it at start (params file or '
                   '--ros-args -p).', 1.0, 100000.0, change=Change.START),
-    ParameterSpec('validation_fraction', 0.2,
+    ParameterSpec('validation_fraction', _POLICY.validation_fraction,
                   'Newest fraction of the window held out for the validation NRMSE (0: none).',
                   0.0, 0.5),
-    ParameterSpec('stale_timeout', 1.0,
+    ParameterSpec('stale_timeout', _POLICY.stale_timeout,
                   'Seconds without an accepted joint_states (and, in cases pd_gains/unknown, '
                   'joint_commands) sample after which the search pauses (state stale).',
                   0.05, 60.0),
-    ParameterSpec('model_publish_period', 2.0, 'Minimum seconds between two ~/model messages.',
-                  0.0, 3600.0),
+    ParameterSpec('model_publish_period', _POLICY.model_publish_period,
+                  'Minimum seconds between two ~/model messages.', 0.0, 3600.0),
     ParameterSpec('network.theta_units', _REC.theta_units,
                   'Gaussian RBF units over theta (inertia, Coriolis, gravity). ' + _RESTARTS,
                   0, 32, change=_RESTART),
@@ -147,7 +154,7 @@ PARAMETERS = (
     ParameterSpec('network.torque_linear', _REC.torque_linear,
                   "Linear P and D gains beside the torque RBF networks (case 'unknown'). "
                   + _RESTARTS, change=_RESTART),
-    ParameterSpec('es.algorithm', 'cmaes',
+    ParameterSpec('es.algorithm', _POLICY.optimizer,
                   "Optimizer: 'cmaes', 'sep-cmaes' or 'paper' (the paper's EA). A change swaps "
                   'the optimizer between generations, warm-started from the best genome.',
                   choices=OPTIMIZERS, change=Change.ES),
@@ -171,9 +178,9 @@ PARAMETERS = (
     ParameterSpec('es.sigma_min', PaperEA.DEFAULTS['sigma_min'],
                   'paper: floor of the mutation spread.', 0.0, 10.0,
                   constraints='<= es.sigma (paper)', change=Change.ES),
-    ParameterSpec('es.max_generations', 0,
+    ParameterSpec('es.max_generations', _POLICY.max_generations,
                   'Generations per search before it stops (0: forever).', 0, 1_000_000_000),
-    ParameterSpec('es.seed', 0,
+    ParameterSpec('es.seed', _POLICY.seed,
                   "Seed of the optimizer's random generator, used when a search (re)starts.",
                   0, 2 ** 31 - 1),
     ParameterSpec('prediction.horizon', 2.0,

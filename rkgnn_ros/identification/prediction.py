@@ -19,7 +19,7 @@ The prediction service: the model rolled out from the newest state, checked as i
 an accepted state with ``prediction.on_state``) wakes it; requests that arrive while a
 prediction runs collapse into one, which starts from the newest state. The compiled rollout
 releases the GIL, so the 1 kHz ingestion never waits behind it. Inputs over the horizon are
-snapshots, never live buffers: the newest plan (:class:`~rkgnn_ros.stream_buffer.
+snapshots, never live buffers: the newest plan (:class:`~rkgnn_ros.streams.buffer.
 PlannedReference`, immutable), else the newest command held.
 
 What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
@@ -69,11 +69,12 @@ from typing import Callable, NamedTuple, Optional, Tuple
 
 from builtin_interfaces.msg import Time
 import numpy as np
-from rkgnn_ros.conversions import make_joint_state, serialize_joint_trajectory
 from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
 from rkgnn_ros.identification.candidates import describe, Models, Slot
+from rkgnn_ros.identification.threads import ThreadPart
+from rkgnn_ros.wire.conversions import make_joint_state, serialize_joint_trajectory
 from sensor_msgs.msg import JointState
 
 __all__ = ['LATENCY_WINDOW', 'JOINT_SCORE_COLUMNS', 'SCORE_LABELS', 'Prediction', 'Predictor',
@@ -81,7 +82,6 @@ __all__ = ['LATENCY_WINDOW', 'JOINT_SCORE_COLUMNS', 'SCORE_LABELS', 'Prediction'
 
 LATENCY_WINDOW = 1000  # predictions whose latency the diagnostics summarise
 MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's bound)
-JOIN_TIMEOUT_S = 10.0
 DECIDE_EVERY_S = 0.1   # the publish decision is taken again at most this often (stamp time)
 RESCORE_EVERY_S = 0.1  # the self-check's scores are computed again at most this often
 #: A candidate model predicts beside the model at most this often (stamp time, s): its
@@ -197,7 +197,7 @@ class _Horizon(NamedTuple):
     what: str
 
 
-class Predictor:
+class Predictor(ThreadPart):
     """
     Predictions from the newest state, scored and chosen, in a thread of their own.
 
@@ -213,6 +213,8 @@ class Predictor:
         Returns the current parameters.
 
     """
+
+    thread_name = 'rkgnn_prediction'
 
     def __init__(self, ingestion, publish: Callable[[object], None], config: Callable):
         self._ingestion = ingestion
@@ -437,7 +439,7 @@ class Predictor:
         left = None if plan is None else plan.end - t0
         if not hold:
             if left is None or left < step - 1e-9:
-                self._ingestion.warn_throttled(
+                self._ingestion.drops.warn_throttled(
                     ('prediction', 'no_plan'),
                     '~/prediction: no plan on reference_trajectory reaches past the newest '
                     'state; with prediction.beyond_plan stop no prediction is published')
@@ -485,9 +487,9 @@ class Predictor:
             states = model.simulate(x0, horizon.t, reference=horizon.reference,
                                     substeps=max(1, substeps))
         if not np.all(np.isfinite(states)):
-            self._ingestion.reject('~/prediction', 'prediction', 'prediction_non_finite',
-                                   'the model diverged over the horizon; a baseline is '
-                                   'published instead')
+            self._ingestion.drops.reject('~/prediction', 'prediction', 'prediction_non_finite',
+                                         'the model diverged over the horizon; a baseline is '
+                                         'published instead')
             return None
         theta, theta_dot = np.array(states[:, :n]), np.array(states[:, n:2 * n])
         theta[0], theta_dot[0] = x0[:n], x0[n:]
@@ -563,21 +565,9 @@ class Predictor:
 
     # ------------------------------------------------------------------ the thread
 
-    def start(self) -> None:
-        """Start the prediction thread."""
-        self._thread = threading.Thread(target=self._run, name='rkgnn_prediction',
-                                        daemon=True)
-        self._thread.start()
-
-    def stop(self) -> bool:
-        """Stop and join the prediction thread; return False if it did not stop in time."""
-        self._stop.set()
+    def _wake(self) -> None:
+        """Wake the thread from its wait for a request (:meth:`stop`)."""
         self._wanted.set()
-        thread = self._thread
-        if thread is not None and thread.is_alive():
-            thread.join(JOIN_TIMEOUT_S)
-            return not thread.is_alive()
-        return True
 
     def _run(self) -> None:
         """One prediction from the newest state per request, until stopped."""
@@ -592,4 +582,4 @@ class Predictor:
             except Exception:  # noqa: B902 - the thread must survive
                 if self._stop.is_set():
                     break
-                self._ingestion.internal_error('prediction')
+                self._ingestion.drops.internal_error('prediction')

@@ -36,13 +36,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import InertiaStamped
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rkgnn_ros.conversions import make_float64_multiarray
-from rkgnn_ros.core.fitting.online import (GenerationStats, LogLine, LoopUpdate, ModelUpdate,
-                                           Status)
+from rkgnn_ros.core.fitting.online import GenerationStats, LogLine, LoopUpdate, ModelUpdate, Status
 from rkgnn_ros.core.fitting.online_records import DynamicsChange, PayloadEstimate
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.identification.prediction import (JOINT_SCORE_COLUMNS, Prediction, SCORE_LABELS,
                                                  ScoreReport)
+from rkgnn_ros.wire.conversions import make_float64_multiarray
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from trajectory_msgs.msg import JointTrajectory
@@ -221,7 +220,7 @@ class Publishing:
             try:
                 self._handle(item)
             except Exception:  # noqa: B902 - a callback must never raise
-                self._ingestion.internal_error('publishing')
+                self._ingestion.drops.internal_error('publishing')
 
     def publish_prediction(self, item: Prediction) -> None:
         """
@@ -309,7 +308,7 @@ class Publishing:
         try:
             self._publishers['diagnostics'].publish(self._diagnostics())
         except Exception:  # noqa: B902 - a callback must never raise
-            self._ingestion.internal_error('diagnostics')
+            self._ingestion.drops.internal_error('diagnostics')
 
     def _diagnostics(self) -> DiagnosticArray:
         status = self._status()
@@ -346,7 +345,7 @@ class Publishing:
             ('prediction_latency_p99_ms', _percentile_text(latencies, 99)),
         ]
         pairs += [(f'drops.{reason}', count)
-                  for reason, count in ingestion.drop_counts().items()]
+                  for reason, count in ingestion.drops.counts().items()]
         node = self._node
         diag = DiagnosticStatus(level=level, name=node.get_name(),
                                 message=f'{state}: {status.detail}',

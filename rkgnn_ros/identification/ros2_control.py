@@ -26,7 +26,7 @@ identifier takes both as they are:
   identifier as well.
 - :func:`subscribe_controller_state`: with the ``controller_state`` parameter set to the
   controller's topic, θd, θ̇d (and the commanded effort) come from its
-  JointTrajectoryControllerState (:mod:`rkgnn_ros.controller_state`) into the command
+  JointTrajectoryControllerState (:mod:`rkgnn_ros.wire.controller_state`) into the command
   stream, under every rule ``joint_commands`` is under. The subscription is raw: a message
   over :data:`MAX_CONTROLLER_STATE_BYTES` is dropped as ``over_budget`` before it is
   decoded. It needs ``control_msgs``; without it the input stays off with one warning
@@ -38,10 +38,10 @@ from typing import Callable, Mapping, Optional
 
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.serialization import deserialize_message, serialize_message
-from rkgnn_ros.cdr import encapsulation_problem
-from rkgnn_ros.controller_state import (control_msgs_available, CONTROL_MSGS_REASON,
-                                        controller_state_to_joint_state)
-from rkgnn_ros.conversions import MAX_STATE_BYTES, Rejection
+from rkgnn_ros.wire.cdr import encapsulation_problem
+from rkgnn_ros.wire.controller_state import (control_msgs_available, CONTROL_MSGS_REASON,
+                                             controller_state_to_joint_state)
+from rkgnn_ros.wire.conversions import MAX_STATE_BYTES, Rejection
 
 __all__ = ['MAX_CONTROLLER_STATE_BYTES', 'controller_gains', 'declare_controller_gains',
            'subscribe_controller_state']
@@ -124,22 +124,22 @@ def subscribe_controller_state(node, topic: str, ingestion, qos) -> Optional[obj
     def on_state(raw: bytes) -> None:
         try:
             if len(raw) > MAX_CONTROLLER_STATE_BYTES:
-                ingestion.reject(topic, 'command', 'over_budget',
-                                 f'a controller state of {len(raw)} bytes is over the budget '
-                                 f'of {MAX_CONTROLLER_STATE_BYTES}')
+                ingestion.drops.reject(topic, 'command', 'over_budget',
+                                       f'a controller state of {len(raw)} bytes is over the '
+                                       f'budget of {MAX_CONTROLLER_STATE_BYTES}')
                 return
             problem = encapsulation_problem(raw, 'JointTrajectoryControllerState')
             if problem is not None:  # rclpy would print a line on stderr for each
-                ingestion.reject(topic, 'command', 'malformed', problem)
+                ingestion.drops.reject(topic, 'command', 'malformed', problem)
                 return
             msg = deserialize_message(raw, JointTrajectoryControllerState)
             command = controller_state_to_joint_state(msg)
             if isinstance(command, Rejection):
-                ingestion.reject(topic, 'command', command.reason, command.message)
+                ingestion.drops.reject(topic, 'command', command.reason, command.message)
                 return
             ingestion.handle_command(serialize_message(command))
         except Exception:  # noqa: B902 - bad input is counted, never raised
-            ingestion.internal_error(topic)
+            ingestion.drops.internal_error(topic)
 
     return node.create_subscription(JointTrajectoryControllerState, topic, on_state, qos,
                                     raw=True)

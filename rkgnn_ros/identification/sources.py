@@ -55,10 +55,10 @@ from collections import deque
 from typing import Dict, Optional, Tuple
 
 import numpy as np
-from rkgnn_ros.cdr import encapsulation_problem
-from rkgnn_ros.conversions import IF_PRESENT, joint_state_cdr_to_arrays, Rejection
 from rkgnn_ros.core.differentiate import CAUSAL_ORDER, causal_slope, CAUSAL_WINDOW
 from rkgnn_ros.identification.parameters import auto_case
+from rkgnn_ros.wire.cdr import encapsulation_problem
+from rkgnn_ros.wire.conversions import IF_PRESENT, joint_state_cdr_to_arrays, Rejection
 
 __all__ = ['AUTO_SWITCH_MESSAGES', 'AUTO_SWITCH_S', 'MIN_HISTORY', 'Sources',
            'read_joint_state']

@@ -40,6 +40,7 @@ from rkgnn_ros.core.fitting.fitness import interrupt_on
 from rkgnn_ros.core.fitting.online import ModelUpdate, Observation, OnlineIdentification, Status
 from rkgnn_ros.core.fitting.optimizers.cmaes import load_pycma
 from rkgnn_ros.identification.publishing import ModelMessage
+from rkgnn_ros.identification.threads import ThreadPart
 
 __all__ = ['SearchWorker', 'single_threaded_blas']
 
@@ -48,10 +49,9 @@ WORKER_NICE = 19
 GIL_SWITCH_INTERVAL_S = 0.0001
 BACKOFF_MIN_S = 0.5
 BACKOFF_MAX_S = 10.0
-JOIN_TIMEOUT_S = 10.0
 
 
-class SearchWorker:
+class SearchWorker(ThreadPart):
     """
     The thread that steps the policy and queues its events.
 
@@ -75,14 +75,12 @@ class SearchWorker:
 
     """
 
+    thread_name = 'rkgnn_identifier'
+
     def __init__(self, ingestion, predictor, outbox, alive: Callable[[], bool] = lambda: True,
                  published=None, policy: Callable = OnlineIdentification, description=None):
-        self._ingestion = ingestion
-        self._predictor = predictor
-        self._outbox = outbox
-        self._alive = alive
-        self._published = published
-        self._description = description
+        self._ingestion, self._predictor, self._outbox = ingestion, predictor, outbox
+        self._alive, self._published, self._description = alive, published, description
         self._lock = threading.Lock()
         self._paused = False
         self._reset = False
@@ -110,23 +108,12 @@ class SearchWorker:
         with self._lock:
             self._reset = True
 
-    def start(self) -> None:
-        """Start the worker thread."""
-        self._thread = threading.Thread(target=self._run, name='rkgnn_identifier',
-                                        daemon=True)
-        self._thread.start()
-
     def stop(self) -> bool:
-        """Stop and join the worker thread; return False if it did not stop in time."""
-        self._stop.set()
+        """Stop and join the worker thread; what the policy runs in the background ends too."""
         close = getattr(self._policy, 'close', None)
-        if close is not None:      # what the policy runs in the background ends too
+        if close is not None:
             close()
-        thread = self._thread
-        if thread is not None and thread.is_alive():
-            thread.join(JOIN_TIMEOUT_S)
-            return not thread.is_alive()
-        return True
+        return super().stop()
 
     def _run(self) -> None:
         """One policy step per iteration until the stop event."""
@@ -147,7 +134,7 @@ class SearchWorker:
                 if self._stop.is_set() or not self._alive():
                     break
                 errors += 1
-                self._ingestion.count('worker', 'worker_error')
+                self._ingestion.drops.count('worker', 'worker_error')
                 self._outbox.log('error', f'identification worker failed ({errors} in a row), '
                                           f'retrying in {backoff:.1f} s: {exc!r}\n'
                                           f'{traceback.format_exc()}')

@@ -51,20 +51,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..data import finite_array
+from ..servo_law import pd_torque
+
 
 def _samples(name: str, value, shape=None) -> np.ndarray:
     """Return ``value`` as a finite float array of at least 1 dimension (shape checked)."""
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name} must be numeric: {exc}') from None
-    if shape is not None and arr.shape != shape:
-        raise ValueError(f'{name} must have shape {shape}, got {arr.shape}')
-    if arr.ndim < 1:
-        raise ValueError(f'{name} must have a joint axis, got a scalar')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name} must be finite (no NaN or inf)')
-    return arr
+    return finite_array(name, value, shape, min_ndim=1)
 
 
 def _times(t, n_points: int) -> np.ndarray:
@@ -126,7 +119,7 @@ def feedforward_torque(model, theta_d, theta_d_dot, theta_d_ddot,
     torque_scale : float
         N m per model torque unit: 1 for a model identified with torque (cases 1 and 2);
         for case 3 the scale fixed by a measurement (see
-        :func:`rkgnn_ros.core.control.gate.torque_scale_from_effort`).
+        :func:`rkgnn_ros.core.fitting.torque_check.torque_scale_from_effort`).
 
     Returns
     -------
@@ -204,7 +197,7 @@ def plan_feedforward(model, t, theta_d, theta_d_dot, theta_d_ddot=None,
                            theta_d_ddot=theta_d_ddot, effort=effort)
 
 
-def computed_torque(model, theta, theta_dot, theta_d, theta_d_dot, theta_d_ddot, kp, kd,
+def computed_torque(model, theta, theta_dot, theta_d, theta_d_dot, theta_d_ddot, gains,
                     torque_scale: float = 1.0) -> np.ndarray:
     """
     Return the computed-torque law τ = M(θ)(θ̈d + Kp e + Kd ė) + V(θ, θ̇) + G(θ) + F(θ̇).
@@ -220,7 +213,7 @@ def computed_torque(model, theta, theta_dot, theta_d, theta_d_dot, theta_d_ddot,
         Measured state.
     theta_d, theta_d_dot, theta_d_ddot : array_like, shape (..., n)
         The plan at the same instants.
-    kp, kd : array_like, shape (n,) or scalar
+    gains : (kp, kd), each array_like of shape (n,) or scalar
         Outer-loop gains in acceleration units (1/s², 1/s), non-negative.
     torque_scale : float
         See :func:`feedforward_torque`.
@@ -236,14 +229,15 @@ def computed_torque(model, theta, theta_dot, theta_d, theta_d_dot, theta_d_ddot,
     theta_d = _samples('theta_d', theta_d, shape)
     theta_d_dot = _samples('theta_d_dot', theta_d_dot, shape)
     theta_d_ddot = _samples('theta_d_ddot', theta_d_ddot, shape)
+    kp, kd = gains
     gains = []
     for name, value in (('kp', kp), ('kd', kd)):
         gain = _samples(name, np.broadcast_to(np.asarray(value, dtype=float), shape[-1:]))
         if np.any(gain < 0.0):
             raise ValueError(f'{name} must be >= 0, got {gain.tolist()}')
         gains.append(gain)
-    command = (theta_d_ddot + gains[0] * (theta_d - theta)
-               + gains[1] * (theta_d_dot - theta_dot))
+    command = theta_d_ddot + pd_torque(gains[0], gains[1], theta_d - theta,
+                                       theta_d_dot - theta_dot)
     tau = np.asarray(model.inverse_dynamics(theta, theta_dot, command), dtype=float)
     if tau.shape != shape:
         raise ValueError(f'the model returned torques of shape {tau.shape}, expected {shape}')

@@ -47,43 +47,23 @@ import numpy as np
 from .controller import closed_loop, ClosedLoop, fit_controller, open_loop_model
 from .controller_laws import ControllerLaw, RBFFeatures, TrigFeatures
 from .online_records import ClosedLoop as PredictionLoop
+from .policy import (INTEGRAL_MIN_RESIDUAL, LAW_AGREEMENT_RTOL, LAW_FORM_GAIN, LAW_GAIN_RTOL,
+                     LAW_KI_ZERO, LAW_THETA_SAMPLES, MAX_LAW_FIT_RATIO, MIN_LAW_SAMPLES,
+                     MIN_SEGMENT_SAMPLES, NEWEST_SHARE, retry_wait, still_holds,
+                     TRIG_FIRST_RETRY_S, TRIG_MAX_TORQUE_ERROR, TRIG_MIN_SAMPLES, TRIG_RETRY_S,
+                     YOUNG_DATA_S)
 from .rigid_law import fit_gravity_law
-from .trig_loop import data_span, fit_trig_loop, trig_torque_error, TrigLoop, YOUNG_DATA_S
-from .validation import MIN_SEGMENT_SAMPLES, newest_share, split_validation
+from .trig_loop import data_span, fit_trig_loop, trig_torque_error, TrigLoop
+from .validation import newest_share, split_validation
 from ..data import Dataset
 from ..model.model import RKGNNModel
 
-__all__ = ['AGREEMENT_RTOL', 'KI_ZERO', 'LAW_GAIN_RTOL', 'MAX_LAW_FIT_RATIO',
-           'MIN_LAW_SAMPLES', 'fit_law', 'search_segments', 'arm_model', 'prediction_loop',
-           'LawKeeper', 'Refit']
-
-#: An integral gain below this share of Kp (1/s) is a fitted zero.
-KI_ZERO = 1e-3
-
-#: The PD form's residual (share of the torque) below which no integral term is fitted.
-INTEGRAL_MIN_RESIDUAL = 1e-3
-
-#: The gains fitted on the whole data and on its newest half must agree this well.
-AGREEMENT_RTOL = 0.1
-
-MIN_LAW_SAMPLES = 50        # filtered rows before a law is fitted
-MAX_LAW_FIT_RATIO = 0.1     # a law explains the torque when its RMS residual is below this
-LAW_GAIN_RTOL = 0.02        # a refit moving the gains more than this moves the law
-LAW_THETA_SAMPLES = 2000    # θ samples kept to project a law's θ-terms on a model's units
-
-#: The trigonometric arm predicts while its held-out torque error (worst joint, RMSE / std)
-#: is at most this (a planar arm fits it to 0.5-2 %; an arm the basis does not hold, far worse).
-TRIG_MAX_TORQUE_ERROR = 0.1
-
-#: Seconds after which a trigonometric arm that did not hold is fitted again: 1 s after the
-#: first try (the window grows fast then), doubling with each further one up to 10 s.
-TRIG_RETRY_S = 10.0
-TRIG_FIRST_RETRY_S = 1.0
-TRIG_MIN_SAMPLES = 200      # training samples (with torque) needed to try the fit
+__all__ = ['fit_law', 'search_segments', 'arm_model', 'prediction_loop', 'LawKeeper', 'Refit']
 
 
-def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples: int = 50,
-            max_fit_ratio: float = 0.1, features=None) -> Optional[ControllerLaw]:
+def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto',
+            min_samples: int = MIN_LAW_SAMPLES, max_fit_ratio: float = MAX_LAW_FIT_RATIO,
+            features=None) -> Optional[ControllerLaw]:
     """
     Return the servo law fitted on ``segments`` (with ``tau``, ``theta_d``, ``theta_d_dot``).
 
@@ -92,14 +72,14 @@ def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples:
     equivalent forms). The law is fitted with and without an integral term; the integral is
     kept only when it explains a share of the torque the PD form leaves
     (:func:`_needs_integral`), and its gain is set to zero on joints where it is below
-    :data:`KI_ZERO` × Kp.
+    :data:`~.policy.LAW_KI_ZERO` × Kp.
 
     A law that explains the torque (residual at most ``max_fit_ratio``) is returned only
-    when the data determine it: the same form fitted on the newest half of the data must
-    have the same gains within :data:`AGREEMENT_RTOL`. With the 78 θ-terms of a 3-joint arm
-    a few seconds of encoder noise fit almost any gains (on the paper's arm with 1e-4 rad
-    of noise, 3 s gave Kp1 off by a factor 5, 8 s by 1 %), and the residual alone does not
-    show it. A law that does not explain the torque is returned as it is (not usable).
+    when the data determine it: the same form fitted on the newest share of the data
+    (:data:`~.policy.NEWEST_SHARE`) must have the same gains within
+    :data:`~.policy.LAW_AGREEMENT_RTOL`: with many θ-terms a few seconds of encoder noise
+    fit almost any gains, and the residual alone does not show it. A law that does not
+    explain the torque is returned as it is (not usable).
     None: too few samples, an error that never varied, or gains not determined yet.
     ``features``: the θ-basis of the law's terms (default :class:`TrigFeatures`; a robot
     description's :class:`~.rigid_law.GravityFeatures`, whose weights all joints share).
@@ -107,9 +87,9 @@ def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto', min_samples:
     law = _fit(segments, theta_input, min_samples, None, features)
     if law is None or not law.usable(max_fit_ratio):
         return law
-    half = _fit(newest_share(segments, 0.5), law.theta_input, min_samples,
+    half = _fit(newest_share(segments, NEWEST_SHARE), law.theta_input, min_samples,
                 bool(np.any(law.ki != 0.0)), features)
-    if half is None or not law.close_to(half, AGREEMENT_RTOL):
+    if half is None or not law.close_to(half, LAW_AGREEMENT_RTOL):
         return None
     return law
 
@@ -142,7 +122,7 @@ def _fit(segments, theta_input: str, min_samples: int, integral: Optional[bool],
     law = _with_terms(segments, features, theta_input, True, min_samples)
     if law is None or (plain is not None and not _needs_integral(plain, law)):
         return plain
-    negligible = np.abs(law.ki) < KI_ZERO * np.abs(law.kp)
+    negligible = np.abs(law.ki) < LAW_KI_ZERO * np.abs(law.kp)
     if np.any(negligible):
         law = replace(law, ki=np.where(negligible, 0.0, law.ki),
                       integral_term=np.where(negligible, 0.0, law.integral_term),
@@ -165,7 +145,7 @@ def _simpler_holds(bare: Optional[ControllerLaw], full: Optional[ControllerLaw])
     if bare is None or full is None:
         return bare is not None
     before, after = float(np.mean(bare.fit_ratio)), float(np.mean(full.fit_ratio))
-    return not (before > INTEGRAL_MIN_RESIDUAL and after < 0.5 * before)
+    return not (before > INTEGRAL_MIN_RESIDUAL and after < LAW_FORM_GAIN * before)
 
 
 def _needs_integral(plain: ControllerLaw, integral: ControllerLaw) -> bool:
@@ -178,7 +158,7 @@ def _needs_integral(plain: ControllerLaw, integral: ControllerLaw) -> bool:
     (a servo's integral never destabilises on purpose).
     """
     before, after = float(np.mean(plain.fit_ratio)), float(np.mean(integral.fit_ratio))
-    return bool(before > INTEGRAL_MIN_RESIDUAL and after < 0.5 * before
+    return bool(before > INTEGRAL_MIN_RESIDUAL and after < LAW_FORM_GAIN * before
                 and np.all(integral.ki >= 0.0))
 
 
@@ -290,10 +270,8 @@ class LawKeeper:
         while its torque error there is at most :data:`TRIG_MAX_TORQUE_ERROR`. Until
         :data:`TRIG_MIN_SAMPLES` training samples are buffered it is not tried. Where it did
         not hold, it is fitted again :data:`TRIG_FIRST_RETRY_S` after the try (clock ``now``,
-        s); once the data span :data:`~.trig_loop.YOUNG_DATA_S` (on the paper's arm the fit
-        holds from about 5 s of motion; with doubling waits behind the search's warm starts
-        its first prediction had come 19 s after the first joint_states in one run of
-        bench/online.py), that wait doubles with each further failure up to
+        s); once the data span :data:`~.policy.YOUNG_DATA_S` (young data grow fast, and each
+        second more is what makes the fit hold), that wait doubles with each further failure up to
         :data:`TRIG_RETRY_S`: an arm the planar basis does not hold (a spatial one) would
         pay the fit at every refresh for nothing.
         ``prior`` (:class:`~.linear.Samples`, the excitation memory's) joins the training
@@ -301,8 +279,8 @@ class LawKeeper:
         Returns whether it was fitted, and the (level, text) to log when whether it predicts
         changed.
         """
-        wait = TRIG_FIRST_RETRY_S if data_span(paired) < YOUNG_DATA_S else min(
-            TRIG_RETRY_S, TRIG_FIRST_RETRY_S * 2.0 ** max(0, self._trig_failures - 1))
+        wait = retry_wait(self._trig_failures, data_span(paired) < YOUNG_DATA_S,
+                          TRIG_FIRST_RETRY_S, TRIG_RETRY_S)
         if self.trig is None and now - self._trig_tried < wait:
             return False, None
         train, validation, _ = split_validation(paired, validation_fraction,
@@ -320,10 +298,8 @@ class LawKeeper:
         else:
             why = 'no law or too few samples'
         if loop is None and before:
-            # the arm in use stays while it explains the newest data as well as a new fit
-            # must: a refit on a short, weakly exciting stretch can miss what it still holds
             error = trig_torque_error(self.trig, validation)
-            if error <= TRIG_MAX_TORQUE_ERROR:
+            if still_holds(error, TRIG_MAX_TORQUE_ERROR):
                 self._trig_failures = 0
                 return True, None
             why += f'; the arm in use {error:.1%}'
@@ -433,7 +409,7 @@ def _advance(law: ControllerLaw, segments, origin: float, since: float,
 def _law_log_line(new: Optional[ControllerLaw], old: Optional[ControllerLaw],
                   fresh: ControllerLaw) -> Optional[Tuple[str, str]]:
     """Return the (level, text) saying that the law in use changed (None: it did not)."""
-    if new is not None and not new.close_to(old, AGREEMENT_RTOL):
+    if new is not None and not new.close_to(old, LAW_AGREEMENT_RTOL):
         return ('info',
                 f'controller law learned from effort and the commands ({new.describe()}): '
                 'the search and the predictions run in closed loop along the plan with Kp '

@@ -31,8 +31,7 @@ the torque they give along the data has an RMS of 1 (the case-3 network's own un
 a few seconds at most), assembled into a case-3 genome whose torque network is that linear
 PD (its RBF units start at zero weight). The gains are used only when the data determine
 them: the newest half of the data must give the same ratios within
-:data:`AGREEMENT_RTOL` (the half's estimate is the noisier: with 1e-4 rad of encoder noise,
-16 s on the paper's arm gave the ratios to 1.5 % and its newest half to 11 %). A PID servo's
+:data:`~.policy.GAIN_AGREEMENT_RTOL` (the half's estimate is the noisier). A PID servo's
 data do not fit this PD closed loop; the two halves then disagree and the search keeps its
 old start. When the window has grown, :func:`start_genome` is tried again, and where the
 gains are still not determined (a spatial arm such as the UR5, whose closed loop the
@@ -54,53 +53,24 @@ from typing import NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
+from .controller_laws import gains_agree
 from .global_fit import is_global
 from .identify import Evolution
 from .linear import LinearDynamics
 from .online_records import ClosedLoop as PredictionLoop
+from .policy import (GAIN_AGREEMENT_RTOL, MAX_GAIN_FEATURES, MAX_LOOP_ERROR, MIN_GAIN_SAMPLES,
+                     MIN_LOOP_SAMPLES, NEWEST_SHARE, REFIT_S, RETRY_MAX_S, RETRY_S, retry_wait,
+                     still_holds, YOUNG_DATA_S)
 from .refine import refine_equation_error
-from .trig_loop import (closed_loop_error, data_span, fit_closed_trig_loop, TrigLoop,
-                        YOUNG_DATA_S)
+from .trig_loop import closed_loop_error, data_span, fit_closed_trig_loop, TrigLoop
 from .validation import newest_share
 from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..model.params import decode
 from ..model.trig import TrigBasis
+from ..servo_law import pd_torque
 
-__all__ = ['AGREEMENT_RTOL', 'ArmKeeper', 'MAX_LOOP_ERROR', 'MIN_GAIN_SAMPLES',
-           'MIN_LOOP_SAMPLES', 'REFIT_S', 'RETRY_MAX_S', 'RETRY_S', 'Start', 'fit_gains',
-           'search_gains', 'start_genome']
-
-#: The gains fitted on the whole data and on its newest half must agree this well.
-AGREEMENT_RTOL = 0.15
-
-#: The linear closed loop predicts while its held-out equation error (worst joint, share
-#: of the servo torque's spread) is at most this (0.8-4.4 % on the paper's arm).
-MAX_LOOP_ERROR = 0.1
-
-#: Seconds between fits while the linear closed loop holds (it is global: the newest data
-#: change it little, and a fit costs the search 0.2-1 s).
-REFIT_S = 5.0
-
-#: Seconds after which a linear closed loop that did not hold is fitted again; the wait
-#: doubles with every further fit that does not hold, up to :data:`RETRY_MAX_S` (early on
-#: a few more seconds of motion usually make it hold; an arm the planar basis cannot hold
-#: then costs the search one fit every half minute).
-RETRY_S = 1.0
-
-#: The longest wait between fits that do not hold (s).
-RETRY_MAX_S = 30.0
-
-#: Training samples before the linear closed loop is tried.
-MIN_LOOP_SAMPLES = 200
-
-#: Shorter segments (and pieces of the newest half) are left out of the gains' fit.
-MIN_GAIN_SAMPLES = 51
-
-#: The gains' fit uses the general trigonometric basis up to this many features (43 at 3
-#: joints, 179 at 4) and the tied planar one beyond: the general basis has 3,611 at 6
-#: joints, whose normal equations held a UR5's case-3 search for over a minute.
-MAX_GAIN_FEATURES = 200
+__all__ = ['ArmKeeper', 'Start', 'fit_gains', 'search_gains', 'start_genome']
 
 
 def _gain_basis(n_joints: int) -> TrigBasis:
@@ -136,25 +106,25 @@ def fit_gains(segments: Sequence[Dataset]) -> Optional[Tuple[np.ndarray, np.ndar
 
     Normalised so that Kp e + Kd ė along ``segments`` (with ``theta_d``) has an RMS of 1,
     averaged over the joints. None when the fit fails, a Kp is not positive, or the newest
-    half of the data gives other gains (beyond :data:`AGREEMENT_RTOL` of Kp, and of
-    Kd + 0.1 s Kp for Kd). Both fits use only segments (and parts of the newest half) of at
-    least :data:`MIN_GAIN_SAMPLES` samples.
+    share of the data (:data:`~.policy.NEWEST_SHARE`) gives other gains
+    (:func:`~.controller_laws.gains_agree` within :data:`~.policy.GAIN_AGREEMENT_RTOL`).
+    Both fits use only segments (and parts of the newest share) of at least
+    :data:`~.policy.MIN_GAIN_SAMPLES` samples.
     """
     segments = [seg for seg in segments
                 if seg.theta_d is not None and seg.n_samples >= MIN_GAIN_SAMPLES]
-    half = newest_share(segments, 0.5, MIN_GAIN_SAMPLES)
+    half = newest_share(segments, NEWEST_SHARE, MIN_GAIN_SAMPLES)
     if not half:
         return None
     whole, half = _linear_gains(segments), _linear_gains(half)
     if whole is None or half is None:
         return None
     (kp, kd), (kp_h, kd_h) = whole, half
-    if not (np.all(np.abs(kp_h - kp) <= AGREEMENT_RTOL * kp)
-            and np.all(np.abs(kd_h - kd) <= AGREEMENT_RTOL * (kd + 0.1 * kp))):
+    if not gains_agree(kp, kd, kp_h, kd_h, GAIN_AGREEMENT_RTOL):
         return None
     e = np.vstack([seg.theta_d - seg.theta for seg in segments])
     de = np.vstack([seg.theta_d_dot - seg.theta_dot for seg in segments])
-    rms = float(np.mean(np.sqrt(np.mean((kp * e + kd * de) ** 2, axis=0))))
+    rms = float(np.mean(np.sqrt(np.mean(pd_torque(kp, kd, e, de) ** 2, axis=0))))
     if not rms > 0.0:
         return None
     return kp / rms, kd / rms
@@ -268,8 +238,8 @@ class ArmKeeper:
         if not segments:
             return False, None
         young = data_span(segments) < YOUNG_DATA_S
-        wait = REFIT_S if self.loop is not None else RETRY_S if young else min(
-            RETRY_MAX_S, RETRY_S * 2.0 ** max(0, self._failures - 1))
+        wait = REFIT_S if self.loop is not None else retry_wait(
+            self._failures, young, RETRY_S, RETRY_MAX_S)
         if now - self._tried < wait:
             return self._advance(segments, origin), None
         samples = sum(seg.n_samples for seg in segments) * (1.0 - validation_fraction)
@@ -283,10 +253,8 @@ class ArmKeeper:
             why = f'held-out equation error {loop.torque_error:.1%}'
             loop = None
         if loop is None and before:
-            # the loop in use stays while it explains the newest data as well as a new fit
-            # must: a refit on a short, weakly exciting stretch can miss what it still holds
             error = closed_loop_error(self.loop, segments, validation_fraction)
-            if error <= MAX_LOOP_ERROR:
+            if still_holds(error, MAX_LOOP_ERROR):
                 self._failures = 0
                 return self._advance(segments, origin), None
             why += f'; the loop in use {error:.1%}'

@@ -60,10 +60,16 @@ class JointRefinement(NamedTuple):
 JOINT_PRIOR_WEIGHT = 1e-9
 
 
+class JointOptions(NamedTuple):
+    """The solver options of :func:`refine_jointly`: iterations, difference step, prior weight."""
+
+    max_iterations: int = 60
+    step: float = 1e-6
+    prior_weight: float = JOINT_PRIOR_WEIGHT
+
+
 def refine_jointly(rows: ChainRows, weights, coding: ChainCoding, x0, parameters0, prior,
-                   length_prior: float = 0.0, max_iterations: int = 60,
-                   step: float = 1e-6,
-                   prior_weight: float = JOINT_PRIOR_WEIGHT) -> JointRefinement:
+                   length_prior: float = 0.0, **options) -> JointRefinement:
     """
     Return the chain and consistent parameters refined together (module docstring).
 
@@ -71,6 +77,7 @@ def refine_jointly(rows: ChainRows, weights, coding: ChainCoding, x0, parameters
     ``prior`` (P,): what the parameters are pulled towards where the rows do not decide;
     ``length_prior``: λ.
     """
+    max_iterations, step, prior_weight = JointOptions(**options)
     from scipy.optimize import least_squares
     n = coding.n
     nx, nphi, npsi = coding.size, N_INERTIAL * n, N_JOINT * n

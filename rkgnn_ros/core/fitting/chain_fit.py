@@ -246,7 +246,7 @@ def _fit(train, validation, settings: ChainSettings, names, log) -> Optional[Cha
                            fine.target, prior_weight=JOINT_PRIOR_WEIGHT)
     start_cost = start.rms_residual ** 2 * start.rows / fine.norm ** 2
     joint = refine_jointly(fine_rows, weights, coding, best.x, start.parameters,
-                           structure.prior, prior, settings.joint_iterations)
+                           structure.prior, prior, max_iterations=settings.joint_iterations)
     log(f'joint refinement: consistent cost {start_cost:.3e} -> {joint.cost:.3e}, '
         f'{time.monotonic() - stage:.1f} s')
     chain = coding.chain(joint.x)

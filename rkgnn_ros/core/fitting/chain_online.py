@@ -49,7 +49,7 @@ from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..data import Dataset
 from ..rigid.chain import ChainStructure
 
-__all__ = ['CHAIN_DATA_S', 'ChainLearner', 'judged', 'learn_chain', 'MAX_ATTEMPTS',
+__all__ = ['ChainSteps', 'CHAIN_DATA_S', 'ChainLearner', 'judged', 'learn_chain', 'MAX_ATTEMPTS',
            'MAX_DATA_S', 'MAX_ERROR', 'MAX_FIT_S', 'MIN_JOINTS', 'ONLINE_SETTINGS', 'RETRY_S',
            'VALIDATION_FRACTION']
 
@@ -380,3 +380,42 @@ def learn_chain(segments: Sequence[Dataset], names=None,
     if structure is not None:
         structure.report.update(data_s=seconds, fit_wall_s=time.monotonic() - began)
     return structure
+
+
+class ChainSteps:
+    """The learned chain's steps of :class:`~.online.OnlineIdentification` (module docstring)."""
+
+    def close(self) -> None:
+        """Abandon what runs in the background (the chain learner's fit)."""
+        self._chain.close()
+
+    def _with_learned(self, obs):
+        """Return ``obs`` with the learned chain as its structure where none is given."""
+        chain = self._chain.structure
+        if (obs.structure is None and chain is not None and obs.joints is not None
+                and tuple(obs.joints) == chain.joint_names):
+            return obs._replace(structure=chain)
+        return obs
+
+    def _chain_case(self, case: str) -> str:
+        """Return the case the learner may fit in ('' where the planar trigonometric arm holds)."""
+        return case if self._laws.trig is None else ''
+
+    def _chain_step(self, obs):
+        """Without a description: judge or start the chain learner's fit (the module docstring)."""
+        if obs.structure is not None:
+            return obs
+        if obs.reset:
+            self._chain.reset()
+        for level, text in self._chain.poll(self._chain_case(obs.settings.case)):
+            self._out.log(level, text)
+        return self._with_learned(obs)
+
+    def _chain_feed(self, settings, joints, segments, capture) -> None:
+        """Give the learner the buffered segments of case 'torque'; start a fit now due."""
+        if settings.case == 'torque' and self._chain.wants_data(joints):
+            self._chain.feed(joints, segments, capture.time_origin,
+                             getattr(capture, 'epoch', None))
+            # a fit due now starts before this step's generation
+            for level, text in self._chain.poll(self._chain_case(settings.case)):
+                self._out.log(level, text)

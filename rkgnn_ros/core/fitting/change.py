@@ -19,17 +19,18 @@ When the arm picks up a payload, swaps a tool or wears, the model that explained
 torque (or its closed loop's equation) stops explaining it, at once and on the joints that
 carry the change. :class:`ChangeDetector` tests the model's residual on the newest filtered
 samples against the residual's normal level per joint, measured where the model was fitted
-(its held-out RMS residual, floored at :data:`RELATIVE_FLOOR` of the joint's torque spread:
-a model fitted to rounding would otherwise call any rounding a change). The test is a
-generalised likelihood ratio for a jump of the residual's scale in a block of new
-samples: the block's mean squared normalised residual, about 1 while nothing changed;
-a change is declared when it exceeds :data:`ALARM` on a joint over at least
-:data:`MIN_ROWS` samples (the residual's RMS :data:`ALARM`^½ times its normal level). The
+(its held-out RMS residual, floored at :data:`~.policy.CHANGE_RELATIVE_FLOOR` of the
+joint's torque spread: a model fitted to rounding would otherwise call any rounding a
+change). The test is a generalised likelihood ratio for a jump of the residual's scale in
+a block of new samples: the block's mean squared normalised residual, about 1 while
+nothing changed; a change is declared when it exceeds :data:`~.policy.CHANGE_ALARM` on a
+joint over at least :data:`~.policy.CHANGE_MIN_ROWS` samples (the residual's RMS
+:data:`~.policy.CHANGE_ALARM`^½ times its normal level). The
 residual's normal level is measured on the model's own held-out data, with the encoders'
 noise in it, and the rigid-body model is global, so new motion does not raise it; a
 threshold this far above 1 keeps a model somewhat worse on motion it never saw from
 counting as a change. The time of the change is where the first sample of the block's
-run of large residuals (normalised above :data:`ONSET`) lies.
+run of large residuals (normalised above :data:`~.policy.CHANGE_ONSET`) lies.
 """
 
 import math
@@ -37,16 +38,9 @@ from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-__all__ = ['ALARM', 'Change', 'ChangeDetector', 'MIN_ROWS', 'ONSET', 'RELATIVE_FLOOR']
+from .policy import CHANGE_ALARM, CHANGE_MIN_ROWS, CHANGE_ONSET, CHANGE_RELATIVE_FLOOR
 
-#: A block's mean squared normalised residual at or above which the dynamics changed.
-ALARM = 25.0
-#: Fewest new samples a block is judged on.
-MIN_ROWS = 5
-#: A normalised residual above this marks where the change began.
-ONSET = 3.0
-#: Smallest normal residual level, as a share of the joint's torque standard deviation.
-RELATIVE_FLOOR = 0.01
+__all__ = ['Change', 'ChangeDetector']
 
 
 class Change(NamedTuple):
@@ -67,7 +61,7 @@ class ChangeDetector:
     def set_normal(self, residual_rms, spread) -> None:
         """Take the model's normal residual (RMS per joint) and the torques' spread (n,)."""
         residual_rms = np.asarray(residual_rms, dtype=float)
-        floor = RELATIVE_FLOOR * np.maximum(np.asarray(spread, dtype=float), 1e-9)
+        floor = CHANGE_RELATIVE_FLOOR * np.maximum(np.asarray(spread, dtype=float), 1e-9)
         level = np.where(np.isfinite(residual_rms), residual_rms, np.inf)
         self.level = np.maximum(level, floor)
 
@@ -81,16 +75,16 @@ class ChangeDetector:
             return None
         times = np.asarray(times, dtype=float)
         new = times > self.last_time
-        if int(new.sum()) < MIN_ROWS:
+        if int(new.sum()) < CHANGE_MIN_ROWS:
             return None
         self.last_time = float(times[new][-1])
         normalised = np.asarray(residual, dtype=float)[new] / self.level
         with np.errstate(all='ignore'):
             statistic = np.mean(normalised ** 2, axis=0)
         statistic = np.where(np.isfinite(statistic), statistic, 0.0)
-        joints = tuple(int(j) for j in np.flatnonzero(statistic >= ALARM))
+        joints = tuple(int(j) for j in np.flatnonzero(statistic >= CHANGE_ALARM))
         if not joints:
             return None
-        large = np.max(np.abs(normalised[:, list(joints)]), axis=1) > ONSET
+        large = np.max(np.abs(normalised[:, list(joints)]), axis=1) > CHANGE_ONSET
         first = int(np.argmax(large)) if np.any(large) else 0
         return Change(float(times[new][first]), joints, statistic)

@@ -228,14 +228,27 @@ def _solve(columns: List[np.ndarray], target: np.ndarray, keep: np.ndarray):
     return coef, ratio
 
 
-def _fit_one(segments, features, theta_input, integral, feedforward, measured_velocity,
-             sigma, min_samples):
+def _filtered_segments(segments, sigma: float):
+    """
+    Return the Gaussian filter of width ``sigma`` (s) and the segments it can filter.
+
+    ``(sigma, h, h_prime, m, limit, used)``: the width used (a ``sigma`` below the sampling
+    interval is the interval), the kernel and its derivative's, their half width m
+    (samples), the saturation limit and the (segment, saturated samples) pairs longer than
+    the kernel.
+    """
     dt = segments[0].dt
     sigma = max(float(sigma), dt)  # data sampled coarser than the filter: the narrowest one
     h, h_prime = gaussian_kernels(dt, sigma)
     m = h.size // 2
     limit, sat = _saturation(segments)
     used = [(seg, s) for seg, s in zip(segments, sat) if seg.n_samples > 2 * m + 2]
+    return sigma, h, h_prime, m, limit, used
+
+
+def _fit_one(segments, features, theta_input, integral, feedforward, measured_velocity,
+             sigma, min_samples):
+    sigma, h, h_prime, m, limit, used = _filtered_segments(segments, sigma)
     if not used:
         return None
     n = segments[0].n_joints

@@ -30,10 +30,12 @@ from typing import Optional
 
 import numpy as np
 
+from .policy import KD_AGREEMENT_S, KI_AGREEMENT_PER_S
 from ..model.model import RKGNNModel
+from ..servo_law import pd_torque
 
-__all__ = ['ControllerLaw', 'DEFAULT_FILTER_SIGMA', 'PDLaw', 'RBFFeatures', 'THETA_INPUTS',
-           'TrigFeatures']
+__all__ = ['ControllerLaw', 'DEFAULT_FILTER_SIGMA', 'gains_agree', 'PDLaw', 'RBFFeatures',
+           'THETA_INPUTS', 'TrigFeatures']
 
 #: Default standard deviation (s) of the Gaussian filter of :func:`fit_controller`: it
 #: passes the motion of an arm (gain 0.98 at 1 Hz, 0.64 at 5 Hz) and removes the noise of
@@ -42,6 +44,19 @@ DEFAULT_FILTER_SIGMA = 0.03
 
 #: Where the θ-dependent terms of :class:`ControllerLaw` are evaluated.
 THETA_INPUTS = ('measured', 'desired')
+
+
+def gains_agree(kp, kd, kp_other, kd_other, rtol: float) -> bool:
+    """
+    Return whether the gains ``kp_other``, ``kd_other`` are ``kp``, ``kd`` within ``rtol``.
+
+    Kp within ``rtol * |Kp|``; Kd within ``rtol * (|Kd| + KD_AGREEMENT_S * |Kp|)``
+    (:data:`~.policy.KD_AGREEMENT_S`, 0.1 s): a small derivative gain is noisy relative to
+    itself but matters little against Kp. Per joint, every joint must agree.
+    """
+    kp_ok = np.abs(kp_other - kp) <= rtol * np.abs(kp)
+    kd_ok = np.abs(kd_other - kd) <= rtol * (np.abs(kd) + KD_AGREEMENT_S * np.abs(kp))
+    return bool(np.all(kp_ok) and np.all(kd_ok))
 
 
 @dataclass(frozen=True)
@@ -70,7 +85,7 @@ class PDLaw:
         """Return the law's torque for states and commands of shape (..., n)."""
         e = np.asarray(theta_d) - np.asarray(theta)
         e_dot = np.asarray(theta_d_dot) - np.asarray(theta_dot)
-        return self.kp * e + self.kd * e_dot + self.bias
+        return pd_torque(self.kp, self.kd, e, e_dot) + self.bias
 
     def usable(self, max_fit_ratio: float = 0.2, min_gain: float = 1e-6) -> bool:
         """Return whether the law explains the torque of every joint and Kp > 0."""
@@ -85,14 +100,12 @@ class PDLaw:
         """
         Return whether ``other`` has the same gains within ``rtol``.
 
-        Kd is compared with ``rtol * (|Kd| + 0.1 s * |Kp|)``: a small derivative gain (the
-        paper's 0.19) is noisy relative to itself but matters little against Kp.
+        As :func:`gains_agree` says (the paper's Kd of 0.19 is noisy relative to itself but
+        matters little against Kp).
         """
         if other is None or other.kp.shape != self.kp.shape:
             return False
-        kp_ok = np.abs(other.kp - self.kp) <= rtol * np.abs(self.kp)
-        kd_ok = np.abs(other.kd - self.kd) <= rtol * (np.abs(self.kd) + 0.1 * np.abs(self.kp))
-        return bool(np.all(kp_ok) and np.all(kd_ok))
+        return gains_agree(self.kp, self.kd, other.kp, other.kd, rtol)
 
     def to_dict(self) -> dict:
         """Return plain lists (for a model's ``info``)."""
@@ -294,7 +307,7 @@ class ControllerLaw:
         theta_d = np.asarray(theta_d, dtype=float)
         theta_d_dot = np.asarray(theta_d_dot, dtype=float)
         held = self.integral_term if integral_term is None else integral_term
-        tau = (self.kp * (theta_d - theta) + self.kd * (theta_d_dot - theta_dot)
+        tau = (pd_torque(self.kp, self.kd, theta_d - theta, theta_d_dot - theta_dot)
                + self.bias + held + self.feedforward * theta_d_dot
                + self._theta_terms(theta, theta_d))
         return np.clip(tau, -self.tau_limit, self.tau_limit)
@@ -328,7 +341,7 @@ class ControllerLaw:
         """Return whether ``other`` has the same gains within ``rtol`` (see :class:`PDLaw`)."""
         if other is None or other.kp.shape != self.kp.shape:
             return False
-        scale_i = np.abs(self.ki) + 0.1 * np.abs(self.kp)
+        scale_i = np.abs(self.ki) + KI_AGREEMENT_PER_S * np.abs(self.kp)
         return bool(PDLaw.close_to(self, other, rtol)
                     and np.all(np.abs(other.ki - self.ki) <= rtol * scale_i))
 

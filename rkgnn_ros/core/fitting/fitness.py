@@ -43,7 +43,7 @@ Other threads (benchmarks) evaluate in one call, as before.
 
 import threading
 import time
-from typing import List, Optional, Sequence
+from typing import List, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -115,6 +115,16 @@ def _chunked(evaluate, params, event, problem) -> np.ndarray:
     return out
 
 
+class RolloutTerms(NamedTuple):
+    """How :class:`FitnessProblem` rolls a genome out and what its cost adds (see there)."""
+
+    references: Optional[Sequence] = None
+    shooting: object = 0
+    penalty_weight: object = 1.0
+    bound: object = 100.0
+    torque_interpolation: object = 'hold'
+
+
 class FitnessProblem:
     """
     Everything a generation needs that does not depend on the genome, prepared once.
@@ -145,9 +155,9 @@ class FitnessProblem:
 
     """
 
-    def __init__(self, spec: NetworkSpec, datasets, scales: Optional[Scales] = None,
-                 substeps=4, kp=None, kd=None, references: Optional[Sequence] = None,
-                 shooting=0, penalty_weight=1.0, bound=100.0, torque_interpolation='hold'):
+    def __init__(self, spec: NetworkSpec, datasets, scales: Optional[Scales] = None, substeps=4,
+                 kp=None, kd=None, **options):
+        references, shooting, penalty_weight, bound, torque_interpolation = RolloutTerms(**options)
         if isinstance(datasets, Dataset):
             datasets = [datasets]
         datasets = list(datasets)

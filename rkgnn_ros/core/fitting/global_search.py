@@ -56,7 +56,8 @@ from ..data import Dataset
 from ..model.scales import Scales
 from ..model.spec import NetworkSpec
 
-__all__ = ['CLOSED_FORM_SHARE', 'FINISH_SHARE', 'GlobalFit', 'STAGES', 'fit_global']
+__all__ = ['CLOSED_FORM_SHARE', 'FINISH_SHARE', 'GlobalFit', 'RolloutSetup', 'SearchOptions',
+           'STAGES', 'fit_global']
 
 #: Share of the budget after which the closed form's rounds that keep M positive stop.
 CLOSED_FORM_SHARE = 0.4
@@ -80,25 +81,39 @@ class GlobalFit(NamedTuple):
     warning: str = ''           # why the closed form is returned unjudged ('' otherwise)
 
 
-class _Options(NamedTuple):
-    shootings: Sequence[int]
-    lm_nfev: int
-    lm_fraction: float
-    polish_sigma: float
-    max_generations: Optional[int]
-    max_evaluations: Optional[int]
-    stall_generations: int
-    seed: int
+class SearchOptions(NamedTuple):
+    """How :func:`fit_global`'s stages search (module docstring)."""
+
+    shootings: Sequence[int] = (20, 0)  # LM's multiple-shooting intervals (samples), in order
+    lm_nfev: int = 30                   # LM's residual evaluations per interval, at most
+    lm_fraction: float = 0.7            # LM's share of the time left after the closed form
+    polish_sigma: float = 0.01          # CMA-ES's spread (share of each coefficient)
+    max_generations: Optional[int] = None   # CMA-ES's generations, at most (None: no limit)
+    max_evaluations: Optional[int] = None   # rollouts, at most (None: no limit)
+    stall_generations: int = 40         # CMA-ES stops after this many without a lower J
+    seed: int = 0                       # of CMA-ES's and the coefficient map's generators
+
+
+class RolloutSetup(NamedTuple):
+    """What a genome is rolled out with: the network, its scales, the RKG steps, the servo."""
+
+    spec: NetworkSpec
+    scales: Scales
+    substeps: int                       # RKG steps per sample
+    kp: Optional[np.ndarray] = None     # known servo gains (case 'pd_gains')
+    kd: Optional[np.ndarray] = None
+    torque_interpolation: str = 'linear'
 
 
 class _Search:
     """The coefficients a :func:`fit_global` run has tried, its bests and its history."""
 
-    def __init__(self, train, validation, spec, scales, substeps, kp, kd, interpolation,
-                 cmap, unit, budget: Budget, on_stage):
+    def __init__(self, train, validation, setup: RolloutSetup, cmap, unit, budget: Budget,
+                 on_stage):
         from ..model.model import RKGNNModel
         self.train, self.cmap, self.unit, self.budget = list(train), cmap, unit, budget
-        self._settings = (spec, scales, substeps, kp, kd, interpolation)
+        self._settings = setup
+        spec, scales, substeps, kp, kd, interpolation = setup
         self._model = lambda genome: RKGNNModel(spec, scales, genome, kp=kp, kd=kd,
                                                 dt=train[0].dt, substeps=substeps,
                                                 torque_interpolation=interpolation)
@@ -171,7 +186,7 @@ class _Search:
             self.on_stage(entry)
 
 
-def _closed_form(search: _Search, budget: Budget, options: _Options, arm) -> None:
+def _closed_form(search: _Search, budget: Budget, options: SearchOptions, arm) -> None:
     """Stage 1: score the closed form (its coefficients are the start of every search)."""
     search.best_x = arm.full_coefficients / search.unit
     search.record('linear', search.best_x, search.cost(search.best_x),
@@ -180,7 +195,7 @@ def _closed_form(search: _Search, budget: Budget, options: _Options, arm) -> Non
                   late=bool(getattr(arm, 'late_', False)))
 
 
-def _levenberg_marquardt(search: _Search, budget: Budget, options: _Options, arm) -> None:
+def _levenberg_marquardt(search: _Search, budget: Budget, options: SearchOptions, arm) -> None:
     """Stage 2: LM per shooting interval, within ``lm_fraction`` of what is left."""
     from .refine import refine_lm
     lm = Budget(options.lm_fraction * budget.left(), budget.clock)
@@ -203,7 +218,7 @@ def _levenberg_marquardt(search: _Search, budget: Budget, options: _Options, arm
                       shooting=int(shooting))
 
 
-def _cmaes(search: _Search, budget: Budget, options: _Options, arm) -> None:
+def _cmaes(search: _Search, budget: Budget, options: SearchOptions, arm) -> None:
     """Stage 3: CMA-ES around the best coefficients until the budget or a limit ends it."""
     per = search.full.problem.seconds_per_candidate
     if per is not None and budget.left() < per:
@@ -240,16 +255,14 @@ def _cmaes(search: _Search, budget: Budget, options: _Options, arm) -> None:
 STAGES = (('linear', _closed_form), ('lm', _levenberg_marquardt), ('cmaes', _cmaes))
 
 
-def fit_global(train: Sequence[Dataset], validation: Sequence[Dataset], spec: NetworkSpec,
-               scales: Scales, substeps: int, kp=None, kd=None, *, budget: Budget,
-               shootings: Sequence[int] = (20, 0), lm_nfev: int = 30,
-               lm_fraction: float = 0.7, polish_sigma: float = 0.01,
-               max_generations: Optional[int] = None, max_evaluations: Optional[int] = None,
-               stall_generations: int = 40, seed: int = 0,
-               torque_interpolation: str = 'linear',
+def fit_global(train: Sequence[Dataset], validation: Sequence[Dataset], setup: RolloutSetup,
+               options: SearchOptions = SearchOptions(), *, budget: Budget,
                on_stage: Optional[Callable[[dict], None]] = None) -> GlobalFit:
     """
     Fit the global network within ``budget``: the stages of :data:`STAGES` (module docstring).
+
+    ``setup``: the network (``setup.spec``, global) and what its rollouts use; ``options``:
+    how the stages search.
 
     Each stage's result is scored by J on ``train`` and, when it lowers J, by the θ-NRMSE
     of the rollout of each ``validation`` segment from its first state; the result is,
@@ -262,23 +275,24 @@ def fit_global(train: Sequence[Dataset], validation: Sequence[Dataset], spec: Ne
     if math.isfinite(budget.seconds):   # the stages end FINISH_SHARE before the budget
         budget = Budget(max(0.0, budget.left() - FINISH_SHARE * budget.seconds),
                         budget.clock)
-    case = spec.case
+    spec = setup.spec
     table = trig_table(spec)
     try:
-        arm = linear_fit(train, case, table, kp, kd, spec.coulomb_velocity,
+        arm = linear_fit(train, spec.case, table, setup.kp, setup.kd, spec.coulomb_velocity,
                          deadline=budget.deadline(CLOSED_FORM_SHARE))
-        cmap = coefficient_map(spec, scales, table, arm.layout_, rng=seed)
+        cmap = coefficient_map(spec, setup.scales, table, arm.layout_, rng=options.seed)
     except (ValueError, np.linalg.LinAlgError) as error:
         samples = sum(seg.n_samples for seg in train)
         raise ValueError(f'the closed-form fit on the trigonometric basis failed on {samples} '
                          f'samples in {len(train)} segment(s): {error}') from error
     unit = variable_unit(arm.full_coefficients)
-    search = _Search(train, validation, spec, scales, substeps, kp, kd, torque_interpolation,
-                     cmap, unit, budget, on_stage)
+    search = _Search(train, validation, setup, cmap, unit, budget, on_stage)
     search.best_x = arm.full_coefficients / unit
-    options = _Options(tuple(shootings), int(lm_nfev), float(lm_fraction),
-                       float(polish_sigma), max_generations, max_evaluations,
-                       int(stall_generations), int(seed))
+    options = options._replace(shootings=tuple(options.shootings), lm_nfev=int(options.lm_nfev),
+                               lm_fraction=float(options.lm_fraction),
+                               polish_sigma=float(options.polish_sigma),
+                               stall_generations=int(options.stall_generations),
+                               seed=int(options.seed))
     with budget.interrupting():
         for k, (phase, stage) in enumerate(STAGES):
             if k and budget.spent():    # the closed form runs whatever is left

@@ -23,9 +23,11 @@ Identification API: fit an RKGNN (:class:`..model.model.RKGNNModel`) on recorded
   coefficients, the stage chosen on held-out data; for RBF networks the equation error,
   Levenberg-Marquardt on rollout residuals, CMA-ES on the paper's cost).
 - :func:`precompile`: compile every kernel the online identifier runs, before it spins.
+
+Their options are records of :mod:`.options`.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import time
 from typing import Callable, List, Optional
 
@@ -33,6 +35,7 @@ import numpy as np
 
 from .fitness import FitnessProblem
 from .optimizers import make_optimizer
+from .options import FitOptions, Limits, RolloutChoices  # noqa: F401 (the API of identify)
 from ..data import Dataset
 from ..integration.rkg import choose_substeps
 from ..model.model import RKGNNModel
@@ -89,6 +92,8 @@ class Evolution:
         Seeds the optimizer's ``rng``.
     kp, kd : array_like, optional
         Known gains (case 2).
+    **choices
+        The fields of :class:`RolloutChoices`:
     substeps : int, optional
         RKG steps per sample (default from :func:`default_substeps`).
     shooting : int
@@ -106,8 +111,11 @@ class Evolution:
     """
 
     def __init__(self, spec: NetworkSpec, datasets, optimizer='cmaes', settings=None, seed=0,
-                 kp=None, kd=None, substeps=None, shooting=0, torque_interpolation='linear',
-                 scales: Optional[Scales] = None, x0=None, init='default'):
+                 kp=None, kd=None, **choices):
+        choice = RolloutChoices(**choices)
+        substeps, shooting, torque_interpolation = (choice.substeps, choice.shooting,
+                                                    choice.torque_interpolation)
+        scales, x0, init = choice.scales, choice.x0, choice.init
         if isinstance(datasets, Dataset):
             datasets = [datasets]
         self.spec = spec
@@ -188,8 +196,7 @@ class FitResult:
 
 
 def fit(datasets, case, spec: Optional[NetworkSpec] = None, optimizer='cmaes', settings=None,
-        max_generations=200, max_evaluations=None, time_budget=None, seed=0, kp=None,
-        kd=None, callback: Optional[Callable[[dict], None]] = None, **evolution_kw) -> FitResult:
+        callback: Optional[Callable[[dict], None]] = None, **options) -> FitResult:
     """
     Identify an RKGNN on recorded segments.
 
@@ -205,12 +212,12 @@ def fit(datasets, case, spec: Optional[NetworkSpec] = None, optimizer='cmaes', s
         See :class:`Evolution`.
     kp, kd : array_like, shape (n,), optional
         Known PD gains (case 2).
-    max_generations, max_evaluations, time_budget
-        Stop at the first reached (``None`` = no limit on that one).
     callback : callable, optional
         Called with each generation's statistics.
-    **evolution_kw
-        Passed to :class:`Evolution` (substeps, shooting, torque_interpolation, init, x0).
+    **options
+        The fields of :class:`Limits` (max_generations, max_evaluations, time_budget: stop
+        at the first reached); the rest is passed to :class:`Evolution` (seed, kp, kd and
+        :class:`RolloutChoices`'s substeps, shooting, torque_interpolation, init, x0).
 
     Returns
     -------
@@ -224,7 +231,9 @@ def fit(datasets, case, spec: Optional[NetworkSpec] = None, optimizer='cmaes', s
     spec = spec if spec is not None else NetworkSpec.recommended(n, case)
     if spec.case != case:
         raise ValueError(f'spec.case {spec.case!r} differs from case {case!r}')
-    evo = Evolution(spec, datasets, optimizer, settings, seed, kp, kd, **evolution_kw)
+    limits = Limits(**{key: options.pop(key) for key in Limits._fields if key in options})
+    max_generations, max_evaluations, time_budget = limits
+    evo = Evolution(spec, datasets, optimizer, settings, **options)
     history = []
     t0 = time.perf_counter()
     while True:
@@ -245,22 +254,17 @@ def fit(datasets, case, spec: Optional[NetworkSpec] = None, optimizer='cmaes', s
                      final_cost=float(evo.optimizer.best_cost))
 
 
-def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = None, kp=None,
-             kd=None, seed=0, shootings=(20, 0), lm_fraction=0.7, lm_nfev=30,
-             polish_sigma=None, callback: Optional[Callable[[dict], None]] = None,
-             theta_units=None, equation_nfev=500, equation_fraction=0.3,
-             max_generations: Optional[int] = None, basis: str = 'trig',
-             validation_fraction: float = 0.2, max_evaluations: Optional[int] = None,
-             clock: Callable[[], float] = time.perf_counter, structure=None,
-             learn_chain: bool = False, **evolution_kw) -> FitResult:
+def fit_best(datasets, case, options: Optional[FitOptions] = None, **changes) -> FitResult:
     """
     Identify with our best pipeline inside a wall-time budget.
 
-    ``time_budget`` (s, None: no limit) is wall time on ``clock``, counted from the call
-    (:class:`.budget.Budget`): each stage gets what is left when it starts, the clock is
-    checked between stages and inside them (every rollout of the training data stops at
-    the budget's end), so the call returns within about a rollout of the budget whatever
-    the machine's load. A budget of 0 gives the first stage's result at once.
+    ``options`` (:class:`FitOptions`; default its defaults) with ``changes`` (option names:
+    ``fit_best(data, 'torque', time_budget=10.0)``). ``time_budget`` (s, None: no limit) is
+    wall time on ``clock``, counted from the call (:class:`.budget.Budget`): each stage
+    gets what is left when it starts, the clock is checked between stages and inside them
+    (every rollout of the training data stops at the budget's end), so the call returns
+    within about a rollout of the budget whatever the machine's load. A budget of 0 gives
+    the first stage's result at once.
 
     By default the network is global (:func:`.global_fit.global_spec` on ``basis``, the
     trigonometric basis of a planar arm: M, V, G, F right on the whole joint range, not only
@@ -315,28 +319,29 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
     budget) and, when it predicts the held-out torque, its rigid body is fitted so
     (history's first entry: phase 'chain').
     """
-    from dataclasses import replace
     from . import global_fit
+    opts = (FitOptions() if options is None else options).updated(**changes)
+    structure = opts.structure
     history_first: List[dict] = []
-    if structure is None and learn_chain and normalize_case(case) == 'torque':
+    if structure is None and opts.learn_chain and normalize_case(case) == 'torque':
         from .chain_online import learn_chain as learned_chain
-        start = clock()
+        start = opts.clock()
         lines: List[str] = []
         structure = learned_chain([datasets] if isinstance(datasets, Dataset) else datasets,
-                                  validation_fraction=validation_fraction,
+                                  validation_fraction=opts.validation_fraction,
                                   log=lambda level, text: lines.append(text))
         history_first.append({'phase': 'chain', 'accepted': structure is not None,
-                              'wall_s': clock() - start, 'log': lines})
+                              'wall_s': opts.clock() - start, 'log': lines})
     if structure is not None:
         from .rigid_online import fit_rigid
-        start = clock()
-        model = fit_rigid(datasets, normalize_case(case), structure, kp, kd,
-                          validation_fraction)
+        start = opts.clock()
+        model = fit_rigid(datasets, normalize_case(case), structure, opts.kp, opts.kd,
+                          opts.validation_fraction)
         return FitResult(model, history_first + [{'phase': 'rigid',
                                                   'cost': model.info['held_out_error']}],
-                         wall_s=clock() - start, final_cost=model.info['held_out_error'])
+                         wall_s=opts.clock() - start, final_cost=model.info['held_out_error'])
     from .budget import Budget
-    budget = Budget(float('inf') if time_budget is None else time_budget, clock)
+    budget = Budget(float('inf') if opts.time_budget is None else opts.time_budget, opts.clock)
     # default θ units per case: chosen on held-out data of the paper's arm (README)
     default_units = {'torque': 5, 'pd_gains': 5, 'unknown': 8}
     if isinstance(datasets, Dataset):
@@ -346,37 +351,32 @@ def fit_best(datasets, case, time_budget=120.0, spec: Optional[NetworkSpec] = No
         raise ValueError('fit_best: no data (an empty list of segments)')
     case = normalize_case(case)
     n = datasets[0].n_joints
-    if spec is None and theta_units is None and basis != 'rbf':
-        spec = global_fit.global_spec(n, case, basis)
+    spec = opts.spec
+    if spec is None and opts.theta_units is None and opts.basis != 'rbf':
+        spec = global_fit.global_spec(n, case, opts.basis)
     if spec is not None and global_fit.is_global(spec):
         try:
-            return _fit_global_best(datasets, spec, budget, kp, kd, seed, shootings,
-                                    lm_fraction, lm_nfev, 0.01 if polish_sigma is None
-                                    else polish_sigma, callback, max_generations,
-                                    validation_fraction, max_evaluations,
-                                    evolution_kw.get('torque_interpolation', 'linear'))
+            return _fit_global_best(datasets, spec, budget, opts)
         except ValueError as error:
             raise ValueError(f'fit_best: {error}') from error
-    polish_sigma = 0.05 if polish_sigma is None else polish_sigma
     if spec is None:
         spec = NetworkSpec.recommended(n, case)
-        units = default_units[case] if theta_units is None else int(theta_units)
+        units = default_units[case] if opts.theta_units is None else int(opts.theta_units)
         spec = replace(spec, theta_units=units)
     with budget.interrupting():
-        return _fit_rbf_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction,
-                             lm_nfev, polish_sigma, callback, equation_nfev,
-                             equation_fraction, max_generations, evolution_kw)
+        return _fit_rbf_best(datasets, spec, budget, opts)
 
 
-def _fit_rbf_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction, lm_nfev,
-                  polish_sigma, callback, equation_nfev, equation_fraction, max_generations,
-                  evolution_kw) -> FitResult:
+def _fit_rbf_best(datasets, spec, budget, opts: FitOptions) -> FitResult:
     """:func:`fit_best` for an RBF network (inside ``budget.interrupting()``)."""
     from .budget import Budget
     from .fitness import Interrupted
     from .refine import refine_equation_error, refine_lm
-    evo = Evolution(spec, datasets, 'cmaes', {'sigma': polish_sigma}, seed, kp, kd,
-                    **evolution_kw)
+    kp, kd, callback = opts.kp, opts.kd, opts.callback
+    polish_sigma = 0.05 if opts.polish_sigma is None else opts.polish_sigma
+    equation_nfev, max_generations = opts.equation_nfev, opts.max_generations
+    evo = Evolution(spec, datasets, 'cmaes', {'sigma': polish_sigma}, opts.seed, kp, kd,
+                    **opts.evolution)
 
     def problem_for(shooting):
         problem = FitnessProblem(spec, datasets, scales=evo.scales, substeps=evo.substeps,
@@ -417,18 +417,18 @@ def _fit_rbf_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction, 
         if equation_nfev and not budget.spent():
             eq_genome, eq_cost = refine_equation_error(
                 spec, datasets, evo.scales, best['genome'], kp, kd,
-                max_nfev=int(equation_nfev), deadline=budget.deadline(equation_fraction))
+                max_nfev=int(equation_nfev), deadline=budget.deadline(opts.equation_fraction))
             stage_result('equation', eq_genome, full_cost(eq_genome), equation_cost=eq_cost)
         # LM continues from its own stage results (the continuation over shooting windows)
         # and starts from the best so far; the pipeline keeps a stage's genome only if J
         # improved
         genome = best['genome']
-        lm = Budget(lm_fraction * budget.left(), budget.clock)
-        for shooting in shootings:
+        lm = Budget(opts.lm_fraction * budget.left(), budget.clock)
+        for shooting in opts.shootings:
             if lm.spent():
                 break
             with lm.interrupting():
-                genome, lm_hist = refine_lm(problem_for, genome, (shooting,), lm_nfev,
+                genome, lm_hist = refine_lm(problem_for, genome, (shooting,), opts.lm_nfev,
                                             deadline=lm.deadline())
             evaluations += lm_hist[-1]['evaluations'] if lm_hist else 0
             stage_result('lm', genome, full_cost(genome), shooting=int(shooting),
@@ -464,13 +464,13 @@ def _fit_rbf_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction, 
                      wall_s=budget.elapsed(), final_cost=best['cost'])
 
 
-def _fit_global_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fraction,
-                     lm_nfev, polish_sigma, callback, max_generations, validation_fraction,
-                     max_evaluations, torque_interpolation) -> FitResult:
+def _fit_global_best(datasets, spec, budget, opts: FitOptions) -> FitResult:
     """:func:`fit_best` for a global network (:func:`.global_search.fit_global`)."""
-    from .global_search import fit_global
+    from .global_search import fit_global, RolloutSetup, SearchOptions
     from .validation import split_validation
-    train, validation, _ = split_validation(datasets, validation_fraction)
+    kp, kd, callback = opts.kp, opts.kd, opts.callback
+    torque_interpolation = opts.evolution.get('torque_interpolation', 'linear')
+    train, validation, _ = split_validation(datasets, opts.validation_fraction)
     if not train:
         train, validation = list(datasets), []
     scales = Scales.from_datasets(datasets, spec.case, kp, kd)
@@ -481,11 +481,13 @@ def _fit_global_best(datasets, spec, budget, kp, kd, seed, shootings, lm_fractio
         if callback is not None:
             callback(entry)
 
-    result = fit_global(train, validation, spec, scales, substeps, kp, kd, budget=budget,
-                        lm_fraction=lm_fraction, shootings=shootings, lm_nfev=lm_nfev,
-                        polish_sigma=polish_sigma, max_generations=max_generations,
-                        max_evaluations=max_evaluations, seed=seed,
-                        torque_interpolation=torque_interpolation, on_stage=on_stage)
+    setup = RolloutSetup(spec, scales, substeps, kp, kd, torque_interpolation)
+    search = SearchOptions(
+        shootings=opts.shootings, lm_nfev=opts.lm_nfev, lm_fraction=opts.lm_fraction,
+        polish_sigma=0.01 if opts.polish_sigma is None else opts.polish_sigma,
+        max_generations=opts.max_generations, max_evaluations=opts.max_evaluations,
+        seed=opts.seed)
+    result = fit_global(train, validation, setup, search, budget=budget, on_stage=on_stage)
     info = {'cost': result.cost, 'pipeline': 'linear+lm+cmaes', 'selected': result.phase,
             'validation_nrmse': result.validation_nrmse,
             'validation_s': float(sum(seg.duration for seg in validation))}

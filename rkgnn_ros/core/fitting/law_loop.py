@@ -28,16 +28,31 @@ gives ``_once(x0, t, θd', θ̇d)`` (one compiled rollout of the PD loop with th
 """
 
 import copy
+import math
+from typing import Optional
 
 import numpy as np
 
 from .controller_laws import ControllerLaw
+from ..integration.inputs import stage_inputs
+from ..integration.rkg import choose_substeps
 
-__all__ = ['LawLoop', 'PASSES']
+__all__ = ['LawLoop', 'MAX_SUBSTEPS', 'PASSES', 'SAFETY', 'SUBSTEPS_REUSE_RAD']
 
 #: Rollouts of :meth:`LawLoop.simulate` when the law has an integral or θ-terms on θ that
 #: the kernel does not evaluate.
 PASSES = 3
+
+#: Most RKG steps per sampling interval (a stiffer loop is rolled out with this many).
+MAX_SUBSTEPS = 64
+
+#: Share of RKG's stability limit a rollout's step uses at its start state's stiffness: the
+#: step's own error stays far below any model's, with room for the stiffness to grow along
+#: the rollout.
+SAFETY = 0.7
+
+#: A start within this (rad, every joint) of the last keeps its number of RKG steps.
+SUBSTEPS_REUSE_RAD = 0.05
 
 
 class LawLoop:
@@ -47,8 +62,54 @@ class LawLoop:
     _terms_compiled: bool = False
     _integral_compiled: bool = False
 
+    def __init__(self, arm, law: ControllerLaw, substeps: Optional[int] = None):
+        if not np.all(law.kp > 0.0):
+            raise ValueError(f'the law needs Kp > 0 on every joint, got {law.kp.tolist()}')
+        if law.n_joints != arm.n_joints:
+            raise ValueError(f'the law is for {law.n_joints} joints, the arm has '
+                             f'{arm.n_joints}')
+        self.arm, self.law = arm, law
+        self.substeps = None if substeps is None else max(1, int(substeps))
+        #: held-out torque error of the arm (worst joint, RMSE / std; set by the fit)
+        self.torque_error = math.inf
+
     def _set_law_terms(self) -> None:
         raise NotImplementedError
+
+    def _stiffness_at(self, theta) -> float:
+        """Return the largest |eigenvalue| (1/s) of the linearised closed loop at ``theta``."""
+        raise NotImplementedError
+
+    def _substeps_at(self, theta: np.ndarray, dt: float) -> int:
+        """
+        Return the RKG steps per ``dt`` that the stiffness at ``theta`` needs.
+
+        At :data:`SAFETY` of RKG's stability limit, at most :data:`MAX_SUBSTEPS`; kept for
+        starts within :data:`SUBSTEPS_REUSE_RAD` of the one it was computed at (M(θ)
+        changes little over such a move, and :data:`SAFETY` covers it).
+        """
+        cached = getattr(self, '_substeps_cache', None)
+        if cached is not None and cached[1] == dt and \
+                np.max(np.abs(theta - cached[0])) <= SUBSTEPS_REUSE_RAD:
+            return cached[2]
+        try:
+            stiffness = self._stiffness_at(theta)
+        except np.linalg.LinAlgError:
+            stiffness = math.inf
+        substeps = (MAX_SUBSTEPS if not math.isfinite(stiffness)
+                    else min(MAX_SUBSTEPS, choose_substeps(dt, stiffness, safety=SAFETY)))
+        self._substeps_cache = (theta.copy(), dt, substeps)
+        return substeps
+
+    def _inputs(self, x0, t, theta_d, theta_d_dot):
+        """Return n, the sampling interval, the RKG steps in it and the rollout's stage inputs."""
+        n = self.n_joints
+        dt = float(t[-1] - t[0]) / (t.size - 1)
+        substeps = self.substeps
+        if substeps is None:
+            substeps = self._substeps_at(np.asarray(x0, dtype=float)[:n], dt)
+        u = stage_inputs('pd_gains', t, substeps, theta_d=theta_d, theta_d_dot=theta_d_dot)
+        return n, dt, substeps, u
 
     def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
         raise NotImplementedError

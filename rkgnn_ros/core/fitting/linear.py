@@ -76,6 +76,9 @@ from ..scoring import nrmse
 
 CASES = ('torque', 'pd_gains', 'unknown')
 
+#: Rounds of cuts that keep M positive on the check set, and cuts per round, at most.
+CUT_ROUNDS, CUTS_PER_ROUND = 20, 48
+
 
 # ----------------------------------------------------------------------------- samples
 
@@ -229,6 +232,25 @@ def _spread(points, order, count, distance=0.3):
     return chosen
 
 
+class LinearSettings(NamedTuple):
+    """The settings of :class:`LinearDynamics` beyond its basis (see there)."""
+
+    ridges: Sequence[float] = tuple(10.0 ** np.arange(-12, 0))
+    validation_fraction: float = 0.2
+    windows: Sequence[float] = (0.06, 0.1, 0.14, 0.2, 0.3)
+    window: Optional[int] = None
+    stride: int = 1
+    min_eigenvalue: Optional[float] = None
+    joint_lower: object = None
+    joint_upper: object = None
+    certify: bool = True
+    check_points: int = 20_000
+    max_cells: int = 50_000
+    max_certified_joints: int = 4
+    gain_normalisation: float = 1.0
+    integral: bool = False
+
+
 class LinearDynamics(TrigDynamics):
     """
     M, V, G, F of an n-joint arm in the trigonometric basis, fitted by linear least squares.
@@ -240,10 +262,8 @@ class LinearDynamics(TrigDynamics):
 
     Parameters
     ----------
-    basis : TrigBasis or int
-        The basis, or the number of joints for ``TrigBasis(n)`` (spatial, serial chain).
-    coulomb_velocity : float
-        v_c of the smoothed Coulomb friction (rad/s).
+    basis, coulomb_velocity
+        As for :class:`~rkgnn_ros.core.model.trig_dynamics.TrigDynamics`.
     ridges : sequence of float
         Candidate ridge weights (relative to each group's mean squared column).
     validation_fraction : float
@@ -280,15 +300,9 @@ class LinearDynamics(TrigDynamics):
 
     """
 
-    def __init__(self, basis, coulomb_velocity: float = 0.05,
-                 ridges: Sequence[float] = tuple(10.0 ** np.arange(-12, 0)),
-                 validation_fraction: float = 0.2,
-                 windows: Sequence[float] = (0.06, 0.1, 0.14, 0.2, 0.3),
-                 window: Optional[int] = None,
-                 stride: int = 1, min_eigenvalue: Optional[float] = None, joint_lower=None,
-                 joint_upper=None, certify: bool = True, check_points: int = 20_000,
-                 max_cells: int = 50_000, max_certified_joints: int = 4,
-                 gain_normalisation: float = 1.0, integral: bool = False):
+    def __init__(self, basis, coulomb_velocity: float = 0.05, **options):
+        settings = LinearSettings(**options)
+        ridges, validation_fraction = settings.ridges, settings.validation_fraction
         super().__init__(basis, coulomb_velocity)
         self.ridges = tuple(float(r) for r in ridges)
         if not self.ridges or min(self.ridges) < 0.0:
@@ -296,18 +310,18 @@ class LinearDynamics(TrigDynamics):
         if not 0.0 < validation_fraction < 1.0:
             raise ValueError(f'validation_fraction must be in (0, 1), got {validation_fraction}')
         self.validation_fraction = float(validation_fraction)
-        self.windows = tuple(float(w) for w in windows)
-        self.window = window
-        self.stride = int(stride)
-        self.min_eigenvalue = min_eigenvalue
-        self.joint_lower = joint_lower
-        self.joint_upper = joint_upper
-        self.certify = bool(certify)
-        self.gain_normalisation = float(gain_normalisation)
-        self.integral = bool(integral)
-        self.check_points = int(check_points)
-        self.max_cells = int(max_cells)
-        self.max_certified_joints = int(max_certified_joints)
+        self.windows = tuple(float(w) for w in settings.windows)
+        self.window = settings.window
+        self.stride = int(settings.stride)
+        self.min_eigenvalue = settings.min_eigenvalue
+        self.joint_lower = settings.joint_lower
+        self.joint_upper = settings.joint_upper
+        self.certify = bool(settings.certify)
+        self.gain_normalisation = float(settings.gain_normalisation)
+        self.integral = bool(settings.integral)
+        self.check_points = int(settings.check_points)
+        self.max_cells = int(settings.max_cells)
+        self.max_certified_joints = int(settings.max_certified_joints)
 
     @classmethod
     def from_coefficients(cls, basis, coefficients, coulomb_velocity: float = 0.05, kp=None,
@@ -507,9 +521,8 @@ class LinearDynamics(TrigDynamics):
         coef = self._constrained(chol, total, scale, lay, [])
         return coef, best, scores, total, scale, chol
 
-    def _enforce_positive(self, samples, chol, normal, scale, lay, case, kp, kd,
-                          rounds: int = 20, cuts_per_round: int = 48):
-        """Cut and refit until λ_min(S M S) >= floor on the check set; then certify."""
+    def _enforce_positive(self, samples, chol, normal, scale, lay, case, kp, kd):
+        """Cut and refit (:data:`CUT_ROUNDS`) until λ_min(S M S) >= floor; then certify."""
         step = max(1, samples.n_samples // 2000)
         data = self.raw_mass_matrix(samples.theta[::step])
         diag = np.diagonal(data, axis1=1, axis2=2).mean(axis=0)
@@ -529,14 +542,14 @@ class LinearDynamics(TrigDynamics):
             np.asarray(self.joint_upper, dtype=float)
         check = rng.uniform(lo, hi, (self.check_points, self.n_joints))
         cuts = []
-        for _ in range(rounds):
+        for _ in range(CUT_ROUNDS):
             if self._late():
                 break
             lam, vecs = np.linalg.eigh(self.raw_mass_matrix(check) * np.outer(s, s))
             bad = np.flatnonzero(lam[:, 0] < floor)
             if bad.size == 0:
                 break
-            for k in _spread(check, bad[np.argsort(lam[bad, 0])], cuts_per_round):
+            for k in _spread(check, bad[np.argsort(lam[bad, 0])], CUTS_PER_ROUND):
                 cuts.append((self._cut_row(check[k], s * vecs[k, :, 0], lay), 2.0 * floor))
             coef = self._constrained(chol, normal, scale, lay, cuts)
             self._set(coef, lay, case, kp, kd)

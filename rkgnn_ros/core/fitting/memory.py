@@ -48,6 +48,7 @@ import numpy as np
 from scipy.linalg import cholesky, solve_triangular
 
 from .linear import default_window, Samples, samples_from_datasets
+from .policy import MEMORY_CAPACITY, OFFER_EVERY
 from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
 
@@ -227,18 +228,11 @@ class ExcitationMemory:
         return float(sv.max() / sv.min())
 
 
-#: Every how many new samples one is offered (neighbours at 100 Hz say nearly the same).
-OFFER_EVERY = 5
-
-#: Samples the identifier's memory keeps.
-MEMORY_CAPACITY = 500
-
-
 class MemoryFeed:
     """
     The identifier's :class:`ExcitationMemory`, fed from the refreshed window.
 
-    At every data refresh each new sample is considered once: every :data:`OFFER_EVERY`-th
+    At every data refresh each new sample is considered once: every :data:`~.policy.OFFER_EVERY`-th
     (by its stamp, so a sample is never offered twice however the windows overlap), away
     from a segment's ends by half the Savitzky-Golay window (there θ̈ is extrapolated: such
     samples look the most exciting and are the least true). The regressor is the planar

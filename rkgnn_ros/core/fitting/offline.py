@@ -50,7 +50,7 @@ from .identify import nrmse, RKGNNModel
 from .online import OnlineIdentification
 from .online_records import (ClosedLoop, GenerationStats, LogLine, ModelUpdate, Observation,
                              OnlineSettings, Status)
-from .search_starts import WARM_START_S
+from .policy import WARM_START_S
 from ..data import Dataset
 
 __all__ = ['OfflineResult', 'Verdict', 'heldout_baselines', 'heldout_prediction',
@@ -73,12 +73,18 @@ class OfflineResult(NamedTuple):
     status: Status
 
 
+class OfflineOptions(NamedTuple):
+    """The progress, clock and description options of :func:`identify_offline` (see there)."""
+
+    progress_period_s: float = 2.0
+    wall: Callable[[], float] = time.monotonic
+    structure: object = None
+
+
 def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
                      budget_s: float = 90.0, max_generations: int = 0,
-                     progress: Optional[Callable[[Status, float], None]] = None,
-                     progress_period_s: float = 2.0,
-                     wall: Callable[[], float] = time.monotonic,
-                     structure=None) -> OfflineResult:
+                     progress: Optional[Callable[[Status, float], None]] = None, **options
+                     ) -> OfflineResult:
     """
     Run the online policy on a capture of recorded streams until the budget is spent.
 
@@ -110,6 +116,7 @@ def identify_offline(settings: OnlineSettings, capture, joints: Sequence[str],
     OfflineResult
 
     """
+    progress_period_s, wall, structure = OfflineOptions(**options)
     clock = [0.0]
     status = [Status()]
     budget = Budget(budget_s, wall)

@@ -72,7 +72,7 @@ import numpy as np
 from . import case_three
 from .case_one import LawKeeper, search_segments
 from .case_three import ArmKeeper
-from .chain_online import ChainLearner
+from .chain_online import ChainLearner, ChainSteps
 from .controller import ControllerLaw
 from .identify import Evolution
 from .memory import MemoryFeed
@@ -81,12 +81,15 @@ from .online_records import (AUTO_BASIS, ClosedLoop, GenerationStats, LogLine, L
                              StepResult, StreamCapture)
 from .online_rules import (auto_untried, EventLog, feed_memory, stale_stream, Staleness,
                            trig_holds)
+from .policy import (DATA_REFRESH_S, EVOLUTION_MIN_PERIOD, LOG_THROTTLE_S,
+                     MAX_CONSECUTIVE_ERRORS, MIN_SEGMENT_SAMPLES, VALIDATION_EVERY,
+                     WAITING_REFRESH_S, WARM_START_NFEV, WARM_START_S, YOUNG_DATA_S,
+                     YOUNG_WARM_START_S)
 from .rigid_online import RigidPolicy
 from .search_starts import (hand_over_settings, restart_around, rewarm, RewarmSchedule,
-                            warm_start, WARM_START_NFEV, WARM_START_S)
+                            warm_start)
 from .trig_change import TrigChangeMonitor
-from .trig_loop import YOUNG_DATA_S
-from .validation import MIN_SEGMENT_SAMPLES, split_validation, validation_nrmse
+from .validation import split_validation, validation_nrmse
 from ..data import Dataset
 from ..differentiate import centred_derivative
 from ..model.model import RKGNNModel
@@ -95,19 +98,6 @@ __all__ = ['AUTO_BASIS', 'OnlineIdentification', 'OnlineSettings', 'Observation'
            'StreamCapture', 'Status', 'ClosedLoop', 'ModelUpdate', 'LoopUpdate',
            'GenerationStats', 'LogLine', 'StepResult', 'model_update', 'split_validation']
 
-DATA_REFRESH_S = 1.0        # at most one set_data per second
-WAITING_REFRESH_S = 0.25    # while too little data is buffered, look again this often
-VALIDATION_EVERY = 5        # generations between two validations of a changed best
-EVOLUTION_MIN_PERIOD = 0.05  # GenerationStats at most 20 per second
-MAX_CONSECUTIVE_ERRORS = 3  # failed steps in a row after which the search restarts
-#: While the data span less than :data:`.trig_loop.YOUNG_DATA_S`, one equation-error fit
-#: (the search's warm start, or a re-warm) takes at most this (real s). It runs in the
-#: worker thread between the fits on the trigonometric basis, which then wait: in a run of
-#: bench/online.py (case 2, the arm starting from rest) two 5 s fits, at 5 and at 10 s of
-#: data, held the closed loop back until 15 s and the first prediction of a model until
-#: 17.7 s after the first joint_states. The data double soon after, and a full fit follows.
-YOUNG_WARM_START_S = 1.0
-LOG_THROTTLE_S = 1.0        # a repeating warning at most once per second
 #: Cases whose predictions use the linear closed-loop fit on the trigonometric basis
 #: (:class:`.case_three.ArmKeeper`): it needs neither torque nor the gains.
 _CLOSED_FIT_CASES = ('unknown', 'pd_gains')
@@ -160,7 +150,54 @@ def _search_structure(settings: OnlineSettings, law: Optional[ControllerLaw], jo
     return spec, None, None
 
 
-class OnlineIdentification:
+class _Publishing:
+    """What :class:`OnlineIdentification` sends out: its models, their statistics."""
+
+    def _best_model(self, joints) -> RKGNNModel:
+        return self._evo.best_model(joints, {
+            'generation': self._generation, 'evaluations': self._evaluations,
+            'algorithm': self._algorithm})
+
+    def _maybe_publish_model(self, settings: OnlineSettings, joints) -> None:
+        """Publish the best model if it changed, at most every model_publish_period."""
+        optimizer = self._evo.optimizer
+        if not math.isfinite(optimizer.best_cost) or joints is None:
+            return
+        if self._published_genome is not None and np.array_equal(optimizer.best_x,
+                                                                 self._published_genome):
+            return
+        if self._clock() - self._last_model_pub < settings.model_publish_period:
+            return
+        model = self._best_model(joints)
+        key = (self._data_version, optimizer.best_x.tobytes())
+        if key != self._val_key:
+            self._val_nrmse = validation_nrmse(model, self._validation)
+            self._val_key = key
+            self._last_val_generation = self._generation
+        model.info['validation_nrmse'] = (self._val_nrmse if math.isfinite(self._val_nrmse)
+                                          else math.nan)
+        if not math.isfinite(self._val_nrmse) and self._validation:
+            self._out.log_throttled(
+                'validation', 'warning',
+                'the new best model diverges on the validation segment; publishing it anyway '
+                '(its training cost is the best)')
+        self._publish(model, settings)
+
+    def _publish(self, model: RKGNNModel, settings: OnlineSettings) -> None:
+        law = self._laws.law
+        model, closed = self._laws.published(model, settings.case)
+        gains = model.implied_gains()
+        loop = self._arm3.close(model) if model.case in _CLOSED_FIT_CASES else None
+        if model.case == 'torque' and law is not None:
+            gains = (law.kp, law.kd)
+            loop = self._laws.close(model, closed)
+        self._model, self._loop = model, loop
+        self._published_genome = (closed or model).genome.copy()
+        self._last_model_pub = self._clock()
+        self._out.append(model_update(model, loop, gains))
+
+
+class OnlineIdentification(ChainSteps, _Publishing):
     """
     The identification policy, advanced by :meth:`step` between generations.
 
@@ -273,33 +310,9 @@ class OnlineIdentification:
         self._set_status('error', f'{type(error).__name__}: {error}')
         return self._out.take()
 
-    def close(self) -> None:
-        """Abandon what runs in the background (the chain learner's fit)."""
-        self._chain.close()
-
-    def _with_learned(self, obs: Observation) -> Observation:
-        """Return ``obs`` with the learned chain as its structure where none is given."""
-        chain = self._chain.structure
-        if (obs.structure is None and chain is not None and obs.joints is not None
-                and tuple(obs.joints) == chain.joint_names):
-            return obs._replace(structure=chain)
-        return obs
-
-    def _learn_chain(self, obs: Observation) -> Observation:
-        """Without a description: judge or start the chain learner's fit (:mod:`.chain_online`)."""
-        if obs.structure is not None:
-            return obs
-        if obs.reset:
-            self._chain.reset()
-        # a spatial arm only: where the planar trigonometric arm holds, it serves
-        case = obs.settings.case if self._laws.trig is None else ''
-        for level, text in self._chain.poll(case):
-            self._out.log(level, text)
-        return self._with_learned(obs)
-
     def _step(self, obs: Observation) -> bool:
         settings = obs.settings
-        obs = self._learn_chain(obs)
+        obs = self._chain_step(obs)
         if obs.structure is not None:   # a robot description: its rigid body, no search
             if self._evo is not None:
                 self._drop_search('the robot description gives the model'
@@ -382,13 +395,7 @@ class OnlineIdentification:
             if settings.case in _CLOSED_FIT_CASES:
                 fitted = self._arm3.fit(segments, fraction, capture.time_origin, self._clock(),
                                         self._memory.samples)
-        if settings.case == 'torque' and self._chain.wants_data(joints):
-            self._chain.feed(joints, paired if law is not None else segments,
-                             capture.time_origin, getattr(capture, 'epoch', None))
-            # a fit due now starts before this step's generation
-            for level, text in self._chain.poll(settings.case if self._laws.trig is None
-                                                else ''):
-                self._out.log(level, text)
+        self._chain_feed(settings, joints, paired if law is not None else segments, capture)
         if fitted[0]:  # a global arm on the trigonometric basis predicts where it holds
             self._reclose(fitted[1], settings.case)
         train, validation, seconds = split_validation(
@@ -522,11 +529,6 @@ class OnlineIdentification:
         self._status = Status()
         self._set_status('waiting for data', f'search restarts: {why}')
 
-    def _best_model(self, joints) -> RKGNNModel:
-        return self._evo.best_model(joints, {
-            'generation': self._generation, 'evaluations': self._evaluations,
-            'algorithm': self._algorithm})
-
     def _after_generation(self, settings: OnlineSettings, stats: dict, joints) -> None:
         self._generation += 1
         self._evaluations += int(stats['population'])
@@ -562,44 +564,6 @@ class OnlineIdentification:
                          generation=self._generation, best_cost=stats['best_cost'],
                          validation_nrmse=self._val_nrmse, generations_per_s=rate,
                          population_size=int(stats['population']))
-
-    def _maybe_publish_model(self, settings: OnlineSettings, joints) -> None:
-        """Publish the best model if it changed, at most every model_publish_period."""
-        optimizer = self._evo.optimizer
-        if not math.isfinite(optimizer.best_cost) or joints is None:
-            return
-        if self._published_genome is not None and np.array_equal(optimizer.best_x,
-                                                                 self._published_genome):
-            return
-        if self._clock() - self._last_model_pub < settings.model_publish_period:
-            return
-        model = self._best_model(joints)
-        key = (self._data_version, optimizer.best_x.tobytes())
-        if key != self._val_key:
-            self._val_nrmse = validation_nrmse(model, self._validation)
-            self._val_key = key
-            self._last_val_generation = self._generation
-        model.info['validation_nrmse'] = (self._val_nrmse if math.isfinite(self._val_nrmse)
-                                          else math.nan)
-        if not math.isfinite(self._val_nrmse) and self._validation:
-            self._out.log_throttled(
-                'validation', 'warning',
-                'the new best model diverges on the validation segment; publishing it anyway '
-                '(its training cost is the best)')
-        self._publish(model, settings)
-
-    def _publish(self, model: RKGNNModel, settings: OnlineSettings) -> None:
-        law = self._laws.law
-        model, closed = self._laws.published(model, settings.case)
-        gains = model.implied_gains()
-        loop = self._arm3.close(model) if model.case in _CLOSED_FIT_CASES else None
-        if model.case == 'torque' and law is not None:
-            gains = (law.kp, law.kd)
-            loop = self._laws.close(model, closed)
-        self._model, self._loop = model, loop
-        self._published_genome = (closed or model).genome.copy()
-        self._last_model_pub = self._clock()
-        self._out.append(model_update(model, loop, gains))
 
     def _set_status(self, state: str, detail: str, **numbers) -> None:
         self._status = self._status._replace(state=state, detail=detail, **numbers)

@@ -46,6 +46,10 @@ class OnlineSettings:
     """
     One consistent set of settings for a generation.
 
+    The defaults are the identifier's: its parameter table
+    (:mod:`rkgnn_ros.identification.parameters`) takes the defaults of the parameters that
+    set these fields from here, so each is declared once.
+
     Attributes
     ----------
     case : str

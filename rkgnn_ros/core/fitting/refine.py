@@ -30,7 +30,7 @@ residual, so a trust-region step into divergence is rejected.
 from contextlib import contextmanager
 import ctypes
 import time
-from typing import List, Optional, Sequence
+from typing import List, NamedTuple, Optional, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -198,8 +198,8 @@ def _equation_data(spec, datasets, kp, kd, window, max_samples):
     return x[sel], acc[sel], u[sel], None if tau is None else tau[sel]
 
 
-def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=None,
-                       gauge_weight=1.0, compiled=True):
+def equation_residuals(spec, scales, genomes, data, kp=None, kd=None, gauge_weight=1.0,
+                       compiled=True):
     """
     Inverse-dynamics residuals of a population, one row per genome.
 
@@ -211,14 +211,11 @@ def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=N
         Decoding scales.
     genomes : ndarray, shape (P, N)
         Normalised genomes.
-    x : ndarray, shape (S, 2n)
-        Measured states [θ, θ̇].
-    acc : ndarray, shape (S, n)
-        θ̈ at the same samples.
-    u : ndarray, shape (S, 2n)
-        [θd, θ̇d] (shape (S, n) and ignored in case 'torque').
-    tau : ndarray, shape (S, n), optional
-        Applied torque (cases 'torque' and 'pd_gains'); the torque network's output if None.
+    data : (x, acc, u, tau)
+        ``x`` (S, 2n): measured states [θ, θ̇]; ``acc`` (S, n): θ̈ at the same samples;
+        ``u`` (S, 2n): [θd, θ̇d] (shape (S, n) and ignored in case 'torque'); ``tau``
+        (S, n) or None: applied torque (cases 'torque' and 'pd_gains'; None: the torque
+        network's output).
     kp, kd : array_like, optional
         Known gains (case 'pd_gains').
     gauge_weight : float
@@ -234,6 +231,7 @@ def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=N
         over samples; the gauge residual is appended in case 'unknown'.
 
     """
+    x, acc, u, tau = data
     genomes = np.atleast_2d(np.asarray(genomes, dtype=float))
     pop, samples = genomes.shape[0], x.shape[0]
     n = spec.n_joints
@@ -271,9 +269,18 @@ def equation_residuals(spec, scales, genomes, x, acc, u, tau=None, kp=None, kd=N
                          neginf=-DIVERGED_RESIDUAL)
 
 
-def refine_equation_error(spec, datasets, scales, genome, kp=None, kd=None, max_nfev=200,
-                          window=7, max_samples=600, deadline: Optional[float] = None,
-                          ftol=1e-10, ridge=0.0):
+class EquationFitOptions(NamedTuple):
+    """The limits of :func:`refine_equation_error`'s fit (see there)."""
+
+    max_nfev: object = 200
+    window: object = 7
+    max_samples: object = 600
+    deadline: Optional[float] = None
+    ftol: object = 1e-10
+    ridge: object = 0.0
+
+
+def refine_equation_error(spec, datasets, scales, genome, kp=None, kd=None, **options):
     """
     Fit a genome to the inverse dynamics: M θ̈ + V + G + F = τ at every sample.
 
@@ -319,6 +326,7 @@ def refine_equation_error(spec, datasets, scales, genome, kp=None, kd=None, max_
         Sum of squared residuals (mean squared torque error in units of its RMS).
 
     """
+    max_nfev, window, max_samples, deadline, ftol, ridge = EquationFitOptions(**options)
     x, acc, u, tau = _equation_data(spec, list(datasets), kp, kd, window, max_samples)
 
     start = np.array(genome, dtype=float)
@@ -327,7 +335,7 @@ def refine_equation_error(spec, datasets, scales, genome, kp=None, kd=None, max_
     def residuals(pop):
         if deadline is not None and time.perf_counter() > deadline:
             raise _Deadline()
-        r = equation_residuals(spec, scales, pop, x, acc, u, tau, kp, kd)
+        r = equation_residuals(spec, scales, pop, (x, acc, u, tau), kp, kd)
         return np.hstack([r, root * (pop - start)]) if ridge > 0 else r
 
     best = {'g': start.copy(), 'cost': np.inf}

@@ -21,7 +21,7 @@ After a change of a described arm: the residual that shows it, and the payload t
 first seconds after a change, every other parameter held at the model before it: a payload
 or a tool changes nothing else, and ten parameters are determined by a second or two of
 ordinary motion where the whole arm's are not. The least squares is pulled towards the
-body before the change (a ridge of :data:`BODY_RIDGE` per row, relative to each column's
+body before the change (a ridge of :data:`~.policy.BODY_RIDGE` per row, relative to each column's
 scale) so that what little motion there is cannot swing the poorly excited inertia, and a
 body that comes out unrealizable is moved just inside. :func:`payload_of` says the
 difference as vendors' payload tools do: mass (kg), centre of mass in the last link's
@@ -34,15 +34,13 @@ import numpy as np
 
 from . import rigid_fit
 from .controller_laws import ControllerLaw
+from .policy import BODY_RIDGE
 from .rigid_data import filtered_rows
 from ..data import Dataset
 from ..rigid import consistency
 from ..rigid.kernels import N_INERTIAL
 
-__all__ = ['BODY_RIDGE', 'fit_last_body', 'newest_residual', 'payload_of', 'since']
-
-#: Ridge towards the body before the change, per row and relative to each column's scale.
-BODY_RIDGE = 1e-3
+__all__ = ['fit_last_body', 'newest_residual', 'payload_of', 'since']
 
 
 def since(segments: Sequence[Dataset], origin: float, start: float):

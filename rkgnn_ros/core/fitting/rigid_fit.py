@@ -46,6 +46,7 @@ from typing import NamedTuple, Optional, Sequence, Tuple
 import numpy as np
 
 from .controller_laws import ControllerLaw
+from .policy import FORM_GAIN, FORM_MIN_ERROR, FULL_EVALUATIONS, SELECT_EVALUATIONS
 from .rigid_data import choose_sigma, filtered_rows, FilteredRows
 from .rigid_law import GravityFeatures
 from ..data import Dataset
@@ -53,22 +54,10 @@ from ..rigid import consistency
 from ..rigid.kernels import N_INERTIAL, N_JOINT
 from ..rigid.solve import fit_consistent
 from ..rigid.structure import RigidStructure
+from ..servo_law import pd_torque
 
-__all__ = ['FORM_GAIN', 'RigidArm', 'RigidFit', 'fit_closed', 'fit_closed_forms', 'fit_torque',
+__all__ = ['RigidArm', 'RigidFit', 'fit_closed', 'fit_closed_forms', 'fit_torque',
            'torque_errors']
-
-#: A richer closed-loop form (integral, gravity compensation) is kept when its held-out
-#: error is at most this share of the simpler one's.
-FORM_GAIN = 0.5
-
-#: ... and the simpler form leaves more than this (worst joint) unexplained.
-FORM_MIN_ERROR = 0.01
-
-#: Consistent-solver evaluations of a form's fit while the forms are compared ...
-SELECT_EVALUATIONS = 40
-
-#: ... and of the chosen form's fit when it had not converged within them.
-FULL_EVALUATIONS = 200
 
 
 class RigidArm:
@@ -165,8 +154,8 @@ class RigidArm:
         out[0] = x
 
         def rate(state, u):
-            torque = u if not closed else (self.kp * (u[:n] - state[:n])
-                                           + self.kd * (u[n:] - state[n:]))
+            torque = u if not closed else pd_torque(self.kp, self.kd, u[:n] - state[:n],
+                                                    u[n:] - state[n:])
             acc = self.structure.accelerations(self.parameters, state[None, :n],
                                                state[None, n:], torque[None])[0]
             return np.concatenate([state[n:], acc])
@@ -333,7 +322,7 @@ def _closed_columns(structure, samples: FilteredRows, features, kp, kd, integral
 
 
 def _law_of(layout: dict, k: np.ndarray, n: int, kp, kd, features, gravity,
-            samples: FilteredRows, count: int) -> ControllerLaw:
+            samples: FilteredRows) -> ControllerLaw:
     def part(name):
         return k[layout[name]] if name in layout else None
 
@@ -352,12 +341,12 @@ def _law_of(layout: dict, k: np.ndarray, n: int, kp, kd, features, gravity,
                          else np.zeros((n, 0)),
                          theta_input=gravity if with_gravity else 'measured',
                          features=features if with_gravity else None,
-                         fit_ratio=np.zeros(n), samples=count)
+                         fit_ratio=np.zeros(n), samples=samples.n_samples)
 
 
 def servo_torque(law: ControllerLaw, samples: FilteredRows) -> np.ndarray:
     """Return the law's torque on filtered samples (K, n); its integral from each start."""
-    servo = law.kp * samples.error + law.kd * samples.error_rate
+    servo = pd_torque(law.kp, law.kd, samples.error, samples.error_rate)
     if np.any(law.ki != 0.0):
         servo = servo + law.ki * samples.integral
     if law.theta_weights.size:
@@ -407,11 +396,20 @@ def _normal_level(arm: RigidArm, law, samples: Optional[FilteredRows]) -> None:
     arm.info['torque_spread'] = np.std(reference, axis=0).tolist()
 
 
+class ClosedFitOptions(NamedTuple):
+    """The basis, prior and filter options of :func:`fit_closed` (see there)."""
+
+    features: Optional[GravityFeatures] = None
+    prior: object = None
+    sigma: Optional[float] = None
+    measured_velocity: bool = False
+    min_samples: int = 50
+    max_evaluations: int = 200
+
+
 def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
                validation: Sequence[Dataset] = (), kp=None, kd=None, integral: bool = False,
-               gravity: Optional[str] = None, features: Optional[GravityFeatures] = None,
-               prior=None, sigma: Optional[float] = None, measured_velocity: bool = False,
-               min_samples: int = 50, max_evaluations: int = 200) -> Optional[RigidFit]:
+               gravity: Optional[str] = None, **options) -> Optional[RigidFit]:
     """
     Return the arm and servo of the closed loop fitted on ``train`` (cases 2 and 3).
 
@@ -420,6 +418,8 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
     'desired' θd (None: none); ``max_evaluations``: the consistent solver's budget. None
     with too few samples or a fit that fails.
     """
+    (features, prior, sigma, measured_velocity, min_samples,
+     max_evaluations) = ClosedFitOptions(**options)
     need = ('theta_d', 'theta_d_dot')
     train = [seg for seg in train if all(getattr(seg, k) is not None for k in need)]
     validation = [seg for seg in validation if all(getattr(seg, k) is not None for k in need)]
@@ -451,7 +451,7 @@ def fit_closed(structure: RigidStructure, train: Sequence[Dataset],
                                 max_evaluations=max_evaluations)
     except (ValueError, np.linalg.LinAlgError):
         return None
-    law = _law_of(cols.layout, result.extra, n, kp, kd, features, gravity, fit, fit.n_samples)
+    law = _law_of(cols.layout, result.extra, n, kp, kd, features, gravity, fit)
     if not (np.all(np.isfinite(law.kp)) and np.all(law.kp > 0.0)):
         return None
     parameters = result.parameters
@@ -509,27 +509,35 @@ def _case_three_start(structure, rows, extras, normalise, prior, n):
     return weights, scale
 
 
+class FormsOptions(NamedTuple):
+    """The filter and prior options of :func:`fit_closed_forms` (see there)."""
+
+    sigma: Optional[float] = None
+    measured_velocity: bool = False
+    prior: object = None
+
+
 def fit_closed_forms(structure: RigidStructure, train: Sequence[Dataset],
                      validation: Sequence[Dataset], kp=None, kd=None,
-                     features: Optional[GravityFeatures] = None,
-                     sigma: Optional[float] = None,
-                     measured_velocity: bool = False, prior=None) -> Optional[RigidFit]:
+                     features: Optional[GravityFeatures] = None, **options) -> Optional[RigidFit]:
     """
     Return the closed-loop fit of the form the held-out data support best.
 
     A PD first; a gravity compensation (on θ, then on θd) and an integral are each kept
-    only where the held-out error is at most :data:`FORM_GAIN` of the simpler form's and
-    that one leaves more than :data:`FORM_MIN_ERROR`. The forms are compared on fits of
-    at most :data:`SELECT_EVALUATIONS` solver evaluations; the chosen one, unless its fit
-    converged within them, is fitted again with :data:`FULL_EVALUATIONS`.
+    only where the held-out error is at most :data:`~.policy.FORM_GAIN` of the simpler
+    form's and that one leaves more than :data:`~.policy.FORM_MIN_ERROR`. The forms are
+    compared on fits of at most :data:`~.policy.SELECT_EVALUATIONS` solver evaluations; the
+    chosen one, unless its fit converged within them, is fitted again with
+    :data:`~.policy.FULL_EVALUATIONS`.
     """
+    sigma, measured_velocity, prior = FormsOptions(**options)
     if features is None:
         features = GravityFeatures(structure)
 
     def attempt(integral, gravity, budget):
-        return fit_closed(structure, train, validation, kp, kd, integral, gravity, features,
-                          prior=prior, sigma=sigma, measured_velocity=measured_velocity,
-                          max_evaluations=budget)
+        return fit_closed(structure, train, validation, kp, kd, integral, gravity,
+                          features=features, prior=prior, sigma=sigma,
+                          measured_velocity=measured_velocity, max_evaluations=budget)
 
     form = (False, None)
     best = attempt(*form, SELECT_EVALUATIONS)

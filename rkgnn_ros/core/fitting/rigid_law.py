@@ -31,10 +31,9 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
-from .controller import _saturation, _segments
+from .controller import _filtered_segments, _segments
 from .controller_laws import ControllerLaw, DEFAULT_FILTER_SIGMA, THETA_INPUTS
 from ..data import Dataset
-from ..differentiate import gaussian_kernels
 from ..rigid.kernels import N_INERTIAL
 from ..rigid.structure import RigidStructure
 
@@ -112,12 +111,7 @@ def _filter(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 
 def _fit_one(segments, features: GravityFeatures, theta_input: str, integral: bool,
              sigma: float, min_samples: int) -> Optional[ControllerLaw]:
-    dt = segments[0].dt
-    sigma = max(float(sigma), dt)
-    h, h_prime = gaussian_kernels(dt, sigma)
-    m = h.size // 2
-    limit, sat = _saturation(segments)
-    used = [(seg, s) for seg, s in zip(segments, sat) if seg.n_samples > 2 * m + 2]
+    sigma, h, h_prime, m, limit, used = _filtered_segments(segments, sigma)
     if not used:
         return None
     n = segments[0].n_joints

@@ -26,34 +26,26 @@ other terms are handled by :class:`~.law_loop.LawLoop`.
 
 The number of RKG steps per sample interval follows the stiffness of the linearised closed
 loop at the start state: the largest |eigenvalue| of [[0, I], [−M⁻¹Kp, −M⁻¹(Kd + fv +
-fc / v_c)]] (the Coulomb term's slope at rest counts as damping), at :data:`SAFETY` of RKG's
-stability limit, at most :data:`MAX_SUBSTEPS`.
+fc / v_c)]] (the Coulomb term's slope at rest counts as damping), at
+:data:`~.law_loop.SAFETY` of RKG's stability limit, at most
+:data:`~.law_loop.MAX_SUBSTEPS`.
 """
 
-import math
 from typing import Optional
 
 from numba import njit
 import numpy as np
 
 from .controller_laws import ControllerLaw
-from .law_loop import LawLoop
+from .law_loop import LawLoop, MAX_SUBSTEPS
 from .rigid_fit import RigidArm
 from .rigid_law import GravityFeatures
 from ..integration.inputs import stage_inputs
-from ..integration.rkg import choose_substeps, gill_node, gill_stage
+from ..integration.rkg import gill_node, gill_stage
 from ..rigid.kernels import _crba, _rnea, cholesky_solve, gravity_pass, N_INERTIAL
+from ..servo_law import compiled_pd_torque
 
 __all__ = ['MAX_SUBSTEPS', 'RigidLoop', 'precompile_rigid_loop']
-
-#: Most RKG steps per sampling interval.
-MAX_SUBSTEPS = 64
-
-#: Share of RKG's stability limit a rollout's step uses at its start state's stiffness.
-SAFETY = 0.7
-
-#: A start within this (rad, every joint) of the last keeps its number of RKG steps.
-SUBSTEPS_REUSE_RAD = 0.05
 
 #: A state component beyond this magnitude ends a rollout as diverged.
 DIVERGED = 1e6
@@ -71,7 +63,7 @@ def _rates(x, u, ue, n, parent, col, trot, pos, axis, gravity, vc, pi, kp, kd, k
     if law_on:
         gravity_pass(parent, col, rot, pos, axis, gravity, law_pi, al, fn, ff, tmp, grav)
     for i in range(n):
-        tau = kp[i] * (u[i] - x[i]) + kd[i] * (u[n + i] - x[n + i]) + x[2 * n + i]
+        tau = compiled_pd_torque(kp[i], kd[i], u[i] - x[i], u[n + i] - x[n + i]) + x[2 * n + i]
         if law_on:
             tau += grav[i]
         rate[n + i] = tau - bias[i]
@@ -136,23 +128,11 @@ class RigidLoop(LawLoop):
     """
 
     def __init__(self, arm: RigidArm, law: ControllerLaw, substeps: Optional[int] = None):
-        if not np.all(law.kp > 0.0):
-            raise ValueError(f'the law needs Kp > 0 on every joint, got {law.kp.tolist()}')
-        if law.n_joints != arm.n_joints:
-            raise ValueError(f'the law is for {law.n_joints} joints, the arm has '
-                             f'{arm.n_joints}')
-        self.arm, self.law = arm, law
-        self.substeps = None if substeps is None else max(1, int(substeps))
-        self.torque_error = math.inf
+        super().__init__(arm, law, substeps)
         tree = arm.structure.tree
         self._tree = tree
         self._pi = np.ascontiguousarray(arm.parameters, dtype=float)
         self._set_law_terms()
-
-    @property
-    def n_joints(self) -> int:
-        """Return the number of joints n."""
-        return self.arm.n_joints
 
     def _set_law_terms(self) -> None:
         law = self.law
@@ -173,12 +153,7 @@ class RigidLoop(LawLoop):
                 self._terms_compiled = False     # by passes along the previous one
 
     def _once(self, x0, t, theta_d, theta_d_dot, raw=None) -> np.ndarray:
-        n = self.n_joints
-        dt = float(t[-1] - t[0]) / (t.size - 1)
-        substeps = self.substeps
-        if substeps is None:
-            substeps = self._substeps_at(np.asarray(x0, dtype=float)[:n], dt)
-        u = stage_inputs('pd_gains', t, substeps, theta_d=theta_d, theta_d_dot=theta_d_dot)
+        n, dt, substeps, u = self._inputs(x0, t, theta_d, theta_d_dot)
         if raw is None:
             ue, ki = u, np.zeros(n)
         else:
@@ -206,20 +181,8 @@ class RigidLoop(LawLoop):
         a[n:, n:] = -inverse * damping
         return float(np.max(np.abs(np.linalg.eigvals(a))))
 
-    def _substeps_at(self, theta: np.ndarray, dt: float) -> int:
-        """Return the RKG steps per ``dt`` the stiffness at ``theta`` needs (kept nearby)."""
-        cached = getattr(self, '_substeps_cache', None)
-        if cached is not None and cached[1] == dt and \
-                np.max(np.abs(theta - cached[0])) <= SUBSTEPS_REUSE_RAD:
-            return cached[2]
-        try:
-            stiffness = self.stiffness(theta)
-        except np.linalg.LinAlgError:
-            stiffness = math.inf
-        substeps = (MAX_SUBSTEPS if not math.isfinite(stiffness)
-                    else min(MAX_SUBSTEPS, choose_substeps(dt, stiffness, safety=SAFETY)))
-        self._substeps_cache = (theta.copy(), dt, substeps)
-        return substeps
+    def _stiffness_at(self, theta) -> float:
+        return self.stiffness(theta)
 
 
 def precompile_rigid_loop(structure) -> None:

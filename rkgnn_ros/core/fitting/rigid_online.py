@@ -27,10 +27,10 @@ out to score it) and closes it with the servo's law for prediction:
 - case 'unknown': the closed loop with the servo's gains fitted too (scale from the
   description's masses).
 
-A fit whose held-out error (worst joint) is above :data:`MAX_ERROR` is not offered for
-prediction (the model is still published, with its error). The closed-loop form (a
+A fit whose held-out error (worst joint) is above :data:`~.policy.RIGID_MAX_ERROR` is not
+offered for prediction (the model is still published, with its error). The closed-loop form (a
 gravity compensation, an integral) is chosen by held-out error again every
-:data:`FORMS_EVERY_S`; in between only the chosen form is refitted.
+:data:`~.policy.FORMS_EVERY_S`; in between only the chosen form is refitted.
 """
 
 import dataclasses
@@ -39,46 +39,24 @@ from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .case_one import fit_law, MAX_LAW_FIT_RATIO
+from .case_one import fit_law
 from .change import Change, ChangeDetector
 from .online_records import (ClosedLoop, DynamicsChange, GenerationStats, LogLine,
                              model_update, PayloadEstimate)
 from .online_rules import stale_stream
+from .policy import (CHANGE_MARGIN_SIGMAS, CHECK_EVERY_S, CHECK_S, DETECT_MIN_S, FORMS_EVERY_S,
+                     FULL_REFIT_S, MAX_LAW_FIT_RATIO, MIN_SEGMENT_SAMPLES, PAYLOAD_MIN_S,
+                     RIGID_MAX_ERROR, RIGID_MIN_DATA_S, RIGID_REFRESH_S)
 from .rigid_change import fit_last_body, newest_residual, payload_of, since
 from .rigid_fit import fit_closed, fit_closed_forms, fit_torque, RigidFit
 from .rigid_law import GravityFeatures
 from .rigid_loop import RigidLoop
 from .rigid_model import RigidModel
-from .validation import MIN_SEGMENT_SAMPLES, split_validation
+from .validation import split_validation
 from ..data import Dataset
 from ..rigid.structure import RigidStructure
 
-__all__ = ['FORMS_EVERY_S', 'MAX_ERROR', 'MIN_DATA_S', 'REFRESH_S', 'RigidKeeper', 'RigidPolicy',
-           'RigidUpdate', 'fit_rigid', 'refresh_events']
-
-#: A fit predicts while its held-out error (worst joint) is at most this.
-MAX_ERROR = 0.5
-
-#: Seconds of data (gaps left out) before the first fit.
-MIN_DATA_S = 2.0
-
-#: Seconds between two choices of the closed loop's form.
-FORMS_EVERY_S = 10.0
-
-#: Seconds between two refits (at most).
-REFRESH_S = 1.0
-
-#: Seconds of data a fit needs before its residual's level is trusted to judge changes.
-DETECT_MIN_S = 6.0
-#: Seconds between two checks for a change of the dynamics (at most).
-CHECK_EVERY_S = 0.25
-#: Newest seconds of data a check judges.
-CHECK_S = 1.0
-#: Seconds of data after a change before the last body is refitted (more where the
-#: filter of noisy data needs them: the fit waits for its rows) ...
-PAYLOAD_MIN_S = 0.5
-#: ... and before the whole model is (from then on, only data after the change).
-FULL_REFIT_S = 8.0
+__all__ = ['RigidKeeper', 'RigidPolicy', 'RigidUpdate', 'fit_rigid', 'refresh_events']
 
 
 class RigidUpdate(NamedTuple):
@@ -151,7 +129,7 @@ class RigidKeeper:
         sigma = fit.arm.info.get('sigma') or 0.02
         self.change, self.before, self.payload = change, fit.arm, None
         self._latest = fit.arm
-        self.since = change.time + 2.0 * sigma
+        self.since = change.time + CHANGE_MARGIN_SIGMAS * sigma
         self.detector = ChangeDetector()       # re-armed by the first full refit after it
         return change
 
@@ -168,7 +146,7 @@ class RigidKeeper:
         span = sum(seg.duration for seg in segments)
         if self.change is not None and span < FULL_REFIT_S:
             return self._after_change(case, segments, origin, span)
-        if span < MIN_DATA_S:
+        if span < RIGID_MIN_DATA_S:
             return None
         train, validation, _ = split_validation(segments, validation_fraction,
                                                 MIN_SEGMENT_SAMPLES)
@@ -199,7 +177,7 @@ class RigidKeeper:
             info['learned_chain'] = learned
         model = RigidModel(fit.arm, law, case, segments[-1].dt, info)
         loop = None
-        if law is not None and error <= MAX_ERROR:
+        if law is not None and error <= RIGID_MAX_ERROR:
             rigid = RigidLoop(fit.arm, law)
             rigid.torque_error = error
             loop = ClosedLoop(model, rigid, origin + float(segments[-1].t[-1]))
@@ -211,7 +189,7 @@ class RigidKeeper:
                                   f'(held-out {what} {error:.2%}, {law.describe()})')
                          if loop is not None else
                          ('warning', f'the rigid-body model does not predict: held-out '
-                                     f'{what} {error:.2%} (bar {MAX_ERROR:.0%})'
+                                     f'{what} {error:.2%} (bar {RIGID_MAX_ERROR:.0%})'
                                      if law is not None else
                                      'the rigid-body model does not predict: the servo law '
                                      'is not determined by the data yet'))
@@ -277,7 +255,7 @@ class RigidKeeper:
             return fit
         integral, gravity = self.form
         return fit_closed(self.structure, train, validation, kp, kd, integral, gravity,
-                          self.features, prior=prior)
+                          features=self.features, prior=prior)
 
 
 def refresh_events(keeper: RigidKeeper, settings, capture, now: float, publish: bool):
@@ -310,7 +288,7 @@ class RigidPolicy:
     The online policy's part for an arm with a robot description (module docstring).
 
     :class:`~.online.OnlineIdentification` hands it every step whose observation carries a
-    structure: it refits at most every :data:`REFRESH_S` and publishes the model at most
+    structure: it refits at most every :data:`RIGID_REFRESH_S` and publishes the model at most
     every ``model_publish_period`` (the first after a change of the dynamics at once, its
     refit tried at every check until the data since the change suffice); a reset, another
     structure or another case starts it afresh. ``emit`` takes events,
@@ -330,7 +308,7 @@ class RigidPolicy:
     def data_due(self, obs, now: float) -> bool:
         """Return whether the next :meth:`step` refits or checks (it then wants a capture)."""
         return stale_stream(obs, now) is None and (
-            now - self._last_refresh >= REFRESH_S or now - self._last_check >= CHECK_EVERY_S)
+            now - self._last_refresh >= RIGID_REFRESH_S or now - self._last_check >= CHECK_EVERY_S)
 
     def step(self, obs) -> bool:
         """Refit if due; return False (no generation of a search ran)."""
@@ -352,7 +330,7 @@ class RigidPolicy:
         if now - self._last_check >= CHECK_EVERY_S:
             self._last_check = now
             self._check(keeper, obs)
-        if now - self._last_refresh < REFRESH_S:
+        if now - self._last_refresh < RIGID_REFRESH_S:
             return False
         self._last_refresh = now
         publish = now - self._last_publish >= settings.model_publish_period
@@ -361,7 +339,7 @@ class RigidPolicy:
             self._emit(event)
         if update is None:
             if keeper.change is not None:    # after a change: again at the next check
-                self._last_refresh = now - REFRESH_S + CHECK_EVERY_S
+                self._last_refresh = now - RIGID_REFRESH_S + CHECK_EVERY_S
             self._set_status('waiting for data', 'too few data for the rigid-body fit yet')
             return False
         if publish:
@@ -405,5 +383,5 @@ def fit_rigid(datasets, case: str, structure: RigidStructure, kp=None, kd=None,
     if update is None:
         raise ValueError(f'the rigid body could not be fitted in case {case!r}: too few '
                          f'data ({sum(seg.duration for seg in datasets):.1f} s, at least '
-                         f'{MIN_DATA_S} s) or what the case needs is missing')
+                         f'{RIGID_MIN_DATA_S} s) or what the case needs is missing')
     return update.model

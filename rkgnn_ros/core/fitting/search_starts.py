@@ -29,17 +29,10 @@ from . import case_three, global_fit
 from .identify import Evolution
 from .online_records import OnlineSettings
 from .optimizers import make_optimizer
+from .policy import REWARM_GROWTH, REWARM_PERIOD_S, WARM_START_SIGMA
 from .refine import refine_equation_error
 
-__all__ = ['warm_start', 'rewarm', 'restart_around', 'hand_over_settings', 'RewarmSchedule',
-           'REWARM_GROWTH', 'REWARM_PERIOD_S', 'WARM_START_S', 'WARM_START_NFEV',
-           'WARM_START_SIGMA']
-
-WARM_START_S = 5.0          # computation budget of one equation-error fit (real seconds)
-WARM_START_NFEV = 300
-WARM_START_SIGMA = 0.05     # search spread around the warm start (genome units)
-REWARM_GROWTH = 1.5         # the equation-error fit runs again when the data grew this much
-REWARM_PERIOD_S = 10.0      # or when this long (s) passed since it last ran
+__all__ = ['warm_start', 'rewarm', 'restart_around', 'hand_over_settings', 'RewarmSchedule']
 
 
 class RewarmSchedule:

@@ -18,9 +18,9 @@ A change of the dynamics of an arm without a robot description (case 1).
 Where the planar trigonometric arm predicts (:meth:`.case_one.LawKeeper.fit_trig`), its
 torque residual on the newest data is what :class:`.change.ChangeDetector` judges: the
 measured torque against the arm's inverse dynamics at the measured states, θ̈ the centred
-derivative of θ̇ as the torque gate takes it (:func:`~..control.gate.paired_torques`), so the
+derivative of θ̇ as the torque gate takes it (:func:`~.torque_check.paired_torques`), so the
 normal level (the residual's RMS on the held-out part of the fit, once the data span
-:data:`~.rigid_online.DETECT_MIN_S`) has the same noise in it. The newest data are judged
+:data:`~.policy.DETECT_MIN_S`) has the same noise in it. The newest data are judged
 with the arm that level was taken from, kept while the keeper drops its loop (a change
 makes the loop stop explaining the data, which is when it is dropped). A change is said
 with its time; the policy then drops what the data before it built (:mod:`.online`).
@@ -33,10 +33,11 @@ import numpy as np
 
 from .change import Change, ChangeDetector
 from .online_records import DynamicsChange, LogLine
+from .policy import (CHECK_EVERY_S, CHECK_S, DETECT_MIN_S, MIN_SEGMENT_SAMPLES,
+                     TRIG_CHANGE_MARGIN_S)
 from .rigid_change import since
-from .rigid_online import CHECK_EVERY_S, CHECK_S, DETECT_MIN_S
 from .trig_loop import data_span
-from .validation import MIN_SEGMENT_SAMPLES, split_validation
+from .validation import split_validation
 from ..data import Dataset
 from ..differentiate import centred_derivative, CENTRED_ORDER, CENTRED_WINDOW
 
@@ -132,7 +133,7 @@ class TrigChangeMonitor:
             return None
         change = self.detector.check(found[0], found[2])
         if change is not None:
-            self.since = change.time + 0.05
+            self.since = change.time + TRIG_CHANGE_MARGIN_S
             self.detector = ChangeDetector()
             self._armed_by = None
         return change

@@ -52,55 +52,23 @@ from numba import njit
 import numpy as np
 
 from .controller_laws import ControllerLaw, TrigFeatures
-from .law_loop import LawLoop, PASSES
+from .law_loop import LawLoop, MAX_SUBSTEPS, PASSES
 from .linear import LinearDynamics, Samples, samples_from_datasets
-from .validation import MIN_SEGMENT_SAMPLES, split_validation
-from ..control.gate import paired_torques, torque_error
+from .policy import INTEGRAL_GAIN, INTEGRAL_MIN_ERROR, LOOP_KI_ZERO, MIN_SEGMENT_SAMPLES
+from .torque_check import paired_torques, torque_error
+from .validation import split_validation
 from ..data import Dataset
 from ..differentiate import centred_derivative
-from ..integration.inputs import stage_inputs
-from ..integration.rkg import choose_substeps, gill_node, gill_stage
+from ..integration.rkg import gill_node, gill_stage
 from ..model.trig import TrigBasis
 from ..model.trig_dynamics import regressor
+from ..servo_law import compiled_pd_torque, pd_torque
 
-__all__ = ['INTEGRAL_GAIN', 'INTEGRAL_MIN_ERROR', 'KI_ZERO', 'MAX_SUBSTEPS', 'PASSES',
-           'YOUNG_DATA_S', 'TrigLoop', 'closed_loop_error', 'data_span',
+__all__ = ['MAX_SUBSTEPS', 'PASSES', 'TrigLoop', 'closed_loop_error', 'data_span',
            'fit_closed_trig_loop', 'fit_trig_loop', 'precompile_trig_loop', 'trig_torque_error']
-
-#: Most RKG steps per sampling interval (a stiffer loop is rolled out with this many).
-MAX_SUBSTEPS = 64
-
-#: Share of RKG's stability limit a rollout's step uses at its start state's stiffness. The
-#: step's own error is far below any model's there (the paper's arm, 2 s: 2.5e-6 % of the
-#: range at 0.7, against 2.4e-7 % at 0.5 and 0.01 % for the fitted model), and 0.7 leaves
-#: room for the stiffness to grow by 1.4x along the rollout (1.26x over the paper arm's
-#: data); 0.5 took 5 steps per interval where 3 do, the most of a prediction's cost.
-SAFETY = 0.7
-
-#: A start within this (rad, every joint) of the last keeps its number of RKG steps.
-SUBSTEPS_REUSE_RAD = 0.05
 
 #: A state component beyond this magnitude ends a rollout as diverged.
 DIVERGED = 1e6
-
-#: Case 3: an integral gain below this share of Kp (1/s), or negative, is a fitted zero
-#: (on a PD servo's data the fit gives |Ki| / Kp of 1e-3 to 3e-3 1/s; the PID servos of
-#: ``bench/online_servos.py`` have 0.5 1/s).
-KI_ZERO = 0.01
-
-#: Case 3: the PID form is kept when its held-out error is this many times smaller than the
-#: PD form's ...
-INTEGRAL_GAIN = 2.0
-
-#: ... and the PD form's is above this (a PD servo's data: 0.8-4.4 % on the paper's arm).
-INTEGRAL_MIN_ERROR = 0.01
-
-#: While the data span less than this (s) they are young: the fits on this basis that do
-#: not hold are retried every second, without doubling waits (cases 1 and 3: the first
-#: seconds of motion seldom excite the arm enough, and each second more is what makes the
-#: fit hold), and the search's equation-error fits are kept short so that those retries
-#: are not held back (:mod:`.online`).
-YOUNG_DATA_S = 15.0
 
 
 @njit(cache=True, nogil=True)
@@ -164,7 +132,7 @@ def _rates(x, u, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, kd, la
         g = 0.0
         for f in range(nf):
             g += grad[i, f] * w_pot[f]
-        tau = kp[i] * (u[i] - x[i]) + kd[i] * (u[n + i] - qd)
+        tau = compiled_pd_torque(kp[i], kd[i], u[i] - x[i], u[n + i] - qd)
         for f in range(nl):
             tau += law_w[i, f] * law_phi[f]
         rate[n + i] = tau - v - g - viscous[i] * qd - coulomb[i] * math.tanh(qd / vc)
@@ -207,10 +175,10 @@ def _rollout(x0, u, h, n, freq, kinds, w_mass, w_pot, viscous, coulomb, vc, kp, 
     rate, q = np.empty(2 * n), np.zeros(2 * n)
     out[0] = x
     for i in range(u.shape[0]):
-        for s in range(u.shape[1]):
+        for stages in u[i]:             # the substeps of interval i
             xs[:] = x
             for stage in range(4):
-                if not _rates(xs, u[i, s, gill_node(stage)], n, freq, kinds, w_mass, w_pot,
+                if not _rates(xs, stages[gill_node(stage)], n, freq, kinds, w_mass, w_pot,
                               viscous, coulomb, vc, kp, kd, law_codes, law_w, phi, grad,
                               law_phi, m, dm, trig, rate):
                     return
@@ -259,15 +227,7 @@ class TrigLoop(LawLoop):
 
     def __init__(self, arm: LinearDynamics, law: ControllerLaw,
                  substeps: Optional[int] = None):
-        if not np.all(law.kp > 0.0):
-            raise ValueError(f'the law needs Kp > 0 on every joint, got {law.kp.tolist()}')
-        if law.n_joints != arm.n_joints:
-            raise ValueError(f'the law is for {law.n_joints} joints, the arm has '
-                             f'{arm.n_joints}')
-        self.arm, self.law = arm, law
-        self.substeps = None if substeps is None else max(1, int(substeps))
-        #: held-out torque error of the arm (worst joint, RMSE / std; set by the fit)
-        self.torque_error = math.inf
+        super().__init__(arm, law, substeps)
         self._stiff = copy.copy(arm)          # the arm with the law's gains: its stiffness
         self._stiff.kp_, self._stiff.kd_ = np.asarray(law.kp), np.asarray(law.kd)
         basis = arm.basis
@@ -290,18 +250,8 @@ class TrigLoop(LawLoop):
         self._law_codes, self._law_w = terms if terms is not None else (
             np.zeros((0, n), dtype=np.int64), np.zeros((n, 0)))
 
-    @property
-    def n_joints(self) -> int:
-        """Return the number of joints n."""
-        return self.arm.n_joints
-
     def _once(self, x0, t, theta_d, theta_d_dot) -> np.ndarray:
-        n = self.n_joints
-        dt = float(t[-1] - t[0]) / (t.size - 1)
-        substeps = self.substeps
-        if substeps is None:
-            substeps = self._substeps_at(np.asarray(x0, dtype=float)[:n], dt)
-        u = stage_inputs('pd_gains', t, substeps, theta_d=theta_d, theta_d_dot=theta_d_dot)
+        n, dt, substeps, u = self._inputs(x0, t, theta_d, theta_d_dot)
         out = np.full((t.size, 2 * n), np.nan)
         h = dt / substeps
         _rollout(np.asarray(x0, dtype=float), np.ascontiguousarray(u), h, n, self._freq,
@@ -310,26 +260,8 @@ class TrigLoop(LawLoop):
                  self._law_w, out)
         return out
 
-    def _substeps_at(self, theta: np.ndarray, dt: float) -> int:
-        """
-        Return the RKG steps per ``dt`` that the stiffness at ``theta`` needs.
-
-        Kept for starts within :data:`SUBSTEPS_REUSE_RAD` of the one it was computed at (M(θ)
-        changes little over such a move, and :data:`SAFETY` covers it): predictions from
-        every state of a 1 kHz stream spent 6 % of their time on it.
-        """
-        cached = getattr(self, '_substeps_cache', None)
-        if cached is not None and cached[1] == dt and \
-                np.max(np.abs(theta - cached[0])) <= SUBSTEPS_REUSE_RAD:
-            return cached[2]
-        try:
-            stiffness = self._stiff.stiffness(theta)
-        except np.linalg.LinAlgError:
-            stiffness = math.inf
-        substeps = (MAX_SUBSTEPS if not math.isfinite(stiffness)
-                    else min(MAX_SUBSTEPS, choose_substeps(dt, stiffness, safety=SAFETY)))
-        self._substeps_cache = (theta.copy(), dt, substeps)
-        return substeps
+    def _stiffness_at(self, theta) -> float:
+        return self._stiff.stiffness(theta)
 
 
 def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
@@ -339,7 +271,7 @@ def fit_trig_loop(train: Sequence[Dataset], validation: Sequence[Dataset],
     Return the trigonometric arm fitted on ``train`` (case 1) closed with ``law``.
 
     The arm's held-out torque error (:func:`trig_torque_error`: the
-    :func:`~rkgnn_ros.core.control.gate.torque_error` of its inverse dynamics on
+    :func:`~rkgnn_ros.core.fitting.torque_check.torque_error` of its inverse dynamics on
     ``validation``, worst joint; inf without validation samples, or when it cannot be
     computed) is kept in :attr:`TrigLoop.torque_error`: the caller decides
     whether the basis holds this arm (it is a planar arm's). ``prior``: samples fitted
@@ -392,8 +324,8 @@ def fit_closed_trig_loop(segments: Sequence[Dataset], validation_fraction: float
     error: RMS of M θ̈ + V + G + F minus the servo's torque over the servo torque's standard
     deviation, worst joint. Two forms are fitted, a PD servo and a PID with a constant
     (Ki ∫e + c); the PID is kept only where it explains the held-out data clearly better
-    (:data:`INTEGRAL_GAIN` times smaller error, from a PD error above
-    :data:`INTEGRAL_MIN_ERROR`): over a limited range of motion c trades with the slow
+    (:data:`~.policy.INTEGRAL_GAIN` times smaller error, from a PD error above
+    :data:`~.policy.INTEGRAL_MIN_ERROR`): over a limited range of motion c trades with the slow
     gravity terms, which would leave the closed loop right and the arm's torque wrong. The
     law's integral term holds at the end of ``segments``; ∫e runs on from one segment to the
     next (a gap adds nothing to it). ``prior``: older samples of the closed loop (the
@@ -433,7 +365,7 @@ def _closed_form(train, validation, integral: bool, prior=None) -> Optional[Trig
     ki = bias = grown = np.zeros(n)
     if integral:
         ki, bias, grown = arm.ki_, arm.bias_, every.error_integral[-1]
-    zero = ki < KI_ZERO * kp
+    zero = ki < LOOP_KI_ZERO * kp
     law_ki = np.where(zero, 0.0, ki)
     law = ControllerLaw(
         kp=kp, kd=kd, ki=law_ki, bias=bias + np.where(zero, ki * grown, 0.0),
@@ -452,7 +384,7 @@ def _equation_error(arm: LinearDynamics, held: Samples, integral: bool) -> float
     residual = regressor(arm.basis, held.theta, held.theta_dot, held.theta_ddot,
                          arm.coulomb_velocity, held.error, held.error_rate,
                          held.error_integral) @ arm._full_coef
-    servo = arm.kp_ * held.error + arm.kd_ * held.error_rate
+    servo = pd_torque(arm.kp_, arm.kd_, held.error, held.error_rate)
     if integral:
         servo = servo + arm.ki_ * held.error_integral + arm.bias_
     spread = np.maximum(servo.std(axis=0), 1e-12)

@@ -26,13 +26,12 @@ from typing import List, Sequence, Tuple
 
 import numpy as np
 
+from .policy import MIN_SEGMENT_SAMPLES
 from ..data import Dataset
 from ..model.model import RKGNNModel
 from ..scoring import nrmse
 
 __all__ = ['MIN_SEGMENT_SAMPLES', 'newest_share', 'split_validation', 'validation_nrmse']
-
-MIN_SEGMENT_SAMPLES = 10  # shorter segments (training or validation) are left out
 
 
 def split_validation(segments: Sequence[Dataset], fraction: float,

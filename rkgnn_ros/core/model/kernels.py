@@ -51,6 +51,7 @@ from .linalg import det, solve
 from .params import individual
 from ..integration import rkg
 from ..integration.rkg import gill_node, gill_stage
+from ..servo_law import compiled_pd_torque
 
 
 class Segments(NamedTuple):
@@ -322,9 +323,9 @@ def _advance(x, u_flat, row, h, substeps, c, p, b, inlined):
                     err = u_flat[row, s, ui, a] - xs[a]
                     derr = u_flat[row, s, ui, n + a] - qd
                     if case_id == 1:
-                        tau = kp_known[a] * err + kd_known[a] * derr
+                        tau = compiled_pd_torque(kp_known[a], kd_known[a], err, derr)
                     else:
-                        tau = kp[a] * err + kd[a] * derr
+                        tau = compiled_pd_torque(kp[a], kd[a], err, derr)
                         for kk in range(n_pu):
                             diff = err - pc[a, kk]
                             tau += pw[a, kk] * math.exp(-diff * diff * piw[a, kk])

@@ -26,16 +26,23 @@ import numpy as np
 
 
 @njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def _pivot(a, k, n):
+    """Return the row r in k..n-1 with the largest |a[r, k]| (the first of equals), and it."""
+    piv = k
+    big = abs(a[k, k])
+    for r in range(k + 1, n):
+        if abs(a[r, k]) > big:
+            big = abs(a[r, k])
+            piv = r
+    return piv, big
+
+
+@njit(cache=True, nogil=True, error_model='numpy', inline='always')
 def solve(a, b, out):
     """Solve a @ out = b by Gaussian elimination with partial pivoting (a, b overwritten)."""
     n = b.shape[0]
     for k in range(n):
-        piv = k
-        big = abs(a[k, k])
-        for r in range(k + 1, n):
-            if abs(a[r, k]) > big:
-                big = abs(a[r, k])
-                piv = r
+        piv, big = _pivot(a, k, n)
         if big == 0.0:
             for r in range(n):
                 out[r] = np.nan
@@ -66,12 +73,7 @@ def det(a, k):
     """Return the determinant of the leading k x k block of a (a is overwritten)."""
     det = 1.0
     for j in range(k):
-        piv = j
-        big = abs(a[j, j])
-        for r in range(j + 1, k):
-            if abs(a[r, j]) > big:
-                big = abs(a[r, j])
-                piv = r
+        piv, big = _pivot(a, j, k)
         if big == 0.0:
             return 0.0
         if piv != j:

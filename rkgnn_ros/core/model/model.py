@@ -24,7 +24,7 @@ of :mod:`.network`); ``inverse_dynamics`` is what computed-torque control needs;
 :mod:`..fitting`, which this module never imports.
 """
 
-from typing import Optional, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -43,6 +43,14 @@ def _finite_vector(name, value, n):
     if not np.all(np.isfinite(arr)):
         raise ValueError(f'{name} contains NaN or inf')
     return arr
+
+
+class ModelRollout(NamedTuple):
+    """How an :class:`RKGNNModel` is rolled out, and its info (see there)."""
+
+    substeps: object = 4
+    torque_interpolation: object = 'linear'
+    info: object = None
 
 
 class RKGNNModel:
@@ -73,7 +81,8 @@ class RKGNNModel:
     """
 
     def __init__(self, spec: NetworkSpec, scales: Scales, genome, joint_names=None, kp=None,
-                 kd=None, dt=0.01, substeps=4, torque_interpolation='linear', info=None):
+                 kd=None, dt=0.01, **options):
+        substeps, torque_interpolation, info = ModelRollout(**options)
         n = spec.n_joints
         self.spec = spec
         self.scales = scales

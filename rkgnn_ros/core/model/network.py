@@ -27,6 +27,7 @@ import numpy as np
 from .basis import registry
 from .scales import Scales
 from .spec import NetworkSpec
+from ..servo_law import pd_torque
 
 
 def _parts(spec):
@@ -169,9 +170,9 @@ class BatchedNetwork:
         err = u[..., :n] - x[:, :n]
         derr = u[..., n:] - x[:, n:]
         if case == 'pd_gains':
-            return self.kp_known * err + self.kd_known * derr
+            return pd_torque(self.kp_known, self.kd_known, err, derr)
         p = self.p
-        tau = p.kp * err + p.kd * derr
+        tau = pd_torque(p.kp, p.kd, err, derr)
         for e, centres, inv_width2, weights in (
                 (err, p.p_centres, p.p_inv_width2, p.p_weights),
                 (derr, p.d_centres, p.d_inv_width2, p.d_weights)):

@@ -296,18 +296,8 @@ class NetworkSpec:
         """
         Map normalised genomes to physical network parameters (:func:`.params.decode`).
 
-        Parameters
-        ----------
-        genomes : ndarray, shape (P, N) or (N,)
-            Normalised genomes.
-        scales : Scales
-            Physical scales of the data.
-
-        Returns
-        -------
-        NetworkParams
-            One named record of arrays with leading dimension P.
-
+        ``genomes`` (P, N) or (N,) with the data's ``scales``, as :func:`.params.decode`
+        takes them; returns one named record of arrays with leading dimension P.
         """
         return decode(self, genomes, scales)
 

@@ -47,6 +47,7 @@ import numpy as np
 from .trig import TrigBasis
 from ..integration.inputs import stage_inputs
 from ..integration.rkg import choose_substeps, rkg_step
+from ..servo_law import pd_torque
 
 __all__ = ['Layout', 'MAX_SUBSTEPS', 'regressor', 'TrigDynamics', 'unpack_mass']
 
@@ -346,8 +347,8 @@ class TrigDynamics:
         self._check()
         if self.kp_ is None:
             raise ValueError("case 'torque' has no controller: pass the torque")
-        return (self.kp_ * (np.asarray(theta_d) - theta)
-                + self.kd_ * (np.asarray(theta_d_dot) - theta_dot))
+        return pd_torque(self.kp_, self.kd_, np.asarray(theta_d) - theta,
+                         np.asarray(theta_d_dot) - theta_dot)
 
     def scaled(self, factor: float) -> 'TrigDynamics':
         """

@@ -219,6 +219,17 @@ def _to_parent(r, p, n, f, tmp):
         n[k] = tmp[1, k] + tmp[2, k]
 
 
+@njit(cache=True, nogil=True, inline='always')
+def _add_to_parent(i, parent, rot, pos, fn, ff, tmp):
+    """Add body i's wrench (fn[i], ff[i]), in its parent's frame, to the parent's (if any)."""
+    p = parent[i]
+    if p >= 0:
+        _to_parent(rot[i], pos[i], fn[i], ff[i], tmp)
+        for k in range(3):
+            fn[p, k] += fn[i, k]
+            ff[p, k] += ff[i, k]
+
+
 @njit(cache=True, nogil=True)
 def _joint_terms(pi, nb, j, qd, qdd, vc):
     """Return the joint's own torque Ia θ̈ + fv θ̇ + fc tanh(θ̇ / v_c) + c."""
@@ -246,12 +257,7 @@ def _rnea(parent, col, trot, pos, axis, gravity, vc, pi, q, qd, qdd, with_joint,
         tau[j] = axis[i, 0] * fn[i, 0] + axis[i, 1] * fn[i, 1] + axis[i, 2] * fn[i, 2]
         if with_joint:
             tau[j] += _joint_terms(pi, nb, j, qd[j], qdd[j], vc)
-        p = parent[i]
-        if p >= 0:
-            _to_parent(rot[i], pos[i], fn[i], ff[i], tmp)
-            for k in range(3):
-                fn[p, k] += fn[i, k]
-                ff[p, k] += ff[i, k]
+        _add_to_parent(i, parent, rot, pos, fn, ff, tmp)
 
 
 @njit(cache=True, nogil=True)
@@ -526,9 +532,4 @@ def gravity_pass(parent, col, rot, pos, axis, gravity, pi, al, fn, ff, tmp, tau)
             ff[i, k] = m * al[i, k]
     for i in range(nb - 1, -1, -1):
         tau[col[i]] = axis[i, 0] * fn[i, 0] + axis[i, 1] * fn[i, 1] + axis[i, 2] * fn[i, 2]
-        p = parent[i]
-        if p >= 0:
-            _to_parent(rot[i], pos[i], fn[i], ff[i], tmp)
-            for k in range(3):
-                fn[p, k] += fn[i, k]
-                ff[p, k] += ff[i, k]
+        _add_to_parent(i, parent, rot, pos, fn, ff, tmp)

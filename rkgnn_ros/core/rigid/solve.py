@@ -74,10 +74,16 @@ def _scale(n_bodies: int) -> np.ndarray:
     return np.tile(one, n_bodies)
 
 
+class PriorOptions(NamedTuple):
+    """The prior and solver options of :func:`fit_consistent` (see there)."""
+
+    prior_weight: float = PRIOR_WEIGHT
+    extra_ridge: float = 0.0
+    max_evaluations: int = 200
+
+
 def fit_consistent(structure, a: np.ndarray, y: np.ndarray, b: Optional[np.ndarray] = None,
-                   normalise: Optional[np.ndarray] = None, prior=None,
-                   prior_weight: float = PRIOR_WEIGHT, extra_ridge: float = 0.0,
-                   max_evaluations: int = 200) -> ConsistentFit:
+                   normalise: Optional[np.ndarray] = None, prior=None, **options) -> ConsistentFit:
     """
     Return the consistent parameters fitted to weighted rows (module docstring).
 
@@ -109,6 +115,7 @@ def fit_consistent(structure, a: np.ndarray, y: np.ndarray, b: Optional[np.ndarr
         On shapes that do not match or non-finite rows.
 
     """
+    prior_weight, extra_ridge, max_evaluations = PriorOptions(**options)
     from scipy.optimize import least_squares
     a = np.asarray(a, dtype=float)
     y = np.asarray(y, dtype=float).reshape(-1)

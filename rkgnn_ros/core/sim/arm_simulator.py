@@ -39,7 +39,7 @@ which a real-time publisher needs.
 """
 
 import math
-from typing import Optional, Tuple
+from typing import NamedTuple, Optional, Tuple
 
 from numba import njit
 import numpy as np
@@ -120,6 +120,16 @@ def _rkg_pd_steps(x, h, steps, ref, tau_held, servo, d, gh, fv, fc, vc):
     return x
 
 
+class ServoOptions(NamedTuple):
+    """The servo's options of :class:`ArmSimulator` beyond its gains (see there)."""
+
+    compiled: bool = True
+    ki: object = 0.0
+    tau_limit: object = None
+    gravity_compensation: str = 'none'
+    windup_time: float = DEFAULT_WINDUP_TIME
+
+
 class ArmSimulator:
     """
     Fixed-step simulation of an arm under its servo tracking a reference.
@@ -159,10 +169,8 @@ class ArmSimulator:
     """
 
     def __init__(self, arm: PlanarArm, kp, kd, reference: Reference, max_step: float,
-                 control_rate: Optional[float] = None, max_speed: float = 100.0,
-                 compiled: bool = True, *, ki=0.0, tau_limit=None,
-                 gravity_compensation: str = 'none',
-                 windup_time: float = DEFAULT_WINDUP_TIME):
+                 control_rate: Optional[float] = None, max_speed: float = 100.0, **options):
+        compiled, ki, tau_limit, gravity_compensation, windup_time = ServoOptions(**options)
         self.arm = arm
         self.n = n = arm.n_joints
         self.servo = Servo(np.asarray(kp, dtype=float), np.asarray(kd, dtype=float), ki=ki,

@@ -52,6 +52,7 @@ import numpy as np
 from .parameters import ArmParameters
 from .plant_kernels import forward_dynamics_kernel, KernelConstants
 from .stability import ClosedLoopAnalysis, gain_matrix
+from ..servo_law import pd_torque_coupled
 
 ArrayLike = Union[float, np.ndarray]
 
@@ -207,17 +208,8 @@ class PlanarArm(ClosedLoopAnalysis):
         Return the joint accelerations θ̈ = M⁻¹ (τ - V - G - F).
 
         Solves the linear system in absolute angles, D(φ) φ̈ = S⁻ᵀ(τ - F) - w - g h cos φ,
-        then θ̈ = S⁻¹ φ̈ (never forms an inverse).
-
-        Parameters
-        ----------
-        theta, theta_dot, tau : array_like, shape (..., n)
-            Joint angles, velocities and applied torques (broadcast together).
-
-        Returns
-        -------
-        ndarray, shape (..., n)
-
+        then θ̈ = S⁻¹ φ̈ (never forms an inverse). ``theta``, ``theta_dot`` and the applied
+        ``tau`` (..., n) are broadcast together; θ̈ has their shape.
         """
         theta = self._joint_array('theta', theta)
         theta_dot = self._joint_array('theta_dot', theta_dot)
@@ -340,17 +332,8 @@ class PlanarArm(ClosedLoopAnalysis):
         other columns (m_k only enters through h_i and d_ii, see the module docstring), so at
         most 4n of the 5n parameters are identifiable; :meth:`base_regressor` gives them.
         Least squares with ``Y`` still reproduces the torques exactly (a minimum-norm
-        solution differs from the true p only in the null space).
-
-        Parameters
-        ----------
-        theta, theta_dot, theta_ddot : array_like, shape (..., n)
-            Joint angles, velocities and accelerations (broadcast together).
-
-        Returns
-        -------
-        ndarray, shape (..., n, 5n)
-
+        solution differs from the true p only in the null space). The arguments are those of
+        :meth:`inverse_dynamics`; Y has shape (..., n, 5n).
         """
         theta = self._joint_array('theta', theta)
         theta_dot = self._joint_array('theta_dot', theta_dot)
@@ -468,8 +451,8 @@ class PDController:
         ndarray, shape (..., n)
 
         """
-        tau = ((np.asarray(theta_d) - theta) @ self.kp.T
-               + (np.asarray(theta_d_dot) - theta_dot) @ self.kd.T)
+        tau = pd_torque_coupled(self.kp, self.kd, np.asarray(theta_d) - theta,
+                                np.asarray(theta_d_dot) - theta_dot)
         if self.tau_limit is not None:
             tau = np.clip(tau, -self.tau_limit, self.tau_limit)
         return tau

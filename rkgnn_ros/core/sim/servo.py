@@ -57,6 +57,7 @@ from numba import njit
 import numpy as np
 
 from .plant import PlanarArm
+from ..servo_law import compiled_pd_torque, pd_torque
 
 #: Where a gravity-compensating servo evaluates Ĝ: nowhere, at the measured θ, at θd.
 GRAVITY_MODES = ('none', 'measured', 'desired')
@@ -217,8 +218,8 @@ class Servo:
         """
         theta = np.asarray(theta, dtype=float)
         theta_d = np.asarray(theta_d, dtype=float)
-        raw = (self.kp * (theta_d - theta)
-               + self.kd * (np.asarray(theta_d_dot, dtype=float) - theta_dot)
+        raw = (pd_torque(self.kp, self.kd, theta_d - theta,
+                         np.asarray(theta_d_dot, dtype=float) - theta_dot)
                + self.gravity_torque(theta, theta_d))
         if integral is not None:
             raw = raw + integral
@@ -372,7 +373,8 @@ def servo_torque_into(c, theta, theta_dot, theta_d, theta_d_dot, integral, raw, 
     for i in range(n - 2, -1, -1):
         out[i] += out[i + 1]
     for i in range(n):
-        r = (c.kp[i] * (theta_d[i] - theta[i]) + c.kd[i] * (theta_d_dot[i] - theta_dot[i])
+        r = (compiled_pd_torque(c.kp[i], c.kd[i], theta_d[i] - theta[i],
+                                theta_d_dot[i] - theta_dot[i])
              + integral[i] + out[i])
         if feedforward is not None:
             r += feedforward[i]

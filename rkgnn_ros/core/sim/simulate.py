@@ -26,7 +26,7 @@ an effort interface applies it), evaluated at the servo's own time.
 """
 
 from dataclasses import dataclass
-from typing import Callable, Optional, Sequence, Union
+from typing import Callable, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, OdeSolver, Radau, RK23, RK45
@@ -138,15 +138,24 @@ def _check_state(x: np.ndarray, t: float, max_speed: float, n: int):
             'for the gains?)')
 
 
+class _Solver(NamedTuple):
+    """The ODE solver of a simulation: its class, tolerances and the speed that diverges."""
+
+    solver_cls: type
+    rtol: float
+    atol: float
+    max_speed: float     # rad/s
+
+
 def _integrate(fun: Callable, t_a: float, x_a: np.ndarray, t_b: float, t_inner: np.ndarray,
-               solver_cls: type, rtol: float, atol: float, first_step: Optional[float],
-               max_speed: float, n: int):
+               solver: _Solver, first_step: Optional[float], n: int):
     """
     Integrate ẋ = fun(t, x) from t_a to t_b (x starts with [θ, θ̇] of n joints each).
 
     Returns x(t_b), the states at ``t_inner`` (shape (M, x.size), t_a < t_inner < t_b, from
     the solver's dense output) and the last step size (to start the next segment with).
     """
+    solver_cls, rtol, atol, max_speed = solver
     if first_step is not None:
         first_step = min(first_step, t_b - t_a)
     solver = solver_cls(fun, t_a, x_a, t_b, rtol=rtol, atol=atol, first_step=first_step)
@@ -165,8 +174,7 @@ def _integrate(fun: Callable, t_a: float, x_a: np.ndarray, t_b: float, t_inner: 
 
 
 def _piecewise(arm: PlanarArm, x0: np.ndarray, breaks: np.ndarray, t: np.ndarray,
-               segment_torque: Callable, solver_cls: type, rtol: float, atol: float,
-               max_speed: float):
+               segment_torque: Callable, solver: _Solver):
     """
     Integrate across segments ``[breaks[j], breaks[j+1]]`` restarting the solver at each.
 
@@ -192,8 +200,8 @@ def _piecewise(arm: PlanarArm, x0: np.ndarray, breaks: np.ndarray, t: np.ndarray
         else:
             def fun(s, y, tau=tau):
                 return arm.dynamics(y, tau)
-        x, inner, step = _integrate(fun, breaks[j], x, breaks[j + 1], t[k0:k1], solver_cls,
-                                    rtol, atol, step, max_speed, arm.n_joints)
+        x, inner, step = _integrate(fun, breaks[j], x, breaks[j + 1], t[k0:k1], solver, step,
+                                    arm.n_joints)
         states[k0:k1] = inner
     states[first[-1]:] = x
     return states
@@ -213,10 +221,15 @@ def _sample_times(duration: float, rate: float, t0: float) -> np.ndarray:
         raise ValueError(f'duration must be positive, got {duration}')
     if not np.isfinite(t0):
         raise ValueError(f't0 must be finite, got {t0}')
+    return t0 + np.arange(sample_count(duration, rate)) / rate
+
+
+def sample_count(duration: float, rate: float) -> int:
+    """Return the samples of ``duration`` s at ``rate`` Hz, both ends in; at least 2 or raise."""
     n_samples = int(np.floor(duration * rate + 1e-9)) + 1
     if n_samples < 2:
         raise ValueError(f'duration {duration} s at rate {rate} Hz gives fewer than 2 samples')
-    return t0 + np.arange(n_samples) / rate
+    return n_samples
 
 
 def _initial_state(arm: PlanarArm, x0) -> np.ndarray:
@@ -258,13 +271,22 @@ def _record(t, states, tau, theta_d, theta_d_dot, noise, rng, joint_names) -> Da
                    theta_d_dot=theta_d_dot, joint_names=tuple(joint_names or ()))
 
 
-def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float = 100.0,
-             x0=None, noise: Union[None, NoiseModel, SensorModel] = None,
-             rng: Union[None, int, np.random.Generator] = None,
-             control_rate: Optional[float] = None, method=None, rtol: float = 1e-9,
-             atol: float = 1e-10, t0: float = 0.0,
-             joint_names: Optional[Sequence[str]] = None,
-             max_speed: float = MAX_SPEED, feedforward=None) -> Dataset:
+class SimulationOptions(NamedTuple):
+    """The integration, timing and sensor options of :func:`simulate` (see there)."""
+
+    rng: Union[None, int, np.random.Generator] = None
+    control_rate: Optional[float] = None
+    method: object = None
+    rtol: float = 1e-9
+    atol: float = 1e-10
+    t0: float = 0.0
+    joint_names: Optional[Sequence[str]] = None
+    max_speed: float = MAX_SPEED
+    feedforward: object = None
+
+
+def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float = 100.0, x0=None,
+             noise: Union[None, NoiseModel, SensorModel] = None, **options) -> Dataset:
     """
     Simulate the arm under its servo tracking a reference and sample it.
 
@@ -336,6 +358,8 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
         If the state becomes non-finite or a joint speed exceeds ``max_speed``.
 
     """
+    (rng, control_rate, method, rtol, atol, t0, joint_names, max_speed, feedforward) = \
+        SimulationOptions(**options)
     _check_plant(arm)
     n = arm.n_joints
     if controller.n_joints != n:
@@ -381,8 +405,8 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
                                                          ff_at(s)))
 
             x_start = x0
-        x_end, inner, _ = _integrate(fun, t[0], x_start, t[-1], t[1:-1], solver_cls, rtol,
-                                     atol, None, max_speed, n)
+        x_end, inner, _ = _integrate(fun, t[0], x_start, t[-1], t[1:-1],
+                                     _Solver(solver_cls, rtol, atol, max_speed), None, n)
         states = np.vstack([x_start, inner, x_end])
         if integral:
             tau = controller.torque(states[:, :n], states[:, n:2 * n], theta_d, theta_d_dot,
@@ -418,8 +442,8 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
                 tick_tau[j] = controller.torque(x[:n], x[n:], ref, ref_dot)
             return tick_tau[j].copy()
 
-        states = _piecewise(arm, x0, breaks, t, segment_torque, solver_cls, rtol, atol,
-                            max_speed)
+        states = _piecewise(arm, x0, breaks, t, segment_torque,
+                            _Solver(solver_cls, rtol, atol, max_speed))
         if breaks.size == n_ticks:
             # the last sample is a tick: record the torque computed there
             segment_torque(n_ticks - 1, states[-1])
@@ -427,12 +451,20 @@ def simulate(arm: PlanarArm, controller, reference, duration: float, rate: float
     return _record(t, states, tau, theta_d, theta_d_dot, noise, rng, joint_names)
 
 
-def simulate_open_loop(arm: PlanarArm, tau_samples, t, x0, hold: bool = True,
-                       method='RK45', rtol: float = 1e-9, atol: float = 1e-10,
-                       noise: Optional[NoiseModel] = None,
-                       rng: Union[None, int, np.random.Generator] = None,
-                       joint_names: Optional[Sequence[str]] = None,
-                       max_speed: float = MAX_SPEED) -> Dataset:
+class OpenLoopOptions(NamedTuple):
+    """The integration and sensor options of :func:`simulate_open_loop` (see there)."""
+
+    method: object = 'RK45'
+    rtol: float = 1e-9
+    atol: float = 1e-10
+    noise: Optional[NoiseModel] = None
+    rng: Union[None, int, np.random.Generator] = None
+    joint_names: Optional[Sequence[str]] = None
+    max_speed: float = MAX_SPEED
+
+
+def simulate_open_loop(arm: PlanarArm, tau_samples, t, x0, hold: bool = True, **options
+                       ) -> Dataset:
     """
     Play recorded torques into the arm open loop (the 'true model' rollout).
 
@@ -470,6 +502,7 @@ def simulate_open_loop(arm: PlanarArm, tau_samples, t, x0, hold: bool = True,
         desired trajectory.
 
     """
+    method, rtol, atol, noise, rng, joint_names, max_speed = OpenLoopOptions(**options)
     _check_plant(arm)
     n = arm.n_joints
     t = np.asarray(t, dtype=float)
@@ -492,5 +525,5 @@ def simulate_open_loop(arm: PlanarArm, tau_samples, t, x0, hold: bool = True,
         t_a, slope = t[j], (tau_samples[j + 1] - tau_samples[j]) / (t[j + 1] - t[j])
         return lambda s: tau_samples[j] + slope * (s - t_a)
 
-    states = _piecewise(arm, x0, t, t, segment_torque, solver_cls, rtol, atol, max_speed)
+    states = _piecewise(arm, x0, t, t, segment_torque, _Solver(solver_cls, rtol, atol, max_speed))
     return _record(t, states, tau_samples.copy(), None, None, noise, rng, joint_names)

@@ -27,6 +27,7 @@ from typing import Optional, Union
 import numpy as np
 
 from ..integration.rkg import stability_radius
+from ..servo_law import pd_torque_coupled
 
 ArrayLike = Union[float, np.ndarray]
 
@@ -92,7 +93,7 @@ class ClosedLoopAnalysis:
         th, thd = xs[..., :n], xs[..., n:]
         ref = theta_d[..., None, :]
         ref_dot = theta_d_dot[..., None, :]
-        tau = (ref - th) @ kp.T + (ref_dot - thd) @ kd.T
+        tau = pd_torque_coupled(kp, kd, ref - th, ref_dot - thd)
         f = np.concatenate([thd, self.forward_dynamics(th, thd, tau)], axis=-1)
         jac_t = (f[..., :2 * n, :] - f[..., 2 * n:, :]) / (2.0 * step[..., :, None])
         return np.linalg.eigvals(np.swapaxes(jac_t, -1, -2))

@@ -60,10 +60,11 @@ import numpy as np
 
 from .plant import PlanarArm
 from .plant_kernels import forward_dynamics_into
-from .simulate import MAX_SPEED
+from .simulate import MAX_SPEED, sample_count
 from .trajectories import Reference
 from ..integration.rkg import (gill_node, gill_stage, IMAG_STABILITY_LIMIT, rkg_step,
                                stability_polynomial)
+from ..servo_law import compiled_pd_torque, pd_torque
 
 
 #: Default gain bounds ((Kp_lo, Kp_hi), (Kd_lo, Kd_hi)), the same on every joint. They
@@ -89,10 +90,30 @@ _kernel_verified = False
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
-def _pd_torque(th, om, ref, j, kp, kd, tau):
+def _pd_torque_into(th, om, ref, j, kp, kd, tau):
     """Write the PD torque towards θd = ref[j, 0], θ̇d = ref[j, 1] into ``tau`` (n,)."""
     for i in range(th.shape[0]):
-        tau[i] = kp[i] * (ref[j, 0, i] - th[i]) + kd[i] * (ref[j, 1, i] - om[i])
+        tau[i] = compiled_pd_torque(kp[i], kd[i], ref[j, 0, i] - th[i], ref[j, 1, i] - om[i])
+
+
+@njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def diverged(th, om, n, max_speed) -> bool:
+    """Return whether a joint's speed is beyond ``max_speed`` (rad/s) or its angle not finite."""
+    for i in range(n):
+        if not (abs(om[i]) <= max_speed and math.isfinite(th[i])):
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def sample_error(ref, j, th, om, n) -> float:
+    """Return eq. (10)'s term of sample j: ‖θd - θ‖ + ‖θ̇d - θ̇‖ (ref[j] is [θd, θ̇d])."""
+    e_theta = 0.0
+    e_rate = 0.0
+    for i in range(n):
+        e_theta += (ref[j, 0, i] - th[i]) ** 2
+        e_rate += (ref[j, 1, i] - om[i]) ** 2
+    return math.sqrt(e_theta) + math.sqrt(e_rate)
 
 
 @njit(cache=True, nogil=True, error_model='numpy')
@@ -133,21 +154,15 @@ def _closed_loop_cost(x0, ref, substeps, h, gains, p, d, gh, viscous, coulomb,
                 yth[i] = th[i]
                 yom[i] = om[i]
             for stage in range(4):
-                _pd_torque(yth, yom, ref, j + gill_node(stage), kp, kd, tau)
+                _pd_torque_into(yth, yom, ref, j + gill_node(stage), kp, kd, tau)
                 forward_dynamics_into(yth, yom, tau, d, gh, viscous, coulomb, coulomb_velocity,
                                       work, acc)
                 gill_stage(stage, h, th, yth, yom, qth)     # θ' = θ̇, before θ̇ moves on
                 gill_stage(stage, h, om, yom, acc, qom)     # θ̇' = θ̈
-            for i in range(n):
-                if not (abs(om[i]) <= max_speed and math.isfinite(th[i])):
-                    return math.inf
+            if diverged(th, om, n, max_speed):
+                return math.inf
             j += 2
-        e_theta = 0.0
-        e_rate = 0.0
-        for i in range(n):
-            e_theta += (ref[j, 0, i] - th[i]) ** 2
-            e_rate += (ref[j, 1, i] - om[i]) ** 2
-        total += math.sqrt(e_theta) + math.sqrt(e_rate)
+        total += sample_error(ref, j, th, om, n)
     return total / (n_samples - 1)
 
 
@@ -161,6 +176,15 @@ def _population_cost(x0, ref, substeps, h, gains, d, gh, viscous, coulomb, coulo
 
 
 # -- the step --------------------------------------------------------------------------
+
+
+def planar_joints(arm, reference: Reference) -> int:
+    """Return the joints of ``arm``, a PlanarArm, and ``reference``'s, or raise."""
+    if not isinstance(arm, PlanarArm):
+        raise TypeError(f'arm must be a PlanarArm, got {type(arm).__name__}')
+    if reference.n_joints != arm.n_joints:
+        raise ValueError(f'reference has {reference.n_joints} joints, the arm {arm.n_joints}')
+    return arm.n_joints
 
 
 def bounds_arrays(bounds, n: int) -> Tuple[np.ndarray, np.ndarray]:
@@ -292,21 +316,14 @@ class TrackingProblem:
     def __init__(self, arm: PlanarArm, reference: Reference, duration: float,
                  rate: float = 100.0, step: Optional[float] = None,
                  max_speed: float = MAX_SPEED, check_samples: int = 50):
-        if not isinstance(arm, PlanarArm):
-            raise TypeError(f'arm must be a PlanarArm, got {type(arm).__name__}')
         self.arm = arm
-        self.n = n = arm.n_joints
-        if reference.n_joints != n:
-            raise ValueError(f'reference has {reference.n_joints} joints, the arm {n}')
+        self.n = planar_joints(arm, reference)
         self.reference = reference
         if not (np.isfinite(rate) and rate > 0.0):
             raise ValueError(f'rate must be positive, got {rate}')
         if not (np.isfinite(duration) and duration > 0.0):
             raise ValueError(f'duration must be positive, got {duration}')
-        n_samples = int(np.floor(duration * rate + 1e-9)) + 1
-        if n_samples < 2:
-            raise ValueError(f'duration {duration} s at rate {rate} Hz gives fewer than 2 '
-                             'samples')
+        n_samples = sample_count(duration, rate)
         if not max_speed > 0.0:
             raise ValueError(f'max_speed must be positive, got {max_speed}')
         self.rate = float(rate)
@@ -391,7 +408,7 @@ class TrackingProblem:
         kp, kd = g[:, :n], g[:, n:]                                      # (P, n) each
 
         def f(x, u):                                                     # x (P, 2n)
-            tau = kp * (u[0] - x[:, :n]) + kd * (u[1] - x[:, n:])
+            tau = pd_torque(kp, kd, u[0] - x[:, :n], u[1] - x[:, n:])
             return arm.dynamics(x, tau)
 
         x = np.tile(self.x0, (g.shape[0], 1))                           # (P, 2n)
@@ -428,7 +445,7 @@ class TrackingProblem:
             return bool(np.all(np.abs(got - expected) <= _KERNEL_RTOL * np.abs(expected)))
 
         if not matches():
-            _pd_torque.recompile()
+            _pd_torque_into.recompile()
             _closed_loop_cost.recompile()
             _population_cost.recompile()
             if not matches():

@@ -22,10 +22,12 @@ finite differences of the evaluated positions.
 
 from abc import ABC, abstractmethod
 import math
-from typing import Optional, Tuple
+from typing import Tuple
 
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
+
+from ..data import finite_array
 
 #: The hanging pose of the vertical-plane arm: joint 1 at -π/2 rad, the others straight.
 HANGING_SHOULDER = -0.5 * np.pi
@@ -40,25 +42,9 @@ def hanging_pose(n_joints: int) -> np.ndarray:
     return pose
 
 
-def _finite(name: str, value, shape: Optional[Tuple[int, ...]] = None,
-            ndim: Optional[int] = None) -> np.ndarray:
-    """Return ``value`` as a finite float array, checking its shape or dimension."""
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f'{name} must be numeric: {exc}') from None
-    if shape is not None and arr.shape != shape:
-        raise ValueError(f'{name} must have shape {shape}, got {arr.shape}')
-    if ndim is not None and arr.ndim != ndim:
-        raise ValueError(f'{name} must be {ndim}-D, got shape {arr.shape}')
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f'{name} must be finite (no NaN or inf)')
-    return arr
-
-
 def _per_joint(name: str, value, n: int) -> np.ndarray:
     """Return a scalar or (n,) value as a finite (n,) array."""
-    arr = _finite(name, value)
+    arr = finite_array(name, value)
     if arr.ndim == 0:
         return np.full(n, float(arr))
     if arr.shape != (n,):
@@ -134,17 +120,17 @@ class SumOfSines(Reference):
     """
 
     def __init__(self, offsets, amplitudes, frequencies_hz, phases):
-        self.offsets = _finite('offsets', offsets, ndim=1)
+        self.offsets = finite_array('offsets', offsets, ndim=1)
         n = self.offsets.size
         if n < 1:
             raise ValueError('offsets must have at least one joint')
-        self.amplitudes = _finite('amplitudes', amplitudes, ndim=2)
+        self.amplitudes = finite_array('amplitudes', amplitudes, ndim=2)
         if self.amplitudes.shape[0] != n:
             raise ValueError(
                 f'amplitudes must have shape ({n}, K), got {self.amplitudes.shape}')
         shape = self.amplitudes.shape
-        self.frequencies_hz = _finite('frequencies_hz', frequencies_hz, shape=shape)
-        self.phases = _finite('phases', phases, shape=shape)
+        self.frequencies_hz = finite_array('frequencies_hz', frequencies_hz, shape=shape)
+        self.phases = finite_array('phases', phases, shape=shape)
         self._omega = 2.0 * np.pi * self.frequencies_hz
         self._rate_amplitudes = self.amplitudes * self._omega
 
@@ -225,16 +211,16 @@ class Chirp(Reference):
     """
 
     def __init__(self, offsets, amplitudes, f0_hz, f1_hz, duration):
-        self.offsets = _finite('offsets', offsets, ndim=1)
+        self.offsets = finite_array('offsets', offsets, ndim=1)
         n = self.offsets.size
         if n < 1:
             raise ValueError('offsets must have at least one joint')
-        self.amplitudes = _finite('amplitudes', amplitudes, shape=(n,))
+        self.amplitudes = finite_array('amplitudes', amplitudes, shape=(n,))
         self.f0_hz = _per_joint('f0_hz', f0_hz, n)
         self.f1_hz = _per_joint('f1_hz', f1_hz, n)
         if np.any(self.f0_hz < 0.0) or np.any(self.f1_hz < 0.0):
             raise ValueError('f0_hz and f1_hz must be non-negative')
-        self.duration = float(_finite('duration', duration, shape=()))
+        self.duration = float(finite_array('duration', duration, shape=()))
         if self.duration <= 0.0:
             raise ValueError(f'duration must be positive, got {duration}')
 
@@ -274,12 +260,12 @@ class SampledReference(Reference):
     """
 
     def __init__(self, t, theta_d, theta_d_dot=None):
-        t = _finite('t', t, ndim=1)
+        t = finite_array('t', t, ndim=1)
         if t.size < 2:
             raise ValueError(f't must have at least 2 samples, got {t.size}')
         if np.any(np.diff(t) <= 0.0):
             raise ValueError('t must be strictly increasing')
-        theta_d = _finite('theta_d', theta_d, ndim=2)
+        theta_d = finite_array('theta_d', theta_d, ndim=2)
         if theta_d.shape[0] != t.size or theta_d.shape[1] < 1:
             raise ValueError(
                 f'theta_d must have shape (N={t.size}, n), got {theta_d.shape}')
@@ -287,7 +273,7 @@ class SampledReference(Reference):
             edge = 2 if t.size >= 3 else 1
             theta_d_dot = np.gradient(theta_d, t, axis=0, edge_order=edge)
         else:
-            theta_d_dot = _finite('theta_d_dot', theta_d_dot, shape=theta_d.shape)
+            theta_d_dot = finite_array('theta_d_dot', theta_d_dot, shape=theta_d.shape)
         self.t = t
         self.theta_d = theta_d
         self.theta_d_dot = theta_d_dot
@@ -337,8 +323,8 @@ class Switched(Reference):
             raise ValueError(f'the references have {first.n_joints} and {second.n_joints} '
                              'joints')
         self.first, self.second = first, second
-        self.at = float(_finite('at', at))
-        self.blend = float(_finite('blend', blend))
+        self.at = float(finite_array('at', at))
+        self.blend = float(finite_array('blend', blend))
         if not self.blend > 0.0:
             raise ValueError(f'blend must be > 0, got {blend}')
 

@@ -32,7 +32,7 @@ are reachable.
 from dataclasses import dataclass
 import numbers
 import time
-from typing import Callable, Optional, Union
+from typing import Callable, NamedTuple, Optional, Union
 
 import numpy as np
 
@@ -146,12 +146,20 @@ def _check_count(name, value, lo) -> int:
     return int(value)
 
 
+class TuningOptions(NamedTuple):
+    """The rate, step and evolution options of :func:`tune_pd_gains` (see there)."""
+
+    callback: Optional[Callable[[dict], Optional[bool]]] = None
+    rate: float = 100.0
+    step: Optional[float] = None
+    ea_settings: Optional[dict] = None
+    problem: object = None
+
+
 def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
                   population_size: int = 60, generations: int = 200,
-                  seed: Union[int, np.random.Generator, None] = 0, bounds=DEFAULT_BOUNDS,
-                  callback: Optional[Callable[[dict], Optional[bool]]] = None, *,
-                  rate: float = 100.0, step: Optional[float] = None,
-                  ea_settings: Optional[dict] = None, problem=None) -> TuningResult:
+                  seed: Union[int, np.random.Generator, None] = 0, bounds=DEFAULT_BOUNDS, **options
+                  ) -> TuningResult:
     """
     Tune diagonal PD gains with the paper's EA, minimising the tracking error of eq. (10).
 
@@ -202,6 +210,7 @@ def tune_pd_gains(arm: PlanarArm, reference: Reference, duration: float = 10.0,
     TuningResult
 
     """
+    callback, rate, step, ea_settings, problem = TuningOptions(**options)
     wall0, cpu0 = time.perf_counter(), time.process_time()
     population_size = _check_count('population_size', population_size, 2)
     generations = _check_count('generations', generations, 1)

@@ -48,10 +48,11 @@ import numpy as np
 
 from .plant import PlanarArm
 from .plant_kernels import forward_dynamics_into
-from .simulate import MAX_SPEED
-from .tracking import TrackingProblem
+from .simulate import MAX_SPEED, sample_count
+from .tracking import diverged, planar_joints, sample_error, TrackingProblem
 from .trajectories import Reference
 from ..integration.rkg import gill_stage, rkg_step
+from ..servo_law import compiled_pd_torque, pd_torque
 
 __all__ = ['DEFAULT_STEP', 'SampledTrackingProblem']
 
@@ -104,22 +105,15 @@ def _sampled_cost(x0, servo_ref, sample_ref, per_servo, per_sample, h, gains, p,
         if step % per_servo == 0:
             k = step // per_servo
             for i in range(n):
-                u = (gains[p, i] * (servo_ref[k, 0, i] - th[i])
-                     + gains[p, n + i] * (servo_ref[k, 1, i] - om[i]))
+                u = compiled_pd_torque(gains[p, i], gains[p, n + i],
+                                       servo_ref[k, 0, i] - th[i], servo_ref[k, 1, i] - om[i])
                 tau[i] = min(max(u, -limit[i]), limit[i])
         _held_torque_step(x, tau, h, d, gh, viscous, coulomb, coulomb_velocity, xs, f, q,
                           work)
-        for i in range(n):
-            if not (abs(om[i]) <= max_speed and math.isfinite(th[i])):
-                return math.inf
+        if diverged(th, om, n, max_speed):
+            return math.inf
         if (step + 1) % per_sample == 0:
-            j = (step + 1) // per_sample
-            e_theta = 0.0
-            e_rate = 0.0
-            for i in range(n):
-                e_theta += (sample_ref[j, 0, i] - th[i]) ** 2
-                e_rate += (sample_ref[j, 1, i] - om[i]) ** 2
-            total += math.sqrt(e_theta) + math.sqrt(e_rate)
+            total += sample_error(sample_ref, (step + 1) // per_sample, th, om, n)
     return total / (sample_ref.shape[0] - 1)
 
 
@@ -191,20 +185,13 @@ class SampledTrackingProblem:
     def __init__(self, arm: PlanarArm, reference: Reference, duration: float,
                  servo_rate: float, torque_limit=None, rate: float = 100.0,
                  step: float = DEFAULT_STEP, max_speed: float = MAX_SPEED):
-        if not isinstance(arm, PlanarArm):
-            raise TypeError(f'arm must be a PlanarArm, got {type(arm).__name__}')
         self.arm = arm
-        self.n = n = arm.n_joints
-        if reference.n_joints != n:
-            raise ValueError(f'reference has {reference.n_joints} joints, the arm {n}')
+        self.n = n = planar_joints(arm, reference)
         for name, value in (('duration', duration), ('servo_rate', servo_rate), ('rate', rate),
                             ('step', step), ('max_speed', max_speed)):
             if not (np.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be positive, got {value}')
-        n_samples = int(np.floor(duration * rate + 1e-9)) + 1
-        if n_samples < 2:
-            raise ValueError(f'duration {duration} s at rate {rate} Hz gives fewer than 2 '
-                             'samples')
+        n_samples = sample_count(duration, rate)
         self.rate, self.servo_rate = float(rate), float(servo_rate)
         self.max_speed = float(max_speed)
         self.per_servo, self.per_sample, self.h = _grid(self.rate, self.servo_rate, step)
@@ -232,16 +219,8 @@ class SampledTrackingProblem:
         """
         Return the tracking error of eq. (10) of every candidate (compiled, parallel).
 
-        Parameters
-        ----------
-        gains : array_like, shape (P, 2n)
-            Rows [Kp_1 .. Kp_n, Kd_1 .. Kd_n] of diagonal gains.
-
-        Returns
-        -------
-        ndarray, shape (P,)
-            Costs; +inf for a candidate whose rollout diverges, never NaN.
-
+        ``gains``: (P, 2n) rows as for :meth:`.tracking.TrackingProblem.cost`. Returns the
+        (P,) costs; +inf for a candidate whose rollout diverges, never NaN.
         """
         g = self._gains(gains)
         out = np.empty(g.shape[0])
@@ -267,7 +246,7 @@ class SampledTrackingProblem:
             for step in range(n_steps):
                 if step % self.per_servo == 0:
                     ref = self.servo_reference[step // self.per_servo]     # (2, n)
-                    tau = (g[:, :n] * (ref[0] - x[:, :n]) + g[:, n:] * (ref[1] - x[:, n:]))
+                    tau = pd_torque(g[:, :n], g[:, n:], ref[0] - x[:, :n], ref[1] - x[:, n:])
                     tau = np.clip(tau, -self.torque_limit, self.torque_limit)
                 x = rkg_step(self.arm.dynamics, x, self.h, tau, tau, tau)
                 diverged |= ~(np.all(np.isfinite(x), axis=1)

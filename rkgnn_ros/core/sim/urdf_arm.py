@@ -52,6 +52,7 @@ import numpy as np
 from .stability import ClosedLoopAnalysis
 from ..rigid.urdf import (EXAMPLE_ROBOT_PREFIX, example_robot_urdf, read_description,
                           reduce_urdf, UrdfError)
+from ..servo_law import pd_torque_coupled
 
 __all__ = ['EXAMPLE_ROBOT_PREFIX', 'UrdfArm', 'UrdfError', 'example_robot_urdf',
            'read_description', 'reduce_urdf']
@@ -333,7 +334,7 @@ class UrdfArm(ClosedLoopAnalysis):
         out = np.empty(batch + (2 * n,), dtype=complex)
         for index in np.ndindex(*batch):
             q, v, qd, vd = (np.ascontiguousarray(a[index]) for a in arrays)
-            tau = kp @ (qd - q) + kd @ (vd - v) - self.friction_terms(v)
+            tau = pd_torque_coupled(kp, kd, qd - q, vd - v) - self.friction_terms(v)
             pin.computeABADerivatives(model, data, q, v, tau)
             minv = np.triu(data.Minv) + np.triu(data.Minv, 1).T
             slope = (self.viscous + self.coulomb / self.coulomb_velocity

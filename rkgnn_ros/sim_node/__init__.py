@@ -13,12 +13,11 @@
 # limitations under the License.
 
 """
-Scoring predictions against the motion that followed (used by the demo and the benchmarks).
+The parts of the ``sim_arm`` node; :mod:`rkgnn_ros.sim_arm` wires them.
 
-The scoring lives in the ROS-free core, beside the identifier's online self-check that uses
-it (:mod:`rkgnn_ros.core.selfcheck`); this module keeps the names the tools import.
+- :mod:`.parameters`: the parameter table and the simulated system it defines.
+- :mod:`.arm_model`: which arm is simulated, the paper's planar one or a URDF arm.
+
+The simulation itself is the core's (:mod:`rkgnn_ros.core.sim`): only this folder and
+the node import it in the product.
 """
-
-from .core.selfcheck import ahead_errors, range_normalised_rmse
-
-__all__ = ['ahead_errors', 'range_normalised_rmse']

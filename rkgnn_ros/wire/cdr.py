@@ -23,7 +23,7 @@ reference JointTrajectory is read from its bytes too (:func:`joint_trajectory_cd
 :func:`parse_joint_trajectory_cdr`): its size is known from its first bytes, before a
 100,000-point message becomes 100,000 Python objects, and malformed bytes never reach
 rclpy's deserializer, which prints a line on stderr for each.
-:mod:`rkgnn_ros.conversions` applies the message rules on top; tests hold both directions
+:mod:`rkgnn_ros.wire.conversions` applies the message rules on top; tests hold both directions
 equal to rclpy's own serialization. No ROS import: the layout is the OMG CDR encoding
 (XCDR1) that every ROS 2 middleware uses for these types.
 """

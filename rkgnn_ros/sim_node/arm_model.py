@@ -35,9 +35,8 @@ from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
 from rclpy.parameter import Parameter
-
-from .core.sim.urdf_arm import UrdfArm, UrdfError
-from .parameters import Change, ParameterSpec
+from rkgnn_ros.core.sim.urdf_arm import UrdfArm, UrdfError
+from rkgnn_ros.node.parameters import Change, ParameterSpec
 
 __all__ = ['URDF_PARAMETERS', 'UrdfChoice', 'build_urdf_arm', 'reference_limit_warning']
 

@@ -29,6 +29,8 @@ import sys
 import threading
 import traceback
 
+from .sigint import Interrupt
+
 
 def format_stacks() -> str:
     """Return every thread's Python stack, newest call last, as text."""
@@ -81,3 +83,29 @@ class TeardownWatchdog:
 
     def disarm(self) -> None:
         faulthandler.cancel_dump_traceback_later()
+
+
+def start_up(args=None) -> Interrupt:
+    """
+    Print the stacks on SIGUSR1, take SIGINT, init rclpy; return the SIGINT handler.
+
+    The handler is installed before ``rclpy.init`` (rclpy's chains to it); arm it once the
+    node exists: a SIGINT then ends the spin and raises nothing.
+    """
+    import rclpy
+    dump_stacks_on_sigusr1()
+    interrupt = Interrupt()
+    interrupt.install()
+    rclpy.init(args=args)
+    return interrupt
+
+
+def tear_down(node) -> None:
+    """Destroy ``node`` (if any) and shut rclpy down, under a :class:`TeardownWatchdog`."""
+    import rclpy
+    watchdog = TeardownWatchdog()
+    watchdog.arm()
+    if node is not None:
+        node.destroy_node()
+    rclpy.try_shutdown()
+    watchdog.disarm()

@@ -19,29 +19,35 @@ numba compiles a kernel the first time it is called with new argument types and,
 ``cache=True``, keeps the machine code beside the source (``__pycache__``, where the
 symlinked install that ``ros2 run`` uses finds it too). The identifier's first search
 otherwise pays that compilation after the first joint_states. This runs what the first
-minutes of an identifier run: the online policy of :mod:`.core.fitting.online` on a few
-seconds of the simulated paper arm, in the three cases (the equation-error start, the
+minutes of an identifier run: the online policy of :mod:`rkgnn_ros.core.fitting.online` on
+a few seconds of the simulated paper arm, in the three cases (the equation-error start, the
 rollouts, the refinement, the validation), with the default network and with the
 trigonometric basis, and the prediction of the published models; every kernel then sits in
-the cache, with those of :func:`.core.fitting.identify.precompile`, which the node runs
-before it spins, and sim_arm's simulation kernels; and, on a UR5 of example-robot-data, the
-rigid-body kernels an identifier with a robot description and sim_arm on a URDF arm use
-(:func:`precompile_rigid`). ``make build`` runs it
-(``python -m rkgnn_ros.precompile``); a second run finds everything cached and takes seconds.
+the cache, with those of :func:`rkgnn_ros.core.fitting.identify.precompile`, which the node
+runs before it spins, and sim_arm's simulation kernels; and, on a UR5 of example-robot-data,
+the rigid-body kernels an identifier with a robot description and sim_arm on a URDF arm use
+(:func:`precompile_rigid`). ``make build`` runs it (``python tools/precompile.py``, the
+checkout's package first on the path); a second run finds everything cached and takes
+seconds. A set-up tool, not a part of the nodes: it drives the simulator of
+:mod:`rkgnn_ros.core.sim`, which in the package only sim_arm's parts import.
 """
 
+import os
 import sys
 import time
 
 import numpy as np
-from rkgnn_ros.core.fitting.identify import precompile
-from rkgnn_ros.core.fitting.online import (ModelUpdate, Observation, OnlineIdentification,
-                                           OnlineSettings)
-from rkgnn_ros.core.sim.arm_simulator import ArmSimulator
-from rkgnn_ros.core.sim.plant import PDController, PlanarArm
-from rkgnn_ros.core.sim.simulate import simulate
-from rkgnn_ros.core.sim.trajectories import paper_reference
-from rkgnn_ros.stream_buffer import StreamBuffer
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from rkgnn_ros.core.fitting.identify import precompile  # noqa: E402
+from rkgnn_ros.core.fitting.online import (ModelUpdate, Observation,  # noqa: E402
+                                           OnlineIdentification, OnlineSettings)
+from rkgnn_ros.core.sim.arm_simulator import ArmSimulator  # noqa: E402
+from rkgnn_ros.core.sim.plant import PDController, PlanarArm  # noqa: E402
+from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
+from rkgnn_ros.core.sim.trajectories import paper_reference  # noqa: E402
+from rkgnn_ros.streams.buffer import StreamBuffer  # noqa: E402
 
 JOINTS = ('j1', 'j2', 'j3')
 

@@ -27,9 +27,8 @@ import threading
 import time
 from typing import Dict, Optional, Sequence
 
+from rkgnn_ros.recordings.reader import open_recording, read_messages
 from rosgraph_msgs.msg import Clock
-
-from .recording import open_recording, read_messages
 
 __all__ = ['RecordingPlayer']
 
@@ -53,7 +52,7 @@ class RecordingPlayer:
         Publishes; its namespace applies to relative topic names only (recorded topics are
         absolute).
     path : str
-        The recording (:func:`~rkgnn_ros.recording.open_recording`).
+        The recording (:func:`~rkgnn_ros.recordings.reader.open_recording`).
     topics : sequence of str, optional
         Recorded topics to play (default every topic whose type is installed).
     rate : float

@@ -43,7 +43,7 @@ from typing import Dict, NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from ..sim.servo import FeedforwardTrack
+from .servo import FeedforwardTrack
 
 #: Why the servo runs without a feed-forward: refusals, then the two normal ends.
 REASONS = ('over_budget', 'bad_shape', 'unknown_joint', 'missing_joint', 'duplicate_joint',

@@ -20,7 +20,7 @@ was killed, or a disk that filled, leaves a file without them, which readers tha
 from the footer (``rosbags``) refuse. The records themselves are still there in order:
 :class:`McapScan` reads them from the start (schemas, channels, messages, chunks
 uncompressed, zstd or lz4) until the file ends or a record is cut, and offers the part of
-the reader interface :mod:`rkgnn_ros.recording` uses. ``broken`` says where and why it
+the reader interface :mod:`rkgnn_ros.recordings.reader` uses. ``broken`` says where and why it
 stopped, if it did.
 """
 

@@ -15,7 +15,7 @@
 """
 One buffered stream: time-sorted samples in preallocated arrays, and its insertion rules.
 
-What :class:`~rkgnn_ros.stream_buffer.StreamBuffer` keeps per stream (states, commands),
+What :class:`~rkgnn_ros.streams.buffer.StreamBuffer` keeps per stream (states, commands),
 without the lock, the clock-jump rule or the pairing, which are the buffer's. Pure numpy.
 """
 
@@ -93,7 +93,7 @@ class SampleSeries:
         """
         Insert a sample at relative time ``rel`` unless a rule drops it.
 
-        The order, duplicate, rate and window rules of :mod:`rkgnn_ros.stream_buffer`:
+        The order, duplicate, rate and window rules of :mod:`rkgnn_ros.streams.buffer`:
         ``keep`` seconds behind the newest stay. Returns ``(inserted, reason)``: the drop
         reason when not inserted, ``'overflow'`` also when inserted by evicting the oldest
         (the capacity reached), else None.

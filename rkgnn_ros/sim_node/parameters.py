@@ -16,12 +16,12 @@
 """
 The ``sim_arm`` node's parameters: their table, and the simulated system they define.
 
-:data:`PARAMETERS` lists every parameter as a :class:`~rkgnn_ros.parameters.ParameterSpec`
+:data:`PARAMETERS` lists every parameter as a :class:`~rkgnn_ros.node.parameters.ParameterSpec`
 row (name, default, description, range, what a change does); :func:`build_config` checks
 what rclpy's descriptors cannot (array lengths and elements, choices, cross-parameter
 rules, a stable integration step) and builds the arm, its servo settings, the sensors and
 the reference into one :class:`SimConfig`. The arm is the planar arm of ``masses``,
-``lengths``, ... or, with ``robot_description``, a URDF arm (:mod:`rkgnn_ros.arm_model`).
+``lengths``, ... or, with ``robot_description``, a URDF arm (:mod:`rkgnn_ros.sim_node.arm_model`).
 Nothing here touches a node, so the rules are tested on plain dictionaries of values.
 """
 
@@ -30,18 +30,17 @@ import math
 from typing import List, NamedTuple, Tuple
 
 import numpy as np
-
-from .arm_model import build_urdf_arm, reference_limit_warning, URDF_PARAMETERS
-from .core.integration.rkg import STABILITY_LIMIT as RK4_REAL_STABILITY_LIMIT
-from .core.sim.parameters import ArmParameters, MASS_MODELS
-from .core.sim.plant import PlanarArm
-from .core.sim.sensors import SensorModel, VELOCITY_SOURCES
-from .core.sim.servo import DEFAULT_WINDUP_TIME, GRAVITY_MODES
-from .core.sim.stability import max_stable_rkg_step
-from .core.sim.torque_scale import DEFAULT_LIMIT_FACTOR, default_torque_limit
-from .core.sim.trajectories import (Chirp, hanging_pose, paper_reference, Reference, SumOfSines,
-                                    Switched)
-from .parameters import Change, ParameterSpec
+from rkgnn_ros.core.integration.rkg import STABILITY_LIMIT as RK4_REAL_STABILITY_LIMIT
+from rkgnn_ros.core.sim.parameters import ArmParameters, MASS_MODELS
+from rkgnn_ros.core.sim.plant import PlanarArm
+from rkgnn_ros.core.sim.sensors import SensorModel, VELOCITY_SOURCES
+from rkgnn_ros.core.sim.servo import DEFAULT_WINDUP_TIME, GRAVITY_MODES
+from rkgnn_ros.core.sim.stability import max_stable_rkg_step
+from rkgnn_ros.core.sim.torque_scale import DEFAULT_LIMIT_FACTOR, default_torque_limit
+from rkgnn_ros.core.sim.trajectories import (Chirp, hanging_pose, paper_reference,
+                                             Reference, SumOfSines, Switched)
+from rkgnn_ros.node.parameters import Change, ParameterSpec
+from rkgnn_ros.sim_node.arm_model import build_urdf_arm, reference_limit_warning, URDF_PARAMETERS
 
 __all__ = ['BY_NAME', 'build_config', 'ConfigurationError', 'MAX_REFERENCE_POINTS',
            'PARAMETERS', 'REFERENCE_TYPES', 'SimConfig']
@@ -438,7 +437,7 @@ def _limit_note(given: np.ndarray, default: np.ndarray) -> str:
 
 def _payload(values: dict, arm) -> tuple:
     """Return (mass, com, attach_at, detach_at) of the payload parameters, checked."""
-    from .core.sim.payload import with_payload
+    from rkgnn_ros.core.sim.payload import with_payload
     mass, com = float(values['payload.mass']), tuple(values['payload.com'])
     if len(com) != 3:
         raise ConfigurationError(f'payload.com must hold 3 values (m), got {list(com)}')

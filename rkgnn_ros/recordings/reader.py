@@ -35,7 +35,7 @@ import os
 from pathlib import Path
 from typing import Dict, List, NamedTuple, Optional, Tuple
 
-from .core.input_files import file_problem
+from rkgnn_ros.core.input_files import file_problem
 
 __all__ = ['RecordingError', 'Topics', 'Message', 'Recording', 'RecordingWriter',
            'open_recording', 'find_topics', 'read_messages', 'JOINT_STATE',
@@ -174,7 +174,7 @@ def open_recording(path: str) -> Recording:
 
 def _scan_instead(where: Path, storage: str, error: BaseException):
     """Return an MCAP read from its start when its index is gone, with a note (or None)."""
-    from .mcap_scan import McapScan, scan_target
+    from rkgnn_ros.recordings.mcap_scan import McapScan, scan_target
     target = scan_target(where) if storage in ('mcap', 'a folder') else None
     if target is None:
         return None, ''

@@ -120,7 +120,7 @@ def field(evolution, labels, name):
 
 def prediction_score(snapshot, horizon, window=None):
     """Return (t0, errors, nrmse) of the horizon-ahead predictions (last ``window`` s)."""
-    from .evaluation import ahead_errors, range_normalised_rmse
+    from rkgnn_ros.core.selfcheck import ahead_errors, range_normalised_rmse
     meas_t, meas_theta, t0s, offs, thetas, _, _ = snapshot
     if meas_t.size < 2:
         return np.empty(0), np.empty((0, 0)), float('nan')

@@ -15,7 +15,7 @@
 """
 Outgoing messages built from numpy arrays, and the stamps and durations of both directions.
 
-The other half of the boundary of :mod:`rkgnn_ros.conversions` (which parses what comes in
+The other half of the boundary of :mod:`rkgnn_ros.wire.conversions` (which parses what comes in
 and re-exports these names, the one import path callers use). Imports message classes
 only, never rclpy.
 """
@@ -25,11 +25,10 @@ from typing import Sequence
 
 from builtin_interfaces.msg import Duration, Time
 import numpy as np
+from rkgnn_ros.wire.cdr import joint_trajectory_cdr, split_seconds
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
-
-from .cdr import joint_trajectory_cdr, split_seconds
 
 __all__ = ['make_joint_state', 'make_joint_trajectory', 'serialize_joint_trajectory',
            'make_float64_multiarray', 'stamp_to_seconds', 'seconds_to_stamp',
@@ -151,7 +150,7 @@ def serialize_joint_trajectory(stamp, names: Sequence[str], times, positions,
     for ``Publisher.publish(bytes)``: building 201 ``JointTrajectoryPoint`` objects costs
     about 2 ms of Python per prediction, this a few numpy operations. The byte layout of a
     given (names, times, with velocities) is built once and kept
-    (:func:`rkgnn_ros.cdr.joint_trajectory_cdr`); each call copies it and scatters the
+    (:func:`rkgnn_ros.wire.cdr.joint_trajectory_cdr`); each call copies it and scatters the
     stamp, positions and velocities into it. Same
     arguments and errors as :func:`make_joint_trajectory`; tests hold the two equal.
     """

@@ -85,20 +85,19 @@ Pairing (only when ``need_desired``)
     unlike message_filters' ApproximateTimeSynchronizer, no pair replaces another.
 Reading
     Readers get copies, never the buffer: :meth:`StreamBuffer.capture` (resampled into
-    segments and paired on the grid as :mod:`rkgnn_ros.stream_capture` describes) and
+    segments and paired on the grid as :mod:`rkgnn_ros.streams.capture` describes) and
     :meth:`StreamBuffer.reference`, the newest planned trajectory.
 """
 
 from dataclasses import dataclass
 import math
 import threading
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Dict, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
-
 from rkgnn_ros.core.stamps import StampGrid
-from rkgnn_ros.sample_series import SampleSeries
-from rkgnn_ros.stream_capture import Capture, covered_by, PlannedReference, Snapshot
+from rkgnn_ros.streams.capture import Capture, covered_by, PlannedReference, Snapshot
+from rkgnn_ros.streams.series import SampleSeries
 
 __all__ = ['DROP_REASONS', 'AddResult', 'Capture', 'PlannedReference', 'Snapshot',
            'StreamBuffer']
@@ -184,6 +183,27 @@ def _settle(buffer, states, commands, settled: float) -> Tuple[int, float]:
     return int((~covered).sum()), float(stamps[b - 1])
 
 
+def _summed(drops: Dict[str, Dict[str, int]]) -> Dict[str, int]:
+    """Return the drops per reason summed over the streams."""
+    total: Dict[str, int] = {}
+    for counts in drops.values():
+        for reason, count in counts.items():
+            total[reason] = total.get(reason, 0) + count
+    return total
+
+
+class BufferLimits(NamedTuple):
+    """The limits of :class:`StreamBuffer` beyond its grid and what it pairs (see there)."""
+
+    reorder_tolerance: float = 0.01
+    clock_jump_threshold: float = 1.0
+    pair_tolerance: Optional[float] = None
+    max_abs_value: float = 1e6
+    max_samples: Optional[int] = None
+    jump_samples: int = 3
+    max_reference_points: int = 10_000
+
+
 class StreamBuffer:
     """
     Bounded, thread-safe window of joint states and commands for identification.
@@ -228,10 +248,9 @@ class StreamBuffer:
 
     def __init__(self, joints: Sequence[str], model_step: float, window: float,
                  gap_threshold: float, need_tau: bool, need_desired: bool,
-                 max_rate_hz: float = 2000.0, reorder_tolerance: float = 0.01,
-                 clock_jump_threshold: float = 1.0, pair_tolerance: Optional[float] = None,
-                 max_abs_value: float = 1e6, max_samples: Optional[int] = None,
-                 jump_samples: int = 3, max_reference_points: int = 10_000):
+                 max_rate_hz: float = 2000.0, **options):
+        (reorder_tolerance, clock_jump_threshold, pair_tolerance, max_abs_value, max_samples,
+         jump_samples, max_reference_points) = BufferLimits(**options)
         self.joints = tuple(str(joint) for joint in joints)
         if not self.joints or len(set(self.joints)) != len(self.joints):
             raise ValueError(f'joints must be non-empty and unique, got {self.joints}')
@@ -507,14 +526,7 @@ class StreamBuffer:
         """Return the drops per reason, summed over the streams (a copy)."""
         with self._lock:
             self._settle_locked()
-            return self._counters_locked()
-
-    def _counters_locked(self) -> Dict[str, int]:
-        total: Dict[str, int] = {}
-        for counts in self._drops.values():
-            for reason, count in counts.items():
-                total[reason] = total.get(reason, 0) + count
-        return total
+            return _summed(self._drops)
 
     def stats(self) -> dict:
         """
@@ -542,7 +554,7 @@ class StreamBuffer:
                 'time_origin': self._origin,
                 'accepted': dict(self._accepted),
                 'drops': {stream: dict(c) for stream, c in self._drops.items()},
-                'counters': self._counters_locked(),
+                'counters': _summed(self._drops),
             }
 
     def _settle_locked(self):

@@ -58,22 +58,22 @@ Before anything is built from a message, its size is checked against
 3-joint JointState is about 150 bytes; a 10 s plan at 100 Hz for 7 joints about 1.3 MB).
 
 The CDR wire form of the two messages the 1 kHz paths handle (a JointState read from raw
-bytes, a prediction written as bytes) is in :mod:`rkgnn_ros.cdr`; outgoing messages are
-built in :mod:`rkgnn_ros.messages` (re-exported here).
+bytes, a prediction written as bytes) is in :mod:`rkgnn_ros.wire.cdr`; outgoing messages are
+built in :mod:`rkgnn_ros.wire.messages` (re-exported here).
 """
 
 from functools import lru_cache
 from typing import NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
+from rkgnn_ros.wire.cdr import (is_plain_cdr, joint_trajectory_cdr_size, parse_joint_state_cdr,
+                                parse_joint_trajectory_cdr)
+from rkgnn_ros.wire.messages import (duration_to_seconds, make_float64_multiarray,
+                                     make_joint_state, make_joint_trajectory, seconds_of,
+                                     seconds_to_duration, seconds_to_stamp,
+                                     serialize_joint_trajectory, stamp_to_seconds)
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
-
-from .cdr import (is_plain_cdr, joint_trajectory_cdr_size, parse_joint_state_cdr,
-                  parse_joint_trajectory_cdr)
-from .messages import (duration_to_seconds, make_float64_multiarray, make_joint_state,
-                       make_joint_trajectory, seconds_of, seconds_to_duration,
-                       seconds_to_stamp, serialize_joint_trajectory, stamp_to_seconds)
 
 __all__ = [
     'REJECTION_REASONS', 'IF_PRESENT', 'Rejection', 'JointSample', 'TrajectorySample',
@@ -277,7 +277,7 @@ def joint_state_to_arrays(
         stamp = msg.header.stamp
         return _joint_sample(tuple(msg.name), np.asarray(msg.position, dtype=float),
                              np.asarray(msg.velocity, dtype=float),
-                             np.asarray(msg.effort, dtype=float), stamp.sec, stamp.nanosec,
+                             np.asarray(msg.effort, dtype=float), (stamp.sec, stamp.nanosec),
                              tuple(joints), need_velocity, need_effort)
     except Exception as error:  # last resort: parsing must never raise
         return Rejection('malformed', f'cannot read JointState: {error!r}')
@@ -297,7 +297,7 @@ def joint_state_cdr_to_arrays(
 
     Returns None when ``raw`` is not plain CDR this parser reads (another encapsulation,
     or bytes that do not form a JointState); the nodes refuse those as ``'malformed'``
-    (:func:`~rkgnn_ros.cdr.encapsulation_problem` says why), never handing them to rclpy's
+    (:func:`~rkgnn_ros.wire.cdr.encapsulation_problem` says why), never handing them to rclpy's
     deserializer, which prints a line on stderr for each malformed message. Bytes over
     :data:`MAX_STATE_BYTES` are ``'over_budget'`` without being read.
     """
@@ -312,15 +312,16 @@ def joint_state_cdr_to_arrays(
         return None
     sec, nanosec, names, position, velocity, effort = parsed
     try:
-        return _joint_sample(names, position, velocity, effort, sec, nanosec,
+        return _joint_sample(names, position, velocity, effort, (sec, nanosec),
                              tuple(joints), need_velocity, need_effort)
     except Exception as error:  # last resort: parsing must never raise
         return Rejection('malformed', f'cannot read JointState: {error!r}')
 
 
-def _joint_sample(names, position, velocity, effort, sec, nanosec, joints, need_velocity,
+def _joint_sample(names, position, velocity, effort, stamp, joints, need_velocity,
                   need_effort) -> Union[JointSample, Rejection]:
     """Apply the JointState rules of the module docstring to fields already read."""
+    sec, nanosec = stamp     # the header's stamp: (s, ns)
     rejection = _names_rejection(names)
     if rejection is not None:
         return rejection
@@ -412,11 +413,11 @@ def joint_trajectory_cdr_to_arrays(
 
     The size budgets come first and cost nothing per point: bytes over
     :data:`MAX_TRAJECTORY_BYTES` are not read, and the number of points and the names are
-    read from the message's first bytes (:func:`~rkgnn_ros.cdr.joint_trajectory_cdr_size`).
+    read from the message's first bytes (:func:`~rkgnn_ros.wire.cdr.joint_trajectory_cdr_size`).
     Then the same rules, reasons and results as :func:`joint_trajectory_to_arrays` on the
     deserialized message (a property test holds the two equal). Plain CDR that does not
     form a JointTrajectory is ``'malformed'``; None means another encapsulation, which the
-    nodes refuse too (:func:`~rkgnn_ros.cdr.encapsulation_problem`).
+    nodes refuse too (:func:`~rkgnn_ros.wire.cdr.encapsulation_problem`).
     """
     try:
         rejection = _bytes_rejection(raw, MAX_TRAJECTORY_BYTES, 'a JointTrajectory')

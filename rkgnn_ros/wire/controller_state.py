@@ -26,13 +26,13 @@ none), stamped as the state; the node's command path then applies every drop rul
 
 Read by attribute, so it takes the rclpy message where ``control_msgs`` is installed and
 the message a recording's own definitions decode (``rosbags``) alike. A message it cannot
-use is a :class:`~rkgnn_ros.conversions.Rejection` with the reason.
+use is a :class:`~rkgnn_ros.wire.conversions.Rejection` with the reason.
 """
 
 import math
 from typing import Union
 
-from rkgnn_ros.conversions import Rejection
+from rkgnn_ros.wire.conversions import Rejection
 from sensor_msgs.msg import JointState
 
 __all__ = ['controller_state_to_joint_state', 'CONTROL_MSGS_REASON', 'control_msgs_available']

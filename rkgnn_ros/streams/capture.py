@@ -13,13 +13,13 @@
 # limitations under the License.
 
 """
-A capture of a :class:`~rkgnn_ros.stream_buffer.StreamBuffer`, and what is read from it.
+A capture of a :class:`~rkgnn_ros.streams.buffer.StreamBuffer`, and what is read from it.
 
 The buffer hands out copies, never itself: :class:`Capture` (the streams' arrays, copied
 under the buffer's lock) resamples them into :class:`Snapshot` segments and pairs them for
 a controller fit, in whatever thread takes its time over it; :class:`PlannedReference` is
 the newest reference trajectory, immutable. Time base and pairing are those of
-:mod:`rkgnn_ros.stream_buffer`.
+:mod:`rkgnn_ros.streams.buffer`.
 
 Resampling
     θ, θ̇, τ are interpolated linearly between the state samples at each grid time
@@ -37,7 +37,6 @@ import math
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
-
 from rkgnn_ros.core.data import Dataset
 
 __all__ = ['Capture', 'PlannedReference', 'Snapshot']

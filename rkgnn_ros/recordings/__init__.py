@@ -1,0 +1,21 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+rosbag2 recordings (MCAP or sqlite3) read for identification, and replayed.
+
+- :mod:`.reader`: topics found, messages in order, faults named.
+- :mod:`.mcap_scan`: an MCAP file read record by record, for recordings that lost their end.
+- :mod:`.player`: the messages and ``/clock`` replayed at any speed.
+"""

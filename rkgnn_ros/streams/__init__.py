@@ -1,0 +1,22 @@
+# Copyright 2026 rkgnn_ros maintainers
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The joint streams a node buffers between messages and the fits.
+
+- :mod:`.buffer`: the sliding window of states, commands and the plan, with its drop and
+  clock-jump rules, paired and resampled into datasets.
+- :mod:`.series`: one buffered stream's time-sorted samples and insertion rules.
+- :mod:`.capture`: a consistent copy of the buffer and what is read from it.
+"""
