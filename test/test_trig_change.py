@@ -41,11 +41,14 @@ def released():
     return loaded, before, after
 
 
-def test_a_change_is_said_with_the_arm_it_was_armed_on_after_the_loop_is_dropped(released):
-    loaded, before, after = released
+def changes_said(before, after, loop_at):
+    """
+    Feed ``before`` then ``after`` at 0.25 s steps; return (step time, change) said.
+
+    ``loop_at(now, step)`` gives the keeper's loop at each step (None: dropped).
+    """
     buffer = StreamBuffer(JOINTS, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
     monitor = TrigChangeMonitor()
-    loop = SimpleNamespace(arm=loaded)       # the trigonometric arm the keeper predicted with
     said = []
     samples = [(d, k) for d in (before, after) for k in range(d.n_samples - (d is before))]
     fed = 0
@@ -56,10 +59,17 @@ def test_a_change_is_said_with_the_arm_it_was_armed_on_after_the_loop_is_dropped
             buffer.add_state(T0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
             buffer.add_command(T0 + d.t[k], d.theta_d[k], d.theta_d_dot[k])
             fed += 1
-        # the keeper drops its loop as soon as it stops explaining the newest data
-        events = monitor.observe(buffer.capture(), loop if now < AT else None, 0.2,
-                                 100.0 + now, JOINTS)
+        events = monitor.observe(buffer.capture(), loop_at(now, step), 0.2, 100.0 + now,
+                                 JOINTS)
         said += [(now, e) for e in events if isinstance(e, DynamicsChange)]
+    return said
+
+
+def test_a_change_is_said_with_the_arm_it_was_armed_on_after_the_loop_is_dropped(released):
+    loaded, before, after = released
+    loop = SimpleNamespace(arm=loaded)       # the trigonometric arm the keeper predicted with
+    # the keeper drops its loop as soon as it stops explaining the newest data
+    said = changes_said(before, after, lambda now, step: loop if now < AT else None)
     assert len(said) == 1, said                     # none before the release, one after
     now, change = said[0]
     # the change time within the centred derivative's half window before it, or after
@@ -79,23 +89,15 @@ def picked_up():
 
 def test_a_loop_refitted_on_the_changed_data_does_not_hide_the_change(picked_up):
     arm, loaded, before, after = picked_up
-    buffer = StreamBuffer(JOINTS, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
-    monitor = TrigChangeMonitor()
-    loop = SimpleNamespace(arm=arm)
-    said = []
-    samples = [(d, k) for d in (before, after) for k in range(d.n_samples - (d is before))]
-    fed = 0
-    for step in range(int(17.9 / 0.25)):
-        now = step * 0.25
-        while fed < len(samples) and samples[fed][0].t[samples[fed][1]] <= now:
-            d, k = samples[fed]
-            buffer.add_state(T0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
-            buffer.add_command(T0 + d.t[k], d.theta_d[k], d.theta_d_dot[k])
-            fed += 1
-        if now > AT and step % 4 == 1:   # the keeper's refit each second, on the new data
-            loop = SimpleNamespace(arm=loaded)
-        events = monitor.observe(buffer.capture(), loop, 0.2, 100.0 + now, JOINTS)
-        said += [(now, e) for e in events if isinstance(e, DynamicsChange)]
+    first, refits = SimpleNamespace(arm=arm), {}
+
+    def loop_at(now, step):
+        if now > AT:                 # the keeper's refit each second, on the new data
+            refits.setdefault((step - 1) // 4, SimpleNamespace(arm=loaded))
+            return refits[(step - 1) // 4]
+        return first
+
+    said = changes_said(before, after, loop_at)
     assert len(said) == 1, said
     now, change = said[0]
     assert AT - 0.15 <= change.time - T0 <= AT + 0.5 and now - AT <= 1.0
