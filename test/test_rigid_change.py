@@ -106,3 +106,34 @@ def test_a_residual_at_its_normal_level_is_no_change():
     change = detector.check(jump, 300.0 + np.arange(20) * 0.05)
     assert change is not None and change.joints == (1,)
     assert change.time == pytest.approx(300.4)
+
+
+def test_a_change_at_the_end_of_a_late_check_is_not_averaged_away():
+    # a check that came 3 s late (the worker was busy with a fit): the change is in its
+    # last 0.3 s, its residual 6 times the normal level; over the 3 s it averages to less
+    # than the alarm, in its own block it passes it
+    detector = ChangeDetector()
+    detector.set_normal([0.1], [10.0])
+    rng = np.random.default_rng(3)
+    times = 50.0 + np.arange(300) * 0.01
+    residual = rng.normal(0.0, 0.1, (300, 1))
+    residual[270:, 0] += 0.6
+    assert np.mean((residual / 0.1) ** 2) < 25.0
+    change = detector.check(residual, times)
+    assert change is not None and change.joints == (0,)
+    assert change.time == pytest.approx(52.7, abs=0.02)
+
+
+def test_a_refit_that_took_in_the_start_of_a_change_cannot_hide_it():
+    # a refit's held-out residual five times the level before (its newest data held the
+    # first samples of a change): the level rises only twice, and the change still shows
+    detector = ChangeDetector()
+    detector.set_normal([0.1, 0.1], [10.0, 10.0])
+    detector.set_normal([0.5, 0.1], [10.0, 10.0])
+    assert detector.level == pytest.approx([0.2, 0.1])
+    detector.set_normal([0.05, 0.05], [10.0, 10.0])        # a better fit lowers it at once
+    assert detector.level == pytest.approx([0.1, 0.1])
+    rng = np.random.default_rng(4)
+    residual = rng.normal(0.0, 0.1, (25, 2))
+    residual[:, 0] += 1.0
+    assert detector.check(residual, 10.0 + np.arange(25) * 0.01).joints == (0,)

@@ -25,12 +25,17 @@ change). The test is a generalised likelihood ratio for a jump of the residual's
 a block of new samples: the block's mean squared normalised residual, about 1 while
 nothing changed; a change is declared when it exceeds :data:`~.policy.CHANGE_ALARM` on a
 joint over at least :data:`~.policy.CHANGE_MIN_ROWS` samples (the residual's RMS
-:data:`~.policy.CHANGE_ALARM`^½ times its normal level). The
+:data:`~.policy.CHANGE_ALARM`^½ times its normal level). The new samples of a check are
+cut into blocks of :data:`~.policy.CHANGE_BLOCK_S` (one check may judge seconds of them
+when it came late, and a change in their last quarter second must not be averaged away by
+what came before it); the first block that passes says the change. The
 residual's normal level is measured on the model's own held-out data, with the encoders'
 noise in it, and the rigid-body model is global, so new motion does not raise it; a
 threshold this far above 1 keeps a model somewhat worse on motion it never saw from
-counting as a change. The time of the change is where the first sample of the block's
-run of large residuals (normalised above :data:`~.policy.CHANGE_ONSET`) lies.
+counting as a change. The time of the change is where the stretch of large residuals
+begins, in the passing block or the one before it: the sample from which to the block's
+end the sum of the squared normalised residual less :data:`~.policy.CHANGE_ONSET`² is
+largest (the change point of a CUSUM with that drift).
 """
 
 import math
@@ -38,7 +43,8 @@ from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .policy import CHANGE_ALARM, CHANGE_MIN_ROWS, CHANGE_ONSET, CHANGE_RELATIVE_FLOOR
+from .policy import (CHANGE_ALARM, CHANGE_BLOCK_S, CHANGE_LEVEL_GROWTH, CHANGE_MIN_ROWS,
+                     CHANGE_ONSET, CHANGE_RELATIVE_FLOOR)
 
 __all__ = ['Change', 'ChangeDetector']
 
@@ -59,11 +65,19 @@ class ChangeDetector:
         self.last_time = -math.inf
 
     def set_normal(self, residual_rms, spread) -> None:
-        """Take the model's normal residual (RMS per joint) and the torques' spread (n,)."""
+        """
+        Take the model's normal residual (RMS per joint) and the torques' spread (n,).
+
+        A level already held rises by at most :data:`~.policy.CHANGE_LEVEL_GROWTH` per call:
+        a refit whose newest data hold the first samples of a change (too few to pass the
+        test yet) would otherwise raise the level that is to show it.
+        """
         residual_rms = np.asarray(residual_rms, dtype=float)
         floor = CHANGE_RELATIVE_FLOOR * np.maximum(np.asarray(spread, dtype=float), 1e-9)
-        level = np.where(np.isfinite(residual_rms), residual_rms, np.inf)
-        self.level = np.maximum(level, floor)
+        level = np.maximum(np.where(np.isfinite(residual_rms), residual_rms, np.inf), floor)
+        if self.level is not None and self.level.shape == level.shape:
+            level = np.minimum(level, CHANGE_LEVEL_GROWTH * self.level)
+        self.level = level
 
     def check(self, residual: np.ndarray, times: Sequence[float]) -> Optional[Change]:
         """
@@ -78,13 +92,37 @@ class ChangeDetector:
         if int(new.sum()) < CHANGE_MIN_ROWS:
             return None
         self.last_time = float(times[new][-1])
+        times = times[new]
         normalised = np.asarray(residual, dtype=float)[new] / self.level
-        with np.errstate(all='ignore'):
-            statistic = np.mean(normalised ** 2, axis=0)
-        statistic = np.where(np.isfinite(statistic), statistic, 0.0)
-        joints = tuple(int(j) for j in np.flatnonzero(statistic >= CHANGE_ALARM))
-        if not joints:
-            return None
-        large = np.max(np.abs(normalised[:, list(joints)]), axis=1) > CHANGE_ONSET
-        first = int(np.argmax(large)) if np.any(large) else 0
-        return Change(float(times[new][first]), joints, statistic)
+        start = 0
+        for rows in _blocks(times):
+            with np.errstate(all='ignore'):
+                statistic = np.mean(normalised[rows] ** 2, axis=0)
+            statistic = np.where(np.isfinite(statistic), statistic, 0.0)
+            joints = tuple(int(j) for j in np.flatnonzero(statistic >= CHANGE_ALARM))
+            if joints:
+                span = slice(start, rows.stop)      # the onset may lie in the block before
+                z2 = np.max(normalised[span][:, list(joints)] ** 2, axis=1)
+                gain = np.where(np.isfinite(z2), z2, CHANGE_ONSET ** 2) - CHANGE_ONSET ** 2
+                first = int(np.argmax(np.cumsum(gain[::-1])[::-1]))
+                return Change(float(times[span][first]), joints, statistic)
+            start = rows.start
+        return None
+
+
+def _blocks(times: np.ndarray):
+    """
+    Yield index slices of ``times`` (s, ascending) in blocks of :data:`CHANGE_BLOCK_S`.
+
+    A block of fewer than :data:`CHANGE_MIN_ROWS` samples joins the one before it (the
+    first, short or not, is kept: the caller has at least that many in all).
+    """
+    count = min(int((times[-1] - times[0]) / CHANGE_BLOCK_S), times.size)   # no empty ones
+    edges = np.searchsorted(times, times[0] + CHANGE_BLOCK_S * np.arange(1, count + 1))
+    starts = [0]
+    for edge in edges:
+        if edge - starts[-1] >= CHANGE_MIN_ROWS and times.size - edge >= CHANGE_MIN_ROWS:
+            starts.append(int(edge))
+    ends = starts[1:] + [times.size]
+    for a, b in zip(starts, ends):
+        yield slice(a, b)

@@ -201,8 +201,13 @@ FULL_EVALUATIONS = 200
 DETECT_MIN_S = 6.0
 #: [s] Between two checks for a change, at least.
 CHECK_EVERY_S = 0.25
-#: [s of data] The newest stretch a check judges.
+#: [s of data] The newest stretch a check judges, at least (the samples not judged yet, up to
+#: :data:`CHECK_MAX_S`, always) ...
 CHECK_S = 1.0
+#: [s of data] ... and at most.
+CHECK_MAX_S = 10.0
+#: [s] A check's new samples are judged in blocks of this length.
+CHANGE_BLOCK_S = 0.25
 #: [mean squared normalised residual] A block's level at or above which the dynamics changed.
 CHANGE_ALARM = 25.0
 #: [samples] Fewest new samples a block is judged on.
@@ -211,6 +216,8 @@ CHANGE_MIN_ROWS = 5
 CHANGE_ONSET = 3.0
 #: [share of the joint's torque std] Smallest normal residual level.
 CHANGE_RELATIVE_FLOOR = 0.01
+#: [ratio] A normal residual level rises by at most this at each new fit's level.
+CHANGE_LEVEL_GROWTH = 2.0
 #: [filter widths (the fit's sigma, s)] The data after a change detected on a rigid body count from
 #: this far after its onset, clear of the filter's reach back.
 CHANGE_MARGIN_SIGMAS = 2.0

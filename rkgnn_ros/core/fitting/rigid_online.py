@@ -44,9 +44,9 @@ from .change import Change, ChangeDetector
 from .online_records import (ClosedLoop, DynamicsChange, GenerationStats, LogLine,
                              model_update, PayloadEstimate)
 from .online_rules import stale_stream
-from .policy import (CHANGE_MARGIN_SIGMAS, CHECK_EVERY_S, CHECK_S, DETECT_MIN_S, FORMS_EVERY_S,
-                     FULL_REFIT_S, MAX_LAW_FIT_RATIO, MIN_SEGMENT_SAMPLES, PAYLOAD_MIN_S,
-                     RIGID_MAX_ERROR, RIGID_MIN_DATA_S, RIGID_REFRESH_S)
+from .policy import (CHANGE_MARGIN_SIGMAS, CHECK_EVERY_S, CHECK_MAX_S, CHECK_S, DETECT_MIN_S,
+                     FORMS_EVERY_S, FULL_REFIT_S, MAX_LAW_FIT_RATIO, MIN_SEGMENT_SAMPLES,
+                     PAYLOAD_MIN_S, RIGID_MAX_ERROR, RIGID_MIN_DATA_S, RIGID_REFRESH_S)
 from .rigid_change import fit_last_body, newest_residual, payload_of, since
 from .rigid_fit import fit_closed, fit_closed_forms, fit_torque, RigidFit
 from .rigid_law import GravityFeatures
@@ -108,7 +108,10 @@ class RigidKeeper:
 
     def check(self, segments: Sequence[Dataset], origin: float) -> Optional[Change]:
         """
-        Judge the newest :data:`CHECK_S` of ``segments`` with the model in use.
+        Judge the samples of ``segments`` not judged yet with the model in use.
+
+        At least the newest :data:`CHECK_S` (the filter's edge needs what came before), at
+        most the newest :data:`CHECK_MAX_S`.
 
         A change (:mod:`.change`, its time in stamp seconds) is kept: the data before it are
         no longer fitted, the last body is re-identified first (:meth:`refresh`).
@@ -117,7 +120,9 @@ class RigidKeeper:
         if fit is None or self.detector.level is None or not segments:
             return None
         end = origin + float(segments[-1].t[-1])
-        newest = since(segments, origin, max(self.since, end - CHECK_S))
+        judged = self.detector.last_time
+        newest = since(segments, origin, max(self.since, end - CHECK_MAX_S,
+                                             min(end - CHECK_S, judged - CHECK_S)))
         law = None if self.case == 'torque' else fit.law
         found = newest_residual(fit.arm, law, newest, fit.arm.info.get('sigma') or 0.02)
         if found is None:
@@ -327,10 +332,11 @@ class RigidPolicy:
         if (not self._staleness.fresh(obs, now, lambda level, text: self._emit(
                 LogLine(level, text)), self._set_status) or obs.data is None):
             return False
-        if now - self._last_check >= CHECK_EVERY_S:
-            self._last_check = now
+        refresh = now - self._last_refresh >= RIGID_REFRESH_S
+        if refresh or now - self._last_check >= CHECK_EVERY_S:
+            self._last_check = now       # before a refit, always: it must not absorb a change
             self._check(keeper, obs)
-        if now - self._last_refresh < RIGID_REFRESH_S:
+        if not refresh:
             return False
         self._last_refresh = now
         publish = now - self._last_publish >= settings.model_publish_period
