@@ -349,3 +349,22 @@ def test_refits_every_second_still_reach_use_after_their_trials():
     swapped = [p[0] for p in _models(rig.since(t)) if _error(p) < 1e-9]
     assert swapped and swapped[0] - t <= 4.5
     assert len(rig.lines('now predicts')) >= 2
+
+
+def test_a_candidate_predicts_at_every_prediction_of_a_jittered_10_hz():
+    # predictions at 10 Hz whose states come a sample early or late (jitter): the candidate
+    # is rolled out at each, so its trial (10 predictions scored 2 s ahead) ends about 2.9 s
+    # after it was offered (a rollout every 0.1 s at most took every other one: 3.5 s)
+    rig = Rig()
+    rig.predictor.update_loop(None, rig.loop(off(0.004)))
+    rig.run(15.0)
+    t = rig.arm.now
+    rig.predictor.update_loop(None, rig.loop(exact))
+    jitter = np.random.default_rng(5).integers(-1, 2, 100)
+    for i in range(60):
+        for _ in range(10 + (jitter[i + 1] - jitter[i])):
+            rig.arm.step(rig.k)
+            rig.k += 1
+        assert rig.predictor.predict()
+    swapped = [p[0] for p in _models(rig.since(t)) if _error(p) < 1e-9]
+    assert swapped and swapped[0] - t <= 3.2

@@ -84,7 +84,7 @@ LATENCY_WINDOW = 1000  # predictions whose latency the diagnostics summarise
 MAX_SUBSTEPS = 64  # RKG steps per model_step at most (the substeps parameter's bound)
 DECIDE_EVERY_S = 0.1   # the publish decision is taken again at most this often (stamp time)
 RESCORE_EVERY_S = 0.1  # the self-check's scores are computed again at most this often
-#: A candidate model predicts beside the model at most this often (stamp time, s): its
+#: A candidate model predicts beside the model about this often (stamp time, s): its
 #: trial compares the two on the same targets, and at 1 kHz with prediction.on_state a
 #: second rollout per prediction took half of the prediction thread.
 CANDIDATE_EVERY_S = 0.1
@@ -122,6 +122,22 @@ def score_labels(joints) -> Tuple[str, ...]:
 def _due(now: float, last: float, every: float) -> bool:
     """Return whether ``every`` s passed since ``last`` (or the clock went back)."""
     return not 0.0 <= now - last < every
+
+
+def _on_schedule(now: float, due: float, every: float) -> bool:
+    """
+    Return whether a task run about every ``every`` s is due at ``now`` (stamp times, s).
+
+    From a quarter period before ``due`` on (or when the clock went back): states come with
+    jitter, and a rollout at most every 0.1 s asked for at 10 Hz predictions missed every
+    prediction that came a millisecond early, which made it half as often.
+    """
+    return not -2.0 * every <= now - due < -0.25 * every
+
+
+def _next_due(now: float, due: float, every: float) -> float:
+    """Return when the task of :func:`_on_schedule` that ran at ``now`` is due next (s)."""
+    return due + every if -0.25 * every <= now - due <= 0.75 * every else now + every
 
 
 class _FromReference:
@@ -228,7 +244,7 @@ class Predictor(ThreadPart):
         self._decided_at = -math.inf
         self._sigma = None  # (source, K, last offset, the uncertainty (K, n)) in use
         self._reported_at = -math.inf
-        self._candidate_at = -math.inf  # stamp time of the candidate's last rollout
+        self._candidate_due = -math.inf  # stamp time the candidate's next rollout is due
         self._scored_at = -math.inf  # stamp time of the last prediction scored
         self._ready = threading.Event()  # the rollout kernels ran once (compiled)
         self._wanted = threading.Event()
@@ -347,15 +363,16 @@ class Predictor(ThreadPart):
                          cfg['prediction.lookahead'], frame)))
         self.inputs = horizon.what
         # -- after the prediction is out: its scoring and what the next ones use
-        candidate_due = candidate is not None and _due(latest.t, self._candidate_at,
-                                                       CANDIDATE_EVERY_S)
+        candidate_due = candidate is not None and _on_schedule(latest.t, self._candidate_due,
+                                                               CANDIDATE_EVERY_S)
         if not candidate_due and not _due(latest.t, self._scored_at, SCORE_EVERY_S):
             return True
         self._scored_at = latest.t
         theirs = None
         if candidate_due:
             theirs = self._rollout(candidate, joints, x0, horizon, latest.t, check)
-            self._candidate_at = latest.t if theirs is not None else -math.inf
+            self._candidate_due = (_next_due(latest.t, self._candidate_due, CANDIDATE_EVERY_S)
+                                   if theirs is not None else -math.inf)
             if theirs is not None and self._outside(check, latest, horizon, theirs[0], joints,
                                                     candidate=True):
                 theirs = None
