@@ -83,7 +83,7 @@ def test_a_payload_is_detected_within_a_second_and_identified(picked_up):
     assert AT - 0.05 <= change.time - T0 <= AT + 0.5 and said_at - AT <= 1.0
     assert 'shoulder_lift_joint' in change.joints
     payloads = [(now, e) for now, e in events if isinstance(e, PayloadEstimate)]
-    assert payloads and payloads[0][0] - AT <= 3.0
+    assert payloads and payloads[0][0] - said_at <= 0.5   # refitted as soon as data suffice
     late = [e for now, e in payloads if now >= AT + 5.0]
     assert late, payloads
     assert late[-1].mass == pytest.approx(MASS, rel=0.05)

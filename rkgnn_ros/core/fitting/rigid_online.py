@@ -335,7 +335,7 @@ class RigidPolicy:
         refresh = now - self._last_refresh >= RIGID_REFRESH_S
         if refresh or now - self._last_check >= CHECK_EVERY_S:
             self._last_check = now       # before a refit, always: it must not absorb a change
-            self._check(keeper, obs)
+            refresh = self._check(keeper, obs) or refresh   # a change: its refit at once
         if not refresh:
             return False
         self._last_refresh = now
@@ -358,13 +358,13 @@ class RigidPolicy:
                          best_cost=error)
         return False
 
-    def _check(self, keeper: RigidKeeper, obs) -> None:
-        """Judge the newest data with the model in use; say a change (events, log)."""
+    def _check(self, keeper: RigidKeeper, obs) -> bool:
+        """Judge the newest data with the model in use; say a change; return whether one."""
         capture = obs.data
         change = keeper.check(capture.segments(MIN_SEGMENT_SAMPLES, keeper.case != 'torque'),
                               capture.time_origin)
         if change is None:
-            return
+            return False
         self._last_publish = -math.inf       # the first model after it goes out at once
         names = tuple(keeper.structure.joint_names[j] for j in change.joints)
         statistic = tuple(float(v) for v in change.statistic)
@@ -373,6 +373,7 @@ class RigidPolicy:
                                       f'{list(names)}: residual {max(statistic):.3g} times its '
                                       'normal square): the data before it are dropped, the '
                                       'last body is refitted first'))
+        return True
 
 
 def fit_rigid(datasets, case: str, structure: RigidStructure, kp=None, kd=None,
