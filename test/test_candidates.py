@@ -89,3 +89,20 @@ def test_a_pid_loops_integral_is_carried_past_the_self_checks_window():
                                rtol=1e-9)
     # asked afresh from the loop's own time, 40 s back, the record no longer reaches it
     assert float(Models().integral(closed, 40.0, check)[0]) == 1.0
+
+
+def test_a_candidate_that_cannot_predict_gives_way_to_one_that_can():
+    # after a change, case 1's search restarts: its first model comes without the law (it
+    # cannot predict) and held the trial for 10 s while the refitted loop waited
+    check, models = SelfCheck(2), Models()
+    before, lawless, after = stand_in(1), SimpleNamespace(case='torque', info={}), stand_in(3)
+    models.offer_model(before)
+    models.take(check, 0.0)
+    models.dynamics_changed()
+    models.offer_model(lawless)
+    in_use, candidate = models.take(check, 0.1)
+    assert candidate.model is lawless
+    models.offer_model(after)
+    in_use, candidate = models.take(check, 0.2)
+    assert in_use.model is before and candidate.model is after
+    assert models.pending() == [candidate]

@@ -39,7 +39,8 @@ prediction (:meth:`Models.take`):
   candidate's trial is never restarted: the newest offer waits for it to end (replacing
   an older one waiting), so refits that come faster than a trial takes (a loop fitted at
   every data refresh, 1 s, against about 3 s for 10 predictions scored 2 s ahead) still
-  reach use, one trial after another;
+  reach use, one trial after another; a candidate that cannot predict (a case-1 model
+  whose law has not come with it) gives way to an offer waiting that can;
 - a change of the arm's dynamics (:meth:`Models.dynamics_changed`, in the order of the
   offers) drops the candidate and the offer waiting: both were fitted on the arm before
   it, and the first offer after it starts its trial at once.
@@ -150,6 +151,10 @@ class Models:
             self._offers.clear()
         for kind, slot in offers:
             self._place(kind, slot, check)
+        if self.candidate is not None and self._waiting is not None and \
+                not predicts(self.candidate) and predicts(self._waiting):
+            self.candidate = None    # it cannot predict: it would hold the trial for nothing
+            check.discard_candidate()
         if self.candidate is None and self._waiting is not None:
             self.candidate, self._waiting = self._waiting, None
             self._trial_start = now
