@@ -368,3 +368,23 @@ def test_a_candidate_predicts_at_every_prediction_of_a_jittered_10_hz():
         assert rig.predictor.predict()
     swapped = [p[0] for p in _models(rig.since(t)) if _error(p) < 1e-9]
     assert swapped and swapped[0] - t <= 3.2
+
+
+def test_after_a_change_the_new_models_trial_needs_half_the_scores():
+    # the change detector judged the model in use: the refit after it is promoted once 5
+    # predictions are scored 2 s ahead (about 2.4 s), not 10 (2.9 s); its scores keep coming
+    def swap_after(change):
+        rig = Rig()
+        rig.predictor.update_loop(None, rig.loop(off(0.004)))
+        rig.run(15.0)
+        t = rig.arm.now
+        if change:
+            rig.predictor.dynamics_changed()
+        rig.predictor.update_loop(None, rig.loop(exact))
+        rig.run(6.0)
+        swapped = [p[0] for p in _models(rig.since(t)) if _error(p) < 1e-9]
+        assert swapped, rig.logs
+        return swapped[0] - t
+
+    quick, full = swap_after(True), swap_after(False)
+    assert 2.0 <= quick <= 2.7 and quick <= full - 0.4, (quick, full)

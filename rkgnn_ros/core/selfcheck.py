@@ -23,7 +23,8 @@ candidate model, following the reference and holding the last state) that decide
 with the reason). Trust is earned, never assumed, and lost at once:
 
 - until the model has ``min_scored`` scored predictions at every horizon it reaches, the
-  best-scoring baseline is published;
+  best-scoring baseline is published (after a change of the dynamics, fewer:
+  :meth:`SelfCheck.dynamics_changed`);
 - the model is published once, **on every joint**, its error is at least ``margin`` below
   the better baseline's on that joint at every horizon, over the window and over its last
   ``recent`` seconds (a model good on six joints and bad on the seventh is not published:
@@ -60,7 +61,8 @@ from .noise import encoder_noise
 from .scoring import (ahead_errors, BASELINES, finite_rows, HORIZONS, PredictionRecord,
                       range_normalised_rmse, rollout_spread, SOURCES)
 
-__all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'FLOOR_FACTOR', 'MIN_NOISE_RAD', 'Decision',
+__all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'FLOOR_FACTOR', 'MIN_NOISE_RAD', 'QUICK_MIN',
+           'QUICK_SHARE', 'Decision',
            'Verdict', 'SelfCheck', 'baseline', 'ahead_errors', 'range_normalised_rmse',
            'rollout_spread']
 
@@ -69,6 +71,8 @@ FLOOR_FACTOR = 2.0
 #: The least encoder noise assumed (rad): below any encoder's resolution (2^20 counts per
 #: turn is 6e-6 rad), so exact data and rounding do not make a floor of zero.
 MIN_NOISE_RAD = 1e-6
+QUICK_SHARE = 0.5   # of min_scored, after a change of the dynamics (SelfCheck.dynamics_changed)
+QUICK_MIN = 3       # scored predictions at every horizon, at least, then
 
 
 @dataclass(frozen=True)
@@ -168,6 +172,9 @@ class SelfCheck(PredictionRecord):
         self.margin = float(margin)
         self.min_scored = max(1, int(min_scored))
         self.recent = float(recent)
+        # after a change of the dynamics: '' (none), 'stale' (the model in use is the one
+        # before it), 'new' (one after it is in use, not scored in full yet)
+        self._quick = ''
         self._on_model = False     # the model is published (it earned it and kept it)
         self._withdrawn = (-math.inf, '')  # (held until this state time, why)
 
@@ -185,13 +192,16 @@ class SelfCheck(PredictionRecord):
         scored = [b for b in allowed if any(b in scores[h] for h in self.horizons)]
         reached = self._reached('model')
         counts = [scores[h].get('count', 0) for h in reached]
-        if not reached or min(counts) < self.min_scored:
+        if self._quick == 'new' and reached and min(counts) >= self.min_scored:
+            self._quick = ''
+        needed = self._needed()
+        if not reached or min(counts) < needed:
             # the baselines' first scores are few and from the start of the motion, when
             # an arm at rest is briefly better held than following its plan: follow it
             best = 'follow_reference' if 'follow_reference' in allowed else 'hold_last'
             have = min(counts) if counts else 0
             return Decision(best, f'the model has not been scored yet ({have} of '
-                            f'{self.min_scored} predictions at every horizon it reaches): '
+                            f'{needed} predictions at every horizon it reaches): '
                             f'publishing {best}', False, scores)
         best = _best_baseline(scores, allowed, reached)
         if self.withdrawn():
@@ -371,7 +381,7 @@ class SelfCheck(PredictionRecord):
             if errors is None:
                 return None
             has = finite_rows(errors['candidate'])
-            if has.sum() < self.min_scored:
+            if has.sum() < self._needed():
                 return None
             common = has & finite_rows(errors['model'])
             mine.append(self._per_joint(errors['candidate'], common if np.any(common) else has))
@@ -393,12 +403,32 @@ class SelfCheck(PredictionRecord):
                            f'{model:.2%})')
         return Verdict(True, candidate, model)
 
+    def dynamics_changed(self) -> None:
+        """
+        Say that the arm's dynamics changed: the model in use no longer holds.
+
+        Until a model after it is in use with ``min_scored`` scored predictions at every
+        horizon, a candidate's trial and the model's publication need :data:`QUICK_SHARE`
+        of them (at least :data:`QUICK_MIN`): a change detector's evidence already judged
+        the model in use, and each scored prediction 2 s ahead costs a prediction period of
+        the time the arm is predicted by a model of the arm before the change.
+        """
+        self._quick = 'stale'
+        self._cache = None
+
+    def _needed(self) -> int:
+        """Return the scored predictions a trial or the model's publication needs now."""
+        if not self._quick:
+            return self.min_scored
+        return min(self.min_scored, max(QUICK_MIN, int(math.ceil(QUICK_SHARE * self.min_scored))))
+
     def promote(self) -> None:
         """Make the candidate the model: its recorded predictions replace the model's."""
         blocks = self._blocks()
         blocks['model'][:] = blocks['candidate']
         blocks['candidate'][:] = np.nan
         self._withdrawn = (-math.inf, '')
+        self._quick = 'new' if self._quick else ''
         self._cache = None
 
     def discard_candidate(self) -> None:
@@ -411,6 +441,7 @@ class SelfCheck(PredictionRecord):
         self._blocks()['model'][:] = np.nan
         self._on_model = False
         self._withdrawn = (-math.inf, '')
+        self._quick = 'new' if self._quick else ''
         self._cache = None
 
     def uncertainty(self, offsets, predictor: str = 'published') -> np.ndarray:

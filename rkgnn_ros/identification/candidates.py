@@ -43,7 +43,8 @@ prediction (:meth:`Models.take`):
   whose law has not come with it) gives way to an offer waiting that can;
 - a change of the arm's dynamics (:meth:`Models.dynamics_changed`, in the order of the
   offers) drops the candidate and the offer waiting: both were fitted on the arm before
-  it, and the first offer after it starts its trial at once.
+  it, and the first offer after it starts its trial at once, judged on fewer scored
+  predictions until a model holds again (:meth:`SelfCheck.dynamics_changed`).
 
 A loop with an integral term (a PID) predicts from its integral at each prediction's start
 (:meth:`Models.integral`): the law's term at the data it was fitted on, carried on with the
@@ -192,6 +193,7 @@ class Models:
 
     def _place(self, kind: str, slot: Optional[Slot], check: SelfCheck) -> None:
         if kind == 'change':
+            check.dynamics_changed()
             if self.candidate is not None:
                 self.candidate = None
                 check.discard_candidate()
