@@ -191,6 +191,7 @@ def test_the_policy_hands_the_learned_chain_to_the_rigid_body_policy(servoed):
     # no search is built in this test (min_window beyond the data): the chain alone
     cfg = OnlineSettings(case='torque', min_window=100.0, validation_fraction=0.2,
                          model_publish_period=0.5)
+    policy._changes.since = T0 + 1.5   # a change the search saw: the rigid body starts there
     events, k = [], 0
     for _ in range(40):
         now[0] += 0.5
@@ -213,6 +214,8 @@ def test_the_policy_hands_the_learned_chain_to_the_rigid_body_policy(servoed):
     assert 'learned_chain' in model.info and model.info['held_out_error'] < 0.05
     assert updates[-1].loop is not None            # closed with the learned servo law
     assert any('rigid-body model of the learned chain predicts' in t for t in texts), texts
+    assert policy._rigid.keeper.since == T0 + 1.5
+    assert model.info['window_s'] <= data.t[-1] - 1.5 + 1e-6
 
 
 def test_fit_best_and_identify_bag_learn_the_chain_when_asked(monkeypatch):
@@ -280,3 +283,31 @@ def test_identify_bag_learns_the_chain_when_asked(servoed, tmp_path, capsys, mon
     assert model['kind'] == 'rigid_body' and model['case'] == 'torque'
     assert model['source'] == 'the chain learned from joint data'
     assert len(model['info']['learned_chain']['chain']['modified_dh']['alpha_deg']) == 3
+
+
+def test_a_change_of_the_dynamics_abandons_the_fit_and_drops_the_data_before_it(monkeypatch):
+    # a payload picked up at 8 s: a chain fitted on both arms' torque fits neither; the fit
+    # running on them is abandoned (not an attempt) and the next waits for 5 s after it
+    release = threading.Event()
+
+    def slow_fit(train, validation, settings, names, log):
+        release.wait(30.0)
+        log('search: done')
+        raise AssertionError('not reached: the stage line ends a cancelled fit')
+
+    monkeypatch.setattr(chain_online, 'fit_chain', slow_fit)
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=5.0)
+    learner._spawn = lambda run: threading.Thread(target=run, daemon=True).start()
+    data = arm_data(12.0)
+    learner.feed(NAMES, [data.slice(0, 600)], T0)          # 6 s
+    assert learner.poll('torque') and learner.running
+    job = learner._job
+    learner.changed(T0 + 4.0)
+    release.set()
+    assert job.done.wait(10.0) and job.error == 'abandoned'
+    assert not learner.running and learner._attempts == 0
+    assert abs(learner.gathered_s - 2.0) < 0.02              # only what came after 4 s
+    assert learner.poll('torque') == []                      # 2 s of 5 after the change
+    learner.feed(NAMES, [data.slice(0, 1000)], T0)         # 10 s: 6 s after the change
+    assert learner.poll('torque') and learner.running
+    assert min(seg.t[0] for seg in learner._job.train) >= 4.0 - 1e-9

@@ -236,6 +236,24 @@ class ChainLearner:
             self._total_s += part.duration
         self._trim()
 
+    def changed(self, stamp: float) -> None:
+        """
+        Say that the arm's dynamics changed at ``stamp`` (s): the data before it go.
+
+        A chain not learned yet is fitted on data of one arm only: a fit running on data
+        from before the change is abandoned (it does not count as an attempt), and the
+        next starts once :data:`CHAIN_DATA_S` after it are gathered. A chain already
+        learned stays (a payload changes the dynamics, not the kinematics).
+        """
+        if self.structure is not None or self._origin is None:
+            return
+        if self._job is not None:
+            self._job.cancelled = True
+            self._job = None
+            self._attempts = max(0, self._attempts - 1)
+        self._segments = since(self._segments, self._origin, stamp)
+        self._next_s = self._total_s + max(0.0, self.min_data_s - self.gathered_s)
+
     def _trim(self) -> None:
         """Keep the newest :data:`MAX_DATA_S` seconds."""
         excess = self.gathered_s - MAX_DATA_S

@@ -318,6 +318,9 @@ class OnlineIdentification(ChainSteps, _Publishing):
                 self._drop_search('the robot description gives the model'
                                   if obs.structure is not self._chain.structure else
                                   'the learned chain gives the model')
+            # a learned chain's rigid body starts after the newest change the search saw
+            self._rigid.since = self._changes.since if obs.structure is self._chain.structure \
+                else -math.inf
             return self._rigid.step(obs)
         if obs.reset:
             self._drop_search('~/reset')
@@ -347,6 +350,7 @@ class OnlineIdentification(ChainSteps, _Publishing):
         if events:   # the dynamics changed: what the old data built goes, the search anew
             self._out.extend(events)
             self._laws.trig, self._memory = None, MemoryFeed()
+            self._chain.changed(self._changes.since)
             if self._evo is not None:
                 self._drop_search('the dynamics changed')
         since = self._clock() - self._last_refresh

@@ -309,6 +309,9 @@ class RigidPolicy:
         self._last_refresh = -math.inf
         self._last_publish = -math.inf
         self._last_check = -math.inf
+        #: stamp time (s) of the newest change of the dynamics seen before this policy took
+        #: over (the search's, for a learned chain): a new keeper fits only the data after it
+        self.since = -math.inf
 
     def data_due(self, obs, now: float) -> bool:
         """Return whether the next :meth:`step` refits or checks (it then wants a capture)."""
@@ -323,6 +326,7 @@ class RigidPolicy:
             self._emit(LogLine('info', f'identifying the rigid body of '
                                        f'{obs.structure.describe()}, case {settings.case}'))
             self.keeper = keeper = RigidKeeper(obs.structure, settings.case)
+            keeper.since = self.since
             self._last_refresh = -math.inf
         now = self._clock()
         if obs.paused or obs.joints is None:
