@@ -357,3 +357,23 @@ def test_the_closed_loop_keeps_what_the_memory_holds_when_the_arm_moves_little()
     # the window alone diverges on the swings (NaN here), or is at least 5x worse
     assert not np.isfinite(window_alone) or window_alone > 5 * with_memory
     np.testing.assert_allclose(kept.law.kp / kept.law.kp.mean(), KP / KP.mean(), rtol=0.03)
+
+
+def test_a_refit_with_gains_no_servo_has_keeps_the_law(pd_data, monkeypatch):
+    # after a change of the dynamics the law is refitted on a few seconds: one that explains
+    # the torque with a negative Kd is undetermined, not a servo that stopped explaining it
+    # (the paper arm's release dropped its law so, and no model could predict)
+    import rkgnn_ros.core.fitting.case_one as case_one
+    keeper = LawKeeper()
+    keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
+    law = keeper.law
+    assert law is not None
+    odd = replace(law, kd=-np.abs(law.kd), fit_ratio=np.full_like(law.fit_ratio, 0.001))
+    monkeypatch.setattr(case_one, 'fit_law', lambda *args, **kwargs: odd)
+    refit = keeper.refit([pd_data.slice(1500, 2100)], 15.0, None)
+    assert refit.kind == 'keep' and refit.line is None and keeper.law is law
+    # a law that no longer explains the torque still goes
+    bad = replace(law, fit_ratio=np.full_like(law.fit_ratio, 0.5))
+    monkeypatch.setattr(case_one, 'fit_law', lambda *args, **kwargs: bad)
+    refit = keeper.refit([pd_data.slice(1500, 2100)], 15.0, None)
+    assert refit.kind == 'changed' and keeper.law is None and 'no longer' in refit.line[1]

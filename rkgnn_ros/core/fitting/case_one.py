@@ -323,7 +323,8 @@ class LawKeeper:
         nothing ('keep'); a refit of the same form (gains within :data:`LAW_GAIN_RTOL`,
         θ-terms evaluated alike) keeps the running law, its integral moved on to the data's
         end ('keep'); new gains are 'moved'; a law that appears or stops explaining the
-        torque is 'changed', with the line that says so.
+        torque is 'changed', with the line that says so. A refit that explains the torque
+        with gains no servo has (Kp <= 0 or Kd < 0) changes nothing either ('keep').
         """
         where = running.theta_input if running is not None else 'auto'
         fresh = fit_law(segments, where, MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO) \
@@ -331,6 +332,10 @@ class LawKeeper:
         if fresh is not None and running is not None and not fresh.usable(MAX_LAW_FIT_RATIO):
             fresh = fit_law(segments, 'auto', MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO)
         if fresh is None:
+            return Refit('keep', running)
+        if not fresh.usable(MAX_LAW_FIT_RATIO) and np.all(fresh.fit_ratio <= MAX_LAW_FIT_RATIO):
+            # it explains the torque, with gains no servo has (Kp <= 0, Kd < 0): the data
+            # (a few seconds after a change) do not determine them yet; the law stays
             return Refit('keep', running)
         new = fresh if fresh.usable(MAX_LAW_FIT_RATIO) else None
         end = origin + float(segments[-1].t[-1])
