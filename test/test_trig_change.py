@@ -41,9 +41,9 @@ def released():
     return loaded, before, after
 
 
-def changes_said(before, after, loop_at):
+def changes_said(before, after, loop_at, every=0.25):
     """
-    Feed ``before`` then ``after`` at 0.25 s steps; return (step time, change) said.
+    Feed ``before`` then ``after`` at ``every`` s steps; return (step time, change) said.
 
     ``loop_at(now, step)`` gives the keeper's loop at each step (None: dropped).
     """
@@ -52,8 +52,8 @@ def changes_said(before, after, loop_at):
     said = []
     samples = [(d, k) for d in (before, after) for k in range(d.n_samples - (d is before))]
     fed = 0
-    for step in range(int(17.9 / 0.25)):
-        now = step * 0.25
+    for step in range(int(17.9 / every)):
+        now = step * every
         while fed < len(samples) and samples[fed][0].t[samples[fed][1]] <= now:
             d, k = samples[fed]
             buffer.add_state(T0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
@@ -101,3 +101,15 @@ def test_a_loop_refitted_on_the_changed_data_does_not_hide_the_change(picked_up)
     assert len(said) == 1, said
     now, change = said[0]
     assert AT - 0.15 <= change.time - T0 <= AT + 0.5 and now - AT <= 1.0
+
+
+def test_a_check_that_comes_late_finds_the_change_where_it_began(released):
+    # the worker checks only between the search's generations: here every 1.5 s, the last
+    # check before the release at 12.0 s and the next at 13.5 s; what came between is judged
+    # (a check of the newest second alone put the onset at 12.5 s)
+    loaded, before, after = released
+    loop = SimpleNamespace(arm=loaded)
+    said = changes_said(before, after, lambda now, step: loop, every=1.5)
+    assert len(said) == 1, said
+    now, change = said[0]
+    assert now == pytest.approx(13.5) and AT - 0.15 <= change.time - T0 <= AT + 0.1

@@ -111,7 +111,8 @@ class RigidKeeper:
         Judge the samples of ``segments`` not judged yet with the model in use.
 
         At least the newest :data:`CHECK_S` (the filter's edge needs what came before), at
-        most the newest :data:`CHECK_MAX_S`.
+        most the newest :data:`CHECK_MAX_S`; a detector's first check, the newest
+        :data:`CHECK_S` only (what came before is what the model was fitted on).
 
         A change (:mod:`.change`, its time in stamp seconds) is kept: the data before it are
         no longer fitted, the last body is re-identified first (:meth:`refresh`).
@@ -120,9 +121,9 @@ class RigidKeeper:
         if fit is None or self.detector.level is None or not segments:
             return None
         end = origin + float(segments[-1].t[-1])
-        judged = self.detector.last_time
+        judged = self.detector.last_time if self.detector.last_time > -math.inf else end
         newest = since(segments, origin, max(self.since, end - CHECK_MAX_S,
-                                             min(end - CHECK_S, judged - CHECK_S)))
+                                             min(end, judged) - CHECK_S))
         law = None if self.case == 'torque' else fit.law
         found = newest_residual(fit.arm, law, newest, fit.arm.info.get('sigma') or 0.02)
         if found is None:

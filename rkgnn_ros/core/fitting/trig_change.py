@@ -33,7 +33,7 @@ import numpy as np
 
 from .change import Change, ChangeDetector
 from .online_records import DynamicsChange, LogLine
-from .policy import (CHECK_EVERY_S, CHECK_S, DETECT_MIN_S, MIN_SEGMENT_SAMPLES,
+from .policy import (CHECK_EVERY_S, CHECK_MAX_S, CHECK_S, DETECT_MIN_S, MIN_SEGMENT_SAMPLES,
                      TRIG_CHANGE_MARGIN_S)
 from .rigid_change import since
 from .trig_loop import data_span
@@ -123,12 +123,21 @@ class TrigChangeMonitor:
         self._armed_by = loop
 
     def check(self, loop, segments: Sequence[Dataset], origin: float) -> Optional[Change]:
-        """Judge the newest :data:`CHECK_S` of ``segments`` with ``loop``'s arm."""
+        """
+        Judge the samples of ``segments`` not judged yet with ``loop``'s arm.
+
+        At least the newest :data:`CHECK_S` (the filter's edge needs what came before), at
+        most the newest :data:`CHECK_MAX_S`: a check that came late behind a generation
+        judges what came meanwhile, so the change's onset is where it was. The first check
+        of a detector judges the newest :data:`CHECK_S` only (what came before is what the
+        arm was fitted on).
+        """
         if loop is None or self.detector.level is None or not segments:
             return None
         end = origin + float(segments[-1].t[-1])
-        found = _residual(loop.arm, since(segments, origin, max(self.since, end - CHECK_S)),
-                          origin)
+        judged = self.detector.last_time if self.detector.last_time > -math.inf else end
+        start = max(self.since, end - CHECK_MAX_S, min(end, judged) - CHECK_S)
+        found = _residual(loop.arm, since(segments, origin, start), origin)
         if found is None:
             return None
         change = self.detector.check(found[0], found[2])
