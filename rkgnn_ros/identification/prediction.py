@@ -125,18 +125,12 @@ def _due(now: float, last: float, every: float) -> bool:
 
 
 def _on_schedule(now: float, due: float, every: float) -> bool:
-    """
-    Return whether a task run about every ``every`` s is due at ``now`` (stamp times, s).
-
-    From a quarter period before ``due`` on (or when the clock went back): states come with
-    jitter, and a rollout at most every 0.1 s asked for at 10 Hz predictions missed every
-    prediction that came a millisecond early, which made it half as often.
-    """
+    """Return whether a task run every ``every`` s is due at ``now``: from ``due`` - every/4."""
     return not -2.0 * every <= now - due < -0.25 * every
 
 
 def _next_due(now: float, due: float, every: float) -> float:
-    """Return when the task of :func:`_on_schedule` that ran at ``now`` is due next (s)."""
+    """Return when the task of :func:`_on_schedule` run at ``now`` is due next (s)."""
     return due + every if -0.25 * every <= now - due <= 0.75 * every else now + every
 
 
