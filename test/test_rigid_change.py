@@ -14,12 +14,14 @@
 
 """A described arm picks up a payload: the change is seen, the payload identified."""
 
+import math
+
 import numpy as np
 import pytest
 
 pytest.importorskip('pinocchio')
 
-from rkgnn_ros.core.fitting.change import ChangeDetector  # noqa: E402
+from rkgnn_ros.core.fitting.change import Change, ChangeDetector  # noqa: E402
 from rkgnn_ros.core.fitting.online import OnlineIdentification  # noqa: E402
 from rkgnn_ros.core.fitting.online_records import (DynamicsChange, ModelUpdate,  # noqa: E402
                                                    Observation, OnlineSettings, PayloadEstimate)
@@ -119,7 +121,9 @@ def test_a_change_at_the_end_of_a_late_check_is_not_averaged_away():
     residual = rng.normal(0.0, 0.1, (300, 1))
     residual[270:, 0] += 0.6
     assert np.mean((residual / 0.1) ** 2) < 25.0
-    change = detector.check(residual, times)
+    assert detector.check(residual, times) is None       # a suspect: the next block says
+    assert detector.suspect is not None
+    change = detector.check(rng.normal(0.0, 0.1, (25, 1)) + 0.6, 53.0 + np.arange(25) * 0.01)
     assert change is not None and change.joints == (0,)
     assert change.time == pytest.approx(52.7, abs=0.02)
 
@@ -134,6 +138,46 @@ def test_a_refit_that_took_in_the_start_of_a_change_cannot_hide_it():
     detector.set_normal([0.05, 0.05], [10.0, 10.0])        # a better fit lowers it at once
     assert detector.level == pytest.approx([0.1, 0.1])
     rng = np.random.default_rng(4)
-    residual = rng.normal(0.0, 0.1, (25, 2))
+    residual = rng.normal(0.0, 0.1, (50, 2))
     residual[:, 0] += 1.0
-    assert detector.check(residual, 10.0 + np.arange(25) * 0.01).joints == (0,)
+    assert detector.check(residual, 10.0 + np.arange(50) * 0.01).joints == (0,)
+
+
+def test_one_block_over_the_alarm_is_a_suspect_the_next_one_clears():
+    detector = ChangeDetector()
+    detector.set_normal([0.1], [10.0])
+    rng = np.random.default_rng(6)
+    spike = rng.normal(0.0, 0.1, (25, 1))
+    spike[10:15, 0] += 1.5                         # one block's statistic over 25, alone
+    assert detector.check(spike, 20.0 + np.arange(25) * 0.01) is None
+    assert detector.suspect is not None
+    assert detector.check(rng.normal(0.0, 0.1, (25, 1)), 20.25 + np.arange(25) * 0.01) is None
+    assert detector.suspect is None
+
+
+def test_no_refit_while_a_suspect_waits_for_its_confirmation(picked_up):
+    structure, before, _ = picked_up
+    joints = tuple(structure.joint_names)
+    buffer = StreamBuffer(joints, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+    for k in range(before.n_samples):
+        buffer.add_state(T0 + before.t[k], before.theta[k], before.theta_dot[k], before.tau[k])
+        buffer.add_command(T0 + before.t[k], before.theta_d[k], before.theta_d_dot[k])
+    clock = [200.0]
+    policy = OnlineIdentification(lambda: clock[0])
+    cfg = OnlineSettings(case='torque', min_window=2.0, validation_fraction=0.2)
+
+    def step():
+        clock[0] += 1.5          # a refit is due at every step
+        obs = Observation(cfg, joints, {'state': clock[0], 'command': clock[0]},
+                          structure=structure)
+        policy.step(obs._replace(data=buffer.capture()))
+        return policy._rigid.keeper
+
+    keeper = step()
+    refits = keeper.refits
+    assert refits >= 1
+    keeper.detector.suspect = Change(T0 + 19.0, (1,), np.zeros(len(joints)))
+    keeper.detector.last_time = math.inf          # nothing new to judge: it stays a suspect
+    assert step().refits == refits
+    keeper.detector.suspect = None
+    assert step().refits == refits + 1

@@ -28,14 +28,16 @@ joint over at least :data:`~.policy.CHANGE_MIN_ROWS` samples (the residual's RMS
 :data:`~.policy.CHANGE_ALARM`^½ times its normal level). The new samples of a check are
 cut into blocks of :data:`~.policy.CHANGE_BLOCK_S` (one check may judge seconds of them
 when it came late, and a change in their last quarter second must not be averaged away by
-what came before it); the first block that passes says the change. The
-residual's normal level is measured on the model's own held-out data, with the encoders'
-noise in it, and the rigid-body model is global, so new motion does not raise it; a
-threshold this far above 1 keeps a model somewhat worse on motion it never saw from
-counting as a change. The time of the change is where the stretch of large residuals
-begins, in the passing block or the one before it: the sample from which to the block's
-end the sum of the squared normalised residual less :data:`~.policy.CHANGE_ONSET`² is
-largest (the change point of a CUSUM with that drift).
+what came before it). A block that passes is a suspect (:attr:`ChangeDetector.suspect`:
+the model is not refitted meanwhile); the change is declared when the next block passes
+too, at the suspect's onset: one block can pass by chance, a payload's residual stays
+large. The residual's normal level is measured on the model's own held-out data, with
+the encoders' noise in it, and the rigid-body model is global, so new motion does not
+raise it; a threshold this far above 1 keeps a model somewhat worse on motion it never
+saw from counting as a change. The time of the change is where the stretch of large
+residuals begins, in the suspect block or the one before it: the sample from which to the
+block's end the sum of the squared normalised residual less :data:`~.policy.CHANGE_ONSET`²
+is largest (the change point of a CUSUM with that drift).
 """
 
 import math
@@ -63,6 +65,8 @@ class ChangeDetector:
     def __init__(self):
         self.level: Optional[np.ndarray] = None
         self.last_time = -math.inf
+        #: a block that passed, waiting for the next to confirm it (its onset, statistic)
+        self.suspect: Optional[Change] = None
 
     def set_normal(self, residual_rms, spread) -> None:
         """
@@ -100,12 +104,18 @@ class ChangeDetector:
                 statistic = np.mean(normalised[rows] ** 2, axis=0)
             statistic = np.where(np.isfinite(statistic), statistic, 0.0)
             joints = tuple(int(j) for j in np.flatnonzero(statistic >= CHANGE_ALARM))
-            if joints:
+            if not joints:
+                self.suspect = None
+            elif self.suspect is not None:           # confirmed: the change is the suspect's
+                found, self.suspect = self.suspect, None
+                both = tuple(sorted(set(found.joints) | set(joints)))
+                return Change(found.time, both, np.maximum(found.statistic, statistic))
+            else:
                 span = slice(start, rows.stop)      # the onset may lie in the block before
                 z2 = np.max(normalised[span][:, list(joints)] ** 2, axis=1)
                 gain = np.where(np.isfinite(z2), z2, CHANGE_ONSET ** 2) - CHANGE_ONSET ** 2
                 first = int(np.argmax(np.cumsum(gain[::-1])[::-1]))
-                return Change(float(times[span][first]), joints, statistic)
+                self.suspect = Change(float(times[span][first]), joints, statistic)
             start = rows.start
         return None
 

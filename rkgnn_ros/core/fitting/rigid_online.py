@@ -341,6 +341,8 @@ class RigidPolicy:
         if refresh or now - self._last_check >= CHECK_EVERY_S:
             self._last_check = now       # before a refit, always: it must not absorb a change
             refresh = self._check(keeper, obs) or refresh   # a change: its refit at once
+        if keeper.detector.suspect is not None:
+            return False     # a refit now would take in the samples the next check confirms
         if not refresh:
             return False
         self._last_refresh = now

@@ -105,7 +105,7 @@ class TrigChangeMonitor:
                                            f'{max(statistic):.3g} times its normal square): '
                                            'the data before it are dropped and the arm is '
                                            'fitted again on the data after it')]
-        if checked or self.detector.level is None:
+        if (checked and self.detector.suspect is None) or self.detector.level is None:
             _, validation, _ = split_validation(segments, fraction, MIN_SEGMENT_SAMPLES)
             self.rearm(loop, validation, origin, data_span(segments))
         return []
