@@ -34,12 +34,16 @@ the attachment on, whose error is at most twice ``error_before``; ``recovery_bin
 same over the 2 s bins from the attachment), ``detection_delay_s`` (the arm's time when
 ``~/change`` said it, its newest joint_states stamp then, minus the attachment),
 ``payload_mass_error`` (fraction) and ``payload_com_error_m`` (the last ``~/payload`` before
-10 s after the attachment; described arms only), and the same for the release.
+10 s after the attachment; described arms only), and the same for the release; per cell
+``self_check_worst_ratio`` and ``self_check_worst_joint_ratio``
+(:func:`self_check_figures`: the worst 10 s window of what was published against the
+better baseline, over the joints and per joint).
 ``--false-alarms``: one 10-minute run of the UR5 with noise, no payload and a task switch at
 5 minutes (``reference.switch_at``), counting ``~/change`` messages.
 
 Writes ``bench/results/change.json``: arm → sensors → the figures; top level
-``worst_recovery_s_urdf``, ``worst_recovery_s_no_urdf``, ``false_alarms_10min``.
+``worst_recovery_s_urdf``, ``worst_recovery_s_no_urdf``, ``false_alarms_10min`` and the
+two self-check figures' worst over the cells.
 """
 
 import argparse
@@ -162,6 +166,45 @@ def _event_figures(start, t0, error, theta_range, at, listener, arm, payload_on)
     return out
 
 
+def self_check_figures(pt0, err, meas_t, meas_theta, listener, theta_range):
+    """
+    Return the worst 10 s window of what was published against the better baseline.
+
+    ``(over the joints, per joint)``: the published 2 s-ahead RMSE over the predictions
+    started in each 10 s window (slid by 1 s) over the better of following the reference
+    (θd 2 s on) and holding the start's θ, range-normalised, mean over the joints; and the
+    largest per-joint ratio. None where no window has predictions and commands.
+    """
+    with listener.lock:
+        cmd_t, theta_d = np.array(listener.cmd_t), np.array(listener.theta_d)
+    if pt0.size < 2 or cmd_t.size < 2:
+        return None, None
+    order = np.argsort(cmd_t)
+    cmd_t, theta_d = cmd_t[order], theta_d[order]
+    ahead = pt0 + HORIZON
+    keep = (ahead <= meas_t[-1]) & (ahead <= cmd_t[-1]) & (pt0 >= max(meas_t[0], cmd_t[0]))
+    pt0, err, ahead = pt0[keep], err[keep], ahead[keep]
+    n = meas_theta.shape[1]
+    actual = np.column_stack([np.interp(ahead, meas_t, meas_theta[:, j]) for j in range(n)])
+    start = np.column_stack([np.interp(pt0, meas_t, meas_theta[:, j]) for j in range(n)])
+    planned = np.column_stack([np.interp(ahead, cmd_t, theta_d[:, j]) for j in range(n)])
+    errors = {'prediction': err, 'follow_reference': planned - actual, 'hold_last': start - actual}
+    scale = np.maximum(theta_range, 1e-12)
+    worst = worst_joint = None
+    for a in np.arange(pt0[0], pt0[-1] - 10.0 + 1e-9, 1.0):
+        sel = (pt0 >= a) & (pt0 < a + 10.0)
+        if sel.sum() < 2:
+            continue
+        per = {k: np.sqrt(np.mean(e[sel] ** 2, axis=0)) / scale for k, e in errors.items()}
+        better = np.minimum(per['follow_reference'], per['hold_last'])
+        ratio = float(np.mean(per['prediction']) / max(
+            min(np.mean(per['follow_reference']), np.mean(per['hold_last'])), 1e-12))
+        joint = float(np.max(per['prediction'] / np.maximum(better, 1e-12)))
+        worst = ratio if worst is None else max(worst, ratio)
+        worst_joint = joint if worst_joint is None else max(worst_joint, joint)
+    return worst, worst_joint
+
+
 def event_stamps(log_path):
     """Return the stamp times (s) sim_arm's log gives its payload 'attached', 'released'."""
     out = {}
@@ -224,8 +267,11 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
     start = float(meas_t[0])
     pt0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, HORIZON)
     theta_range = np.ptp(meas_theta, axis=0)
+    ratio, joint_ratio = self_check_figures(pt0, err, meas_t, meas_theta, listener,
+                                            theta_range)
     cell = {'exit_codes': codes,
             'load_average': [round(load, 2), round(os.getloadavg()[0], 2)],
+            'self_check_worst_ratio': ratio, 'self_check_worst_joint_ratio': joint_ratio,
             'changes_said': [[round(n - start, 3), round(w - start, 3)]
                              for n, w in listener.changes],
             'payloads': [[round(n - start, 3), m, c] for n, m, c in listener.payloads]}
@@ -288,6 +334,11 @@ def main(argv=None):
         values = [float('inf') if v is None else v for v in values]
         return max(values) if values else None
 
+    cells = [c for a in ARMS for c in results.get(a, {}).values()]
+    cells += [results['false_alarm_run']] if 'false_alarm_run' in results else []
+    for key in ('self_check_worst_ratio', 'self_check_worst_joint_ratio'):
+        values = [c[key] for c in cells if c.get(key) is not None]
+        results[key] = max(values) if values else None
     results['worst_recovery_s_urdf'] = worst('ur5')
     results['worst_recovery_s_no_urdf'] = worst('paper')
     results['meta'] = {'date': datetime.date.today().isoformat(), 'duration_s': args.duration,
