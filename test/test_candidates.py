@@ -19,7 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 from rkgnn_ros.core.fitting.online_records import ClosedLoop
 from rkgnn_ros.core.selfcheck import SelfCheck
-from rkgnn_ros.identification.candidates import Models
+from rkgnn_ros.identification.candidates import Models, predicts, Slot
 
 
 def stand_in(generation):
@@ -106,3 +106,21 @@ def test_a_candidate_that_cannot_predict_gives_way_to_one_that_can():
     in_use, candidate = models.take(check, 0.2)
     assert in_use.model is before and candidate.model is after
     assert models.pending() == [candidate]
+
+
+def test_a_rigid_body_without_its_loop_cannot_predict_and_gives_way():
+    # a rigid-body fit whose closed loop does not predict is published without one (case
+    # unknown); taken for a predicting candidate, its rollout raised at every prediction and
+    # no model was ever scored (the perturbed UR5's no-effort cell with gravity compensation)
+    check, models = SelfCheck(2), Models()
+    before = stand_in(1)
+    lone = SimpleNamespace(case='unknown', kind='rigid_body', info={'generation': 2})
+    assert not predicts(Slot(lone, None))
+    models.offer_model(before)
+    models.take(check, 0.0)
+    models.offer_model(lone)
+    models.take(check, 0.1)
+    after = stand_in(3)
+    models.offer_model(after)
+    in_use, candidate = models.take(check, 0.2)
+    assert in_use.model is before and candidate.model is after

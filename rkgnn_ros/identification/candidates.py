@@ -90,13 +90,19 @@ def same_rollout(a: Optional[Slot], b: Optional[Slot]) -> bool:
 
 
 def predicts(slot: Optional[Slot]) -> bool:
-    """Return whether ``slot`` can make a prediction at all (case 1 needs its law)."""
+    """
+    Return whether ``slot`` can make a prediction at all.
+
+    Case 1's model needs its law, a rigid body's any case its loop (a rigid body published
+    while its fit does not predict comes without one).
+    """
     if slot is None:
         return False
     what, _ = _rollout(slot)
     if what is None:
         return False
-    return what is not slot.model or slot.model.case != 'torque'
+    return what is not slot.model or (slot.model.case != 'torque'
+                                      and getattr(slot.model, 'kind', '') != 'rigid_body')
 
 
 def describe(slot: Slot) -> str:

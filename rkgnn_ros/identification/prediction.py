@@ -72,7 +72,7 @@ import numpy as np
 from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
-from rkgnn_ros.identification.candidates import describe, Models, Slot
+from rkgnn_ros.identification.candidates import describe, Models, predicts, Slot
 from rkgnn_ros.identification.threads import ThreadPart
 from rkgnn_ros.wire.conversions import make_joint_state, serialize_joint_trajectory
 from sensor_msgs.msg import JointState
@@ -476,7 +476,7 @@ class Predictor(ThreadPart):
     def _rollout(self, slot: Optional[Slot], joints, x0, horizon: _Horizon, t0: float,
                  check: SelfCheck) -> Optional[Tuple[np.ndarray, np.ndarray]]:
         """Return ``(θ, θ̇)`` (K, n) of a model's prediction, None if it has none."""
-        if slot is None or horizon.theta_d is None:
+        if not predicts(slot) or horizon.theta_d is None:
             return None
         model, loop = slot
         if model is None:  # a closed loop alone (its kernel is compiled at start-up)
@@ -488,9 +488,7 @@ class Predictor(ThreadPart):
         if loop is not None and loop.model is model:  # closed with a fitted servo law
             states = loop.loop.simulate(x0, horizon.t, horizon.theta_d, horizon.theta_d_dot,
                                         self._models.integral(loop, t0, check))
-        elif model.case == 'torque':
-            return None  # case 1 predicts only in closed loop with the learned law
-        else:
+        else:   # a searched model alone (case 1's and a rigid body's need their loop)
             # at most MAX_SUBSTEPS RKG steps per model_step, whatever step the model was made
             # with (model_step may have grown since): the rollout's memory stays bounded
             step = float(horizon.t[1] - horizon.t[0]) if horizon.t.size > 1 else model.dt
