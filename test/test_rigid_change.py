@@ -181,3 +181,22 @@ def test_no_refit_while_a_suspect_waits_for_its_confirmation(picked_up):
     assert step().refits == refits
     keeper.detector.suspect = None
     assert step().refits == refits + 1
+
+
+def test_the_first_payload_fit_takes_its_filter_support_from_before_the_change(picked_up):
+    # noisy encoders need a wide filter (here 0.08 s): cut at the change, 0.8 s of data
+    # leave too few rows; with the support before it, the rows after it are fitted at once
+    from rkgnn_ros.core.data import Dataset
+    from rkgnn_ros.core.fitting.rigid_change import fit_last_body, payload_of
+    from rkgnn_ros.core.fitting.rigid_fit import fit_torque
+    structure, before, after = picked_up
+    arm = fit_torque(structure, [before.slice(0, 1500)], [before.slice(1500, 1999)]).arm
+    m = before.n_samples - 1
+    both = Dataset(*(np.concatenate([getattr(before, f)[:m], getattr(after, f)])
+                     for f in ('t', 'theta', 'theta_dot')),
+                   tau=np.concatenate([before.tau[:m], after.tau]))
+    k = int(np.searchsorted(both.t, AT + 0.05))
+    assert fit_last_body(arm, None, [both.slice(k, k + 80)], 0.08) is None
+    refit = fit_last_body(arm, None, [both.slice(k - 40, k + 80)], 0.08, start=both.t[k])
+    assert refit is not None
+    assert payload_of(arm, refit)['mass'] == pytest.approx(MASS, rel=0.15)

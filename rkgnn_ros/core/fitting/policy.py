@@ -224,6 +224,9 @@ CHANGE_MARGIN_SIGMAS = 2.0
 #: [s] The data after a change detected on the trigonometric arm count from this far after its
 #: onset.
 TRIG_CHANGE_MARGIN_S = 0.05
+#: [filter widths (the fit's sigma, s)] The last body's refit after a change takes this much from
+#: before its data as the filter's support (its rows are all after the change's margin).
+FILTER_REACH_SIGMAS = 4.0
 #: [s of data] After a change before the last body is refitted (more where the filter of noisy
 #: data needs them: the fit waits for its rows) ...
 PAYLOAD_MIN_S = 0.5

@@ -28,6 +28,7 @@ difference as vendors' payload tools do: mass (kg), centre of mass in the last l
 frame (m), inertia about it (kg m²).
 """
 
+import math
 from typing import Optional, Sequence
 
 import numpy as np
@@ -70,15 +71,18 @@ def newest_residual(arm, law: Optional[ControllerLaw], segments: Sequence[Datase
 
 
 def fit_last_body(before, law: Optional[ControllerLaw], segments: Sequence[Dataset],
-                  sigma: float):
+                  sigma: float, start: float = -math.inf):
     """
     Return the arm ``before`` with its last body refitted on ``segments`` (module docstring).
 
     ``law`` None: on the measured torque (case 1); else on the servo's torque by that law
-    (the closed loop's equation). None when the segments are too short.
+    (the closed loop's equation). Only the rows from ``start`` (s, the segments' time) on
+    are fitted: the samples before it are the filter's support. None when too few rows.
     """
     structure = before.structure
     rows = _rows(structure, segments, sigma, law)
+    if rows is not None and start > -math.inf:
+        rows = rows.take(rows.time >= start)
     if rows is None or rows.n_samples < 10:
         return None
     target = rows.tau if law is None else rigid_fit.servo_torque(law, rows)

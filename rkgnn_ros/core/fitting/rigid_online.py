@@ -45,8 +45,9 @@ from .online_records import (ClosedLoop, DynamicsChange, GenerationStats, LogLin
                              model_update, PayloadEstimate)
 from .online_rules import stale_stream
 from .policy import (CHANGE_MARGIN_SIGMAS, CHECK_EVERY_S, CHECK_MAX_S, CHECK_S, DETECT_MIN_S,
-                     FORMS_EVERY_S, FULL_REFIT_S, MAX_LAW_FIT_RATIO, MIN_SEGMENT_SAMPLES,
-                     PAYLOAD_MIN_S, RIGID_MAX_ERROR, RIGID_MIN_DATA_S, RIGID_REFRESH_S)
+                     FILTER_REACH_SIGMAS, FORMS_EVERY_S, FULL_REFIT_S, MAX_LAW_FIT_RATIO,
+                     MIN_SEGMENT_SAMPLES, PAYLOAD_MIN_S, RIGID_MAX_ERROR, RIGID_MIN_DATA_S,
+                     RIGID_REFRESH_S)
 from .rigid_change import fit_last_body, newest_residual, payload_of, since
 from .rigid_fit import fit_closed, fit_closed_forms, fit_torque, RigidFit
 from .rigid_law import GravityFeatures
@@ -147,11 +148,12 @@ class RigidKeeper:
         ``kp``, ``kd``: the known gains of case 'pd_gains'. Returns None when there are
         too few data or the fit fails.
         """
+        everything = segments
         segments = [seg for seg in since(segments, origin, self.since)
                     if seg.n_samples >= MIN_SEGMENT_SAMPLES]
         span = sum(seg.duration for seg in segments)
         if self.change is not None and span < FULL_REFIT_S:
-            return self._after_change(case, segments, origin, span)
+            return self._after_change(case, everything, origin, span)
         if span < RIGID_MIN_DATA_S:
             return None
         train, validation, _ = split_validation(segments, validation_fraction,
@@ -207,7 +209,14 @@ class RigidKeeper:
             return None
         law = self.law if case == 'torque' else self.fit.law
         sigma = self.before.info.get('sigma') or 0.02
-        arm = fit_last_body(self.before, None if case == 'torque' else law, segments, sigma)
+        # the filter's support reaches back before the data since the change (rows after)
+        reach = self.since - FILTER_REACH_SIGMAS * sigma
+        support = [seg for seg in since(segments, origin, reach)
+                   if seg.n_samples >= MIN_SEGMENT_SAMPLES]
+        arm = fit_last_body(self.before, None if case == 'torque' else law, support, sigma,
+                            self.since - origin)
+        segments = [seg for seg in since(segments, origin, self.since)
+                    if seg.n_samples >= MIN_SEGMENT_SAMPLES]
         if arm is None:
             return None
         self.payload = dict(payload_of(self.before, arm), time=self.change.time,
