@@ -388,3 +388,12 @@ def test_after_a_change_the_new_models_trial_needs_half_the_scores():
 
     quick, full = swap_after(True), swap_after(False)
     assert 2.0 <= quick <= 2.7 and quick <= full - 0.4, (quick, full)
+
+
+def test_a_change_of_the_dynamics_withdraws_the_model_in_use_at_once(rig):
+    # the detector judged it: a baseline goes out from the next prediction on, until a
+    # model after the change is promoted
+    t = rig.arm.now
+    rig.predictor.dynamics_changed()
+    rig.run(1.0)
+    assert rig.since(t) and all(p[1] != 'model' for p in rig.since(t))

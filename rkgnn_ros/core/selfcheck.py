@@ -407,13 +407,17 @@ class SelfCheck(PredictionRecord):
         """
         Say that the arm's dynamics changed: the model in use no longer holds.
 
-        Until a model after it is in use with ``min_scored`` scored predictions at every
-        horizon, a candidate's trial and the model's publication need :data:`QUICK_SHARE`
-        of them (at least :data:`QUICK_MIN`): a change detector's evidence already judged
-        the model in use, and each scored prediction 2 s ahead costs a prediction period of
-        the time the arm is predicted by a model of the arm before the change.
+        It is withdrawn at once (:meth:`withdraw`: a baseline is published until a model
+        after the change earns its place). Until a model after it is in use with
+        ``min_scored`` scored predictions at every horizon, a candidate's trial and the
+        model's publication need :data:`QUICK_SHARE` of them (at least :data:`QUICK_MIN`):
+        a change detector's evidence already judged the model in use, and each scored
+        prediction 2 s ahead costs a prediction period of the time the arm is predicted by
+        a model of the arm before the change.
         """
         self._quick = 'stale'
+        latest = self._states.t[-1] if len(self._states) else -math.inf
+        self.withdraw(latest, 'the dynamics changed: it is the arm before the change')
         self._cache = None
 
     def _needed(self) -> int:

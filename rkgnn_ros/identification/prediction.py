@@ -331,7 +331,8 @@ class Predictor(ThreadPart):
         mine = self._rollout(model, joints, x0, horizon, latest.t, check)
         publishable = ('follow_reference',) if horizon.theta_d is not None else ()
         decision = self._decision
-        if mine is not None and self._outside(check, latest, horizon, mine[0], joints):
+        if (mine is not None and self._outside(check, latest, horizon, mine[0], joints)
+                or decision is not None and decision.source == 'model' and check.withdrawn()):
             self._decided_at = -math.inf   # withdrawn: this prediction is a baseline
             decision = None
         if decision is None:
