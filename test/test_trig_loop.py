@@ -370,10 +370,10 @@ def test_a_refit_with_gains_no_servo_has_keeps_the_law(pd_data, monkeypatch):
     assert law is not None
     odd = replace(law, kd=-np.abs(law.kd), fit_ratio=np.full_like(law.fit_ratio, 0.001))
     monkeypatch.setattr(case_one, 'fit_law', lambda *args, **kwargs: odd)
-    refit = keeper.refit([pd_data.slice(1500, 2100)], 15.0, None)
+    refit = keeper.refit([pd_data.slice(1500, 2100)], 15.0, None, after_change=True)
     assert refit.kind == 'keep' and refit.line is None and keeper.law is law
     # a law that no longer explains the torque still goes
     bad = replace(law, fit_ratio=np.full_like(law.fit_ratio, 0.5))
     monkeypatch.setattr(case_one, 'fit_law', lambda *args, **kwargs: bad)
-    refit = keeper.refit([pd_data.slice(1500, 2100)], 15.0, None)
+    refit = keeper.refit([pd_data.slice(1500, 2100)], 15.0, None, after_change=True)
     assert refit.kind == 'changed' and keeper.law is None and 'no longer' in refit.line[1]

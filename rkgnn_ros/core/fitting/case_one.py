@@ -315,7 +315,7 @@ class LawKeeper:
         return True, None
 
     def refit(self, segments: Sequence[Dataset], origin: float,
-              running: Optional[ControllerLaw]) -> Refit:
+              running: Optional[ControllerLaw], after_change: bool = False) -> Refit:
         """
         Fit the law on ``segments`` (``origin``: the stamp of their t = 0) and say what to do.
 
@@ -323,8 +323,10 @@ class LawKeeper:
         nothing ('keep'); a refit of the same form (gains within :data:`LAW_GAIN_RTOL`,
         θ-terms evaluated alike) keeps the running law, its integral moved on to the data's
         end ('keep'); new gains are 'moved'; a law that appears or stops explaining the
-        torque is 'changed', with the line that says so. A refit that explains the torque
-        with gains no servo has (Kp <= 0 or Kd < 0) changes nothing either ('keep').
+        torque is 'changed', with the line that says so. ``after_change`` (the segments are
+        the few seconds after a change of the dynamics, which leaves the servo as it was): a
+        refit that explains the torque with gains no servo has (Kp <= 0 or Kd < 0) changes
+        nothing ('keep').
         """
         where = running.theta_input if running is not None else 'auto'
         fresh = fit_law(segments, where, MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO) \
@@ -333,7 +335,8 @@ class LawKeeper:
             fresh = fit_law(segments, 'auto', MIN_LAW_SAMPLES, MAX_LAW_FIT_RATIO)
         if fresh is None:
             return Refit('keep', running)
-        if not fresh.usable(MAX_LAW_FIT_RATIO) and np.all(fresh.fit_ratio <= MAX_LAW_FIT_RATIO):
+        if after_change and not fresh.usable(MAX_LAW_FIT_RATIO) and \
+                np.all(fresh.fit_ratio <= MAX_LAW_FIT_RATIO):
             # it explains the torque, with gains no servo has (Kp <= 0, Kd < 0): the data
             # (a few seconds after a change) do not determine them yet; the law stays
             return Refit('keep', running)

@@ -458,7 +458,8 @@ class OnlineIdentification(ChainSteps, _Publishing):
         gains), one that appeared or went restarts it.
         """
         searching = self._evo is not None
-        refit = self._laws.refit(segments, origin, self._evo_law if searching else None)
+        refit = self._laws.refit(segments, origin, self._evo_law if searching else None,
+                                 self._changes.since > -math.inf)
         if refit.kind == 'keep':
             if searching:
                 self._evo_law = refit.law
