@@ -141,7 +141,8 @@ def test_the_fit_runs_in_the_background_at_low_priority(monkeypatch):
     assert not learner.running and 'too few data' in lines[0][1]
 
 
-def test_a_reset_abandons_the_running_fit(monkeypatch):
+def held_fit(monkeypatch):
+    """Make the chain fit wait for the returned event, then end at its next stage line."""
     release = threading.Event()
 
     def slow_fit(train, validation, settings, names, log):
@@ -150,6 +151,11 @@ def test_a_reset_abandons_the_running_fit(monkeypatch):
         raise AssertionError('not reached: the stage line ends a cancelled fit')
 
     monkeypatch.setattr(chain_online, 'fit_chain', slow_fit)
+    return release
+
+
+def test_a_reset_abandons_the_running_fit(monkeypatch):
+    release = held_fit(monkeypatch)
     learner = ChainLearner(SETTINGS, min_data_s=5.0)
     learner.feed(NAMES, [arm_data(6.0)], T0)
     learner.poll('torque')
@@ -288,14 +294,7 @@ def test_identify_bag_learns_the_chain_when_asked(servoed, tmp_path, capsys, mon
 def test_a_change_of_the_dynamics_abandons_the_fit_and_drops_the_data_before_it(monkeypatch):
     # a payload picked up at 8 s: a chain fitted on both arms' torque fits neither; the fit
     # running on them is abandoned (not an attempt) and the next waits for 5 s after it
-    release = threading.Event()
-
-    def slow_fit(train, validation, settings, names, log):
-        release.wait(30.0)
-        log('search: done')
-        raise AssertionError('not reached: the stage line ends a cancelled fit')
-
-    monkeypatch.setattr(chain_online, 'fit_chain', slow_fit)
+    release = held_fit(monkeypatch)
     learner = ChainLearner(SETTINGS, at_once, min_data_s=5.0)
     learner._spawn = lambda run: threading.Thread(target=run, daemon=True).start()
     data = arm_data(12.0)
