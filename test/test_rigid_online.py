@@ -166,3 +166,31 @@ def test_the_feedforward_model_of_a_description_is_its_rigid_body(ur5, case):
     error = np.sqrt(np.mean((model.inverse_dynamics(theta, theta_dot, theta_ddot) - truth) ** 2,
                             axis=0))
     assert np.all(error <= 0.01 * np.std(truth, axis=0) + 0.02)
+
+
+def test_a_servo_law_not_confirmed_yet_predicts_until_the_data_confirm_one():
+    """A PID's law from 3 s of noisy data predicts at once; 9 s confirm it (the log says)."""
+    from rkgnn_ros.core.fitting.case_one import fit_law, judge_law
+    from rkgnn_ros.core.fitting.rigid_law import GravityFeatures
+    from rkgnn_ros.core.fitting.rigid_online import RigidKeeper
+    from rkgnn_ros.core.sim.sensors import SensorModel
+    arm = UrdfArm(UR5, viscous=[2, 2, 1, 0.3, 0.3, 0.1], coulomb=[1, 1, 0.5, 0.2, 0.2, 0.05])
+    servo = Servo(KP, KD, 0.5 * KP)
+    ref = SumOfSines.random(6, np.random.default_rng(2), n_terms=3, amplitude=0.5,
+                            offsets=HOME)
+    noisy = SensorModel(theta_std=3e-4, velocity='difference')
+    data = simulate(arm, servo, ref, 9.0, rate=100.0, noise=noisy, rng=0,
+                    joint_names=arm.joint_names)
+    structure = RigidStructure(arm.urdf, arm.joint_names)
+    early = data.slice(0, 300)
+    law, determined = judge_law([early], features=GravityFeatures(structure))
+    assert law is not None and not determined        # what this test is about
+    assert fit_law([early], features=GravityFeatures(structure)) is None
+    keeper = RigidKeeper(structure, 'torque')
+    first = keeper.refresh('torque', [early], 0.2, T0, T0 + 3.0)
+    assert first.loop is not None
+    assert any('not yet confirmed' in text for _, text in first.lines)
+    later = keeper.refresh('torque', [data], 0.2, T0, T0 + 9.0)
+    assert later.loop is not None
+    assert any('servo law learned' in text for _, text in later.lines)
+    assert np.allclose(keeper.law.kp, KP, rtol=0.02)

@@ -58,7 +58,8 @@ from .validation import newest_share, split_validation
 from ..data import Dataset
 from ..model.model import RKGNNModel
 
-__all__ = ['fit_law', 'search_segments', 'arm_model', 'prediction_loop', 'LawKeeper', 'Refit']
+__all__ = ['fit_law', 'judge_law', 'search_segments', 'arm_model', 'prediction_loop', 'LawKeeper',
+           'Refit']
 
 
 def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto',
@@ -84,14 +85,26 @@ def fit_law(segments: Sequence[Dataset], theta_input: str = 'auto',
     ``features``: the θ-basis of the law's terms (default :class:`TrigFeatures`; a robot
     description's :class:`~.rigid_law.GravityFeatures`, whose weights all joints share).
     """
+    law, determined = judge_law(segments, theta_input, min_samples, max_fit_ratio, features)
+    return law if determined or law is None or not law.usable(max_fit_ratio) else None
+
+
+def judge_law(segments: Sequence[Dataset], theta_input: str = 'auto',
+              min_samples: int = MIN_LAW_SAMPLES, max_fit_ratio: float = MAX_LAW_FIT_RATIO,
+              features=None) -> Tuple[Optional[ControllerLaw], bool]:
+    """
+    Return the law fitted on ``segments`` and whether the data determine it.
+
+    The rules of :func:`fit_law`, which returns the law only when it is determined; here a
+    usable law whose gains the newest share does not confirm yet comes back with False
+    (the caller may predict with it while the prediction's own trial judges it).
+    """
     law = _fit(segments, theta_input, min_samples, None, features)
     if law is None or not law.usable(max_fit_ratio):
-        return law
+        return law, False
     half = _fit(newest_share(segments, NEWEST_SHARE), law.theta_input, min_samples,
                 bool(np.any(law.ki != 0.0)), features)
-    if half is None or not law.close_to(half, LAW_AGREEMENT_RTOL):
-        return None
-    return law
+    return law, half is not None and law.close_to(half, LAW_AGREEMENT_RTOL)
 
 
 def _with_terms(segments, features, theta_input: str, integral: bool, min_samples: int):

@@ -21,8 +21,11 @@ it on the buffered window at each data refresh (the newest ``validation_fraction
 out to score it) and closes it with the servo's law for prediction:
 
 - case 'torque': the law learned from torque and commands on the arm's own gravity
-  regressor (:func:`.case_one.fit_law` with :class:`~.rigid_law.GravityFeatures`; used only
-  when the newest half of the data gives the same gains), the arm fitted on the torque;
+  regressor (:func:`.case_one.judge_law` with :class:`~.rigid_law.GravityFeatures`), the
+  arm fitted on the torque. Until the newest half of the data gives the same gains, the
+  newest fit is used provisionally (refitted at every refresh: the prediction's trial, not
+  the gains, decides whether it is published); once confirmed, a law is replaced only by
+  another confirmed one;
 - case 'pd_gains': the closed loop with the known gains;
 - case 'unknown': the closed loop with the servo's gains fitted too (scale from the
   description's masses).
@@ -39,7 +42,7 @@ from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .case_one import fit_law
+from .case_one import judge_law
 from .change import Change, ChangeDetector
 from .online_records import (ClosedLoop, DynamicsChange, GenerationStats, LogLine,
                              model_update, PayloadEstimate)
@@ -96,6 +99,7 @@ class RigidKeeper:
         self.case = case
         self.features = GravityFeatures(structure)
         self.law = None              # case 'torque': the law in use
+        self._provisional = False    # the law in use is not confirmed by the data yet
         self.fit: Optional[RigidFit] = None
         self.form: Optional[Tuple[bool, Optional[str]]] = None   # (integral, gravity)
         self._form_time = -math.inf
@@ -242,12 +246,20 @@ class RigidKeeper:
 
     def _torque(self, segments, train, validation, lines, prior=None):
         paired = [seg for seg in segments if seg.tau is not None and seg.theta_d is not None]
-        law = fit_law(paired, features=self.features) if paired else None
-        if law is not None and law.usable(MAX_LAW_FIT_RATIO):
-            if self.law is None or not law.close_to(self.law):
+        law, determined = judge_law(paired, features=self.features) if paired else (None, False)
+        usable = law is not None and law.usable(MAX_LAW_FIT_RATIO)
+        if usable and (determined or self.law is None or self._provisional):
+            if determined and (self.law is None or self._provisional
+                               or not law.close_to(self.law)):
                 lines.append(('info', f'servo law learned on the gravity regressor: '
                                       f'{law.describe()}, Kp {np.round(law.kp, 2).tolist()}, '
                                       f'Kd {np.round(law.kd, 2).tolist()}'))
+            elif not determined and self.law is None:
+                lines.append(('info', f'servo law fitted on the gravity regressor, not yet '
+                                      f'confirmed by the newest half of the data: '
+                                      f'{law.describe()}, Kp {np.round(law.kp, 2).tolist()}; '
+                                      'its predictions are judged before any is published'))
+            self._provisional = not determined
             self.law = _integral_to_end(law, paired)
         elif self.law is not None:
             self.law = _integral_to_end(self.law, paired) if paired else self.law
