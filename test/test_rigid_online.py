@@ -194,3 +194,23 @@ def test_a_servo_law_not_confirmed_yet_predicts_until_the_data_confirm_one():
     assert later.loop is not None
     assert any('servo law learned' in text for _, text in later.lines)
     assert np.allclose(keeper.law.kp, KP, rtol=0.02)
+
+
+def test_the_closed_loop_form_is_chosen_again_when_the_data_have_doubled(ur5, monkeypatch):
+    """Case 'unknown': the form chosen on 2 s is chosen again on 4 s, not on 3 s (10 s rule)."""
+    from rkgnn_ros.core.fitting import rigid_online
+    _, structure, data, _ = ur5
+    calls = []
+    real = rigid_online.fit_closed_forms
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+    monkeypatch.setattr(rigid_online, 'fit_closed_forms', counted)
+    keeper = rigid_online.RigidKeeper(structure, 'unknown')
+    counts = []
+    for seconds in (2.5, 3.5, 5.5):
+        n = int(seconds * 100)
+        keeper.refresh('unknown', [data.slice(0, n)], 0.2, T0, T0 + seconds)
+        counts.append(len(calls))
+    assert counts == [1, 1, 2]

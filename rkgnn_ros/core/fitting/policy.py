@@ -186,6 +186,9 @@ RIGID_MAX_ERROR = 0.5
 #: [s] Between two choices of the closed loop's form (integral, gravity compensation); in between
 #: only the chosen form is refitted.
 FORMS_EVERY_S = 10.0
+#: [ratio] ... and sooner, whenever the data have grown by this factor since the last choice (a
+#: form chosen on the first 2 s is chosen again on 4 s, 8 s, ...).
+FORMS_DATA_GROWTH = 2.0
 #: [ratio] A richer closed-loop form is kept when its held-out error is at most this share of the
 #: simpler one's ...
 FORM_GAIN = 0.5

@@ -33,7 +33,8 @@ out to score it) and closes it with the servo's law for prediction:
 A fit whose held-out error (worst joint) is above :data:`~.policy.RIGID_MAX_ERROR` is not
 offered for prediction (the model is still published, with its error). The closed-loop form (a
 gravity compensation, an integral) is chosen by held-out error again every
-:data:`~.policy.FORMS_EVERY_S`; in between only the chosen form is refitted.
+:data:`~.policy.FORMS_EVERY_S`, and whenever the data have grown by
+:data:`~.policy.FORMS_DATA_GROWTH` since; in between only the chosen form is refitted.
 """
 
 import dataclasses
@@ -48,9 +49,9 @@ from .online_records import (ClosedLoop, DynamicsChange, GenerationStats, LogLin
                              model_update, PayloadEstimate)
 from .online_rules import stale_stream
 from .policy import (CHANGE_MARGIN_SIGMAS, CHECK_EVERY_S, CHECK_MAX_S, CHECK_S, DETECT_MIN_S,
-                     FILTER_REACH_SIGMAS, FORMS_EVERY_S, FULL_REFIT_S, MAX_LAW_FIT_RATIO,
-                     MIN_SEGMENT_SAMPLES, PAYLOAD_MIN_S, RIGID_MAX_ERROR, RIGID_MIN_DATA_S,
-                     RIGID_REFRESH_S)
+                     FILTER_REACH_SIGMAS, FORMS_DATA_GROWTH, FORMS_EVERY_S, FULL_REFIT_S,
+                     MAX_LAW_FIT_RATIO, MIN_SEGMENT_SAMPLES, PAYLOAD_MIN_S, RIGID_MAX_ERROR,
+                     RIGID_MIN_DATA_S, RIGID_REFRESH_S)
 from .rigid_change import fit_last_body, newest_residual, payload_of, since
 from .rigid_fit import fit_closed, fit_closed_forms, fit_torque, RigidFit
 from .rigid_law import GravityFeatures
@@ -103,6 +104,7 @@ class RigidKeeper:
         self.fit: Optional[RigidFit] = None
         self.form: Optional[Tuple[bool, Optional[str]]] = None   # (integral, gravity)
         self._form_time = -math.inf
+        self._form_span = math.inf   # s of data the form was chosen on
         self.refits = 0
         self._predicting = False
         self.detector = ChangeDetector()
@@ -167,7 +169,7 @@ class RigidKeeper:
         if case == 'torque':
             fit, law = self._torque(segments, train, validation, lines, prior)
         else:
-            fit = self._closed(case, train, validation, now, kp, kd, prior)
+            fit = self._closed(case, train, validation, now, kp, kd, prior, span)
             law = None if fit is None else _integral_to_end(fit.law, segments)
         if fit is None:
             return None
@@ -266,16 +268,18 @@ class RigidKeeper:
         fit = fit_torque(self.structure, train, validation, prior=prior)
         return fit, self.law
 
-    def _closed(self, case, train, validation, now, kp, kd, prior=None) -> Optional[RigidFit]:
+    def _closed(self, case, train, validation, now, kp, kd, prior=None,
+                span=math.inf) -> Optional[RigidFit]:
         if case == 'pd_gains':
             kp, kd = np.asarray(kp, dtype=float), np.asarray(kd, dtype=float)
         else:
             kp = kd = None
-        if self.form is None or now - self._form_time >= FORMS_EVERY_S:
+        if (self.form is None or now - self._form_time >= FORMS_EVERY_S
+                or span >= FORMS_DATA_GROWTH * self._form_span):
             fit = fit_closed_forms(self.structure, train, validation, kp, kd, self.features,
                                    prior=prior)
             if fit is not None:
-                self._form_time = now
+                self._form_time, self._form_span = now, span
                 law = fit.law
                 self.form = (bool(np.any(law.ki != 0.0)),
                              law.theta_input if law.theta_weights.size else None)
