@@ -316,18 +316,31 @@ def _learned_chain(args, config, joints, segments, log):
     Return the chain learned from the training part (``--learn-chain``), or None.
 
     Case 'torque' on 3 to 7 joints only (:func:`~rkgnn_ros.core.fitting.chain_online.
-    learn_chain`); a chain refused is said in the log and the search runs as without it.
+    learn_chain`); a chain refused is said in the log and the search runs as without it
+    (with a robot description: the description is not checked).
     """
     from rkgnn_ros.core.fitting.chain_online import learn_chain
     if config.case != 'torque':
         log('warning', f'--learn-chain: the chain is learned from torque (case torque), the '
                        f'recording gives case {config.case}: not learned')
         return None
-    _say(args.quiet, 'learning the chain from the training part (no robot description)')
+    _say(args.quiet, 'learning the chain from the training part')
     structure = learn_chain(segments, joints, log=log)
     if structure is None:
         _say(args.quiet, 'the learned chain was not used (see the log)')
     return structure
+
+
+def _check(args, structure, learned, segments, validation_fraction, log) -> Optional[dict]:
+    """Return the description checked against the learned chain (``description_check``)."""
+    from rkgnn_ros.offline.description_check import check_description
+    check = check_description(structure, learned, segments, validation_fraction)
+    if check is None:
+        log('warning', 'description check: too few data to fit both rigid bodies')
+        return None
+    log('info' if check['fits_data'] else 'warning', f'description check: {check["text"]}')
+    _say(args.quiet, f'description check: {check["text"]}')
+    return check
 
 
 def _say(quiet: bool, text: str) -> None:
@@ -422,8 +435,14 @@ def identify(args, started: Optional[float] = None) -> dict:
                          f'{status.validation_nrmse:.4g}')
 
     structure = _structure(args, config, joints, log)
-    if structure is None and getattr(args, 'learn_chain', False):
-        structure = _learned_chain(args, config, joints, train_segments, log)
+    check = None
+    if getattr(args, 'learn_chain', False):
+        learned = _learned_chain(args, config, joints, train_segments, log)
+        if structure is None:
+            structure = learned
+        elif learned is not None:
+            check = _check(args, structure, learned, train_segments,
+                           config['validation_fraction'], log)
     _say(args.quiet, f'fitting (case {config.case}, budget {budget:.0f} s'
                      + (f', the rigid body of {structure.describe()})' if structure else ')'))
     result = identify_offline(config.settings, capture, joints, budget_s=budget,
@@ -466,7 +485,7 @@ def identify(args, started: Optional[float] = None) -> dict:
                 'kp': list(update.kp), 'kd': list(update.kd)},
         'heldout': {'seconds': heldout_s, 'nrmse': nrmse, 'how': how,
                     'online_nrmse': online_nrmse, 'baselines': baselines},
-        'verdict': verdict._asdict(),
+        'verdict': verdict._asdict(), 'description_check': check,
         'figures_skipped': '' if drawn else f'less than {FIGURES_S:g} s of the budget left',
         'history': [list(map(float, h)) for h in result.history],
         'history_fields': list(result.history[0]._fields) if result.history else [],

@@ -25,7 +25,7 @@ from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting import chain_online
 from rkgnn_ros.core.fitting.chain_fit import ChainSettings
 from rkgnn_ros.core.fitting.chain_online import ChainLearner
-from rkgnn_ros.core.rigid.chain import axis_errors, ChainStructure
+from rkgnn_ros.core.rigid.chain import axis_errors, Chain, ChainStructure
 from test_chain import arm_chain, bodies, dataset
 
 NAMES = ('a', 'b', 'c')
@@ -310,3 +310,48 @@ def test_a_change_of_the_dynamics_abandons_the_fit_and_drops_the_data_before_it(
     learner.feed(NAMES, [data.slice(0, 1000)], T0)         # 10 s: 6 s after the change
     assert learner.poll('torque') and learner.running
     assert min(seg.t[0] for seg in learner._job.train) >= 4.0 - 1e-9
+
+
+def tilted_chain(degrees=25.0) -> Chain:
+    """Return the 3-joint chain with its second axis turned by ``degrees`` about x."""
+    chain = arm_chain()
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    axis = chain.axis.copy()
+    axis[1] = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) @ axis[1]
+    return chain._replace(axis=axis)
+
+
+def test_a_description_is_checked_against_the_chain_the_data_show():
+    from rkgnn_ros.offline.description_check import check_description
+    data = arm_data(12.0)
+    learned = ChainStructure(arm_chain(), NAMES)            # as a learner would find it
+    right = check_description(ChainStructure(arm_chain(), NAMES), learned, [data], 0.25)
+    assert right['fits_data'] and 'fits the data' in right['text']
+    assert right['axis_deg_max'] < 1e-6 and right['description_error'] < 0.02
+    wrong = check_description(ChainStructure(tilted_chain(), NAMES), learned, [data], 0.25)
+    assert not wrong['fits_data'] and 'does not fit' in wrong['text']
+    assert abs(wrong['axis_deg_max'] - 25.0) < 10.0
+    assert wrong['description_error'] > 2.0 * wrong['learned_error']
+    # no held-out part: no check rather than a made-up one
+    assert check_description(learned, learned, [data], 0.0) is None
+
+
+def test_identify_bag_checks_a_wrong_description_when_asked(servoed, tmp_path, capsys,
+                                                            monkeypatch):
+    import json
+    from bag_helpers import write_run
+    from rkgnn_ros.identify_bag import main
+    quick = chain_online.learn_chain
+    monkeypatch.setattr(chain_online, 'learn_chain',
+                        lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
+    write_run(tmp_path / 'bag', servoed, names=NAMES)
+    wrong = ChainStructure(tilted_chain(), NAMES).urdf
+    code = main([str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'), '--heldout', '3',
+                 '--learn-chain', '--robot-description', wrong, '--budget', '60'])
+    out = capsys.readouterr().out
+    assert code in (0, 3), out
+    report = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    check = report['description_check']
+    assert check is not None and not check['fits_data'], out
+    assert 'description check' in out and 'does not fit' in out
+    assert 'checked against the data' in (tmp_path / 'out' / 'report.md').read_text()

@@ -21,6 +21,7 @@ joints; :func:`markdown` renders the report's dictionary (``report.json``'s cont
 reader, a warning first when the model predicts the held-out part worse than a baseline.
 """
 
+import math
 import os
 from typing import List
 
@@ -121,6 +122,14 @@ def markdown(report: dict) -> str:
     if online is not None:
         lines.append(f"- the online identifier's model recorded in the bag (last before the "
                      f'held-out part): θ-NRMSE {online:.4g}')
+    check = report.get('description_check')
+    if check:
+        lines += ['', '## The robot description checked against the data', '',
+                  f'- {check["text"]}', '', '| joint | description | learned chain | axis (deg) |',
+                  '|---|---|---|---|']
+        axis = check['axis_deg'] or [math.nan] * len(check['joints'])
+        lines += [f'| {name} | {a:.2%} | {b:.2%} | {c:.1f} |' for name, a, b, c in zip(
+            check['joints'], check['description_errors'], check['learned_errors'], axis)]
     lines += ['', '## Coverage (training part)', '', '| joint | θ min | θ max | θ std | θ̇ std |',
               '|---|---|---|---|---|']
     cov = data['training']
