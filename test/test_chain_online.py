@@ -355,3 +355,54 @@ def test_identify_bag_checks_a_wrong_description_when_asked(servoed, tmp_path, c
     assert check is not None and not check['fits_data'], out
     assert 'description check' in out and 'does not fit' in out
     assert 'checked against the data' in (tmp_path / 'out' / 'report.md').read_text()
+
+
+def test_an_accepted_chain_that_stops_explaining_the_torque_is_learned_again():
+    from types import SimpleNamespace
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=10.0)
+    learner.feed(NAMES, [arm_data(3.0)], T0)
+    learner.structure = ChainStructure(arm_chain(), NAMES)      # as if accepted
+    fit = SimpleNamespace(error=0.5)
+    for _ in range(chain_online.REJUDGE_REFITS - 1):
+        assert learner.judge_in_use(SimpleNamespace(error=0.5)) == []
+    assert learner.judge_in_use(fit) != []      # the REJUDGE_REFITS-th in a row
+    assert learner.structure is None and learner.wants_data(NAMES)
+    assert learner.gathered_s == 0.0            # learned again from new data
+    # the same fit twice counts once; a good refit starts the count again
+    learner.structure = ChainStructure(arm_chain(), NAMES)
+    bad = chain_online.REJUDGE_REFITS - 1
+    for _ in range(3):
+        for _ in range(bad):
+            assert learner.judge_in_use(SimpleNamespace(error=0.5)) == []
+        assert learner.judge_in_use(SimpleNamespace(error=0.01)) == []
+    for _ in range(bad):
+        assert learner.judge_in_use(fit) == []      # counted once
+    assert learner.structure is not None
+
+
+def test_the_policy_drops_a_wrong_chain_its_refits_cannot_fit(servoed):
+    from rkgnn_ros.core.fitting.online import OnlineIdentification
+    from rkgnn_ros.core.fitting.online_records import Observation, OnlineSettings
+    from rkgnn_ros.streams.buffer import StreamBuffer
+    data = servoed
+    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+    now = [100.0]
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=1000.0)
+    learner._joints = NAMES
+    learner.structure = ChainStructure(tilted_chain(60.0), NAMES)   # as if accepted
+    policy = OnlineIdentification(lambda: now[0], chain_learner=learner)
+    cfg = OnlineSettings(case='torque', min_window=100.0, validation_fraction=0.2,
+                         model_publish_period=0.5)
+    texts, k = [], 0
+    for _ in range(28):
+        now[0] += 0.5
+        while k < data.n_samples and data.t[k] <= now[0] - 100.0:
+            buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+            k += 1
+        obs = Observation(cfg, NAMES, {'state': now[0], 'command': now[0]})
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        texts += [getattr(e, 'text', '') for e in policy.step(obs).events]
+    assert any('no longer explains the torque' in t for t in texts), texts
+    assert learner.structure is None and learner.wants_data(NAMES)

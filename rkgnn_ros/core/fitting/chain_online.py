@@ -31,6 +31,12 @@ the servo law and judged by the self-check as any other. A chain refused is trie
 :data:`RETRY_S` more seconds are gathered, at most :data:`MAX_ATTEMPTS` fits; a fit still
 running :data:`MAX_FIT_S` wall seconds after its start is abandoned at its next stage (the
 search, the refinement, the joint refinement and the final fit each end a stage).
+
+An accepted chain is judged again at every refit of its rigid body
+(:meth:`ChainLearner.judge_in_use`): after :data:`REJUDGE_REFITS` refits in a row whose
+held-out torque error is above :data:`MAX_ERROR` (the bar it was accepted under; new motion
+the first data did not show can expose a chain they did not determine) it is dropped, and
+learned again from data gathered afresh.
 """
 
 from dataclasses import replace
@@ -50,8 +56,8 @@ from ..data import Dataset
 from ..rigid.chain import ChainStructure
 
 __all__ = ['ChainSteps', 'CHAIN_DATA_S', 'ChainLearner', 'judged', 'learn_chain', 'MAX_ATTEMPTS',
-           'MAX_DATA_S', 'MAX_ERROR', 'MAX_FIT_S', 'MIN_JOINTS', 'ONLINE_SETTINGS', 'RETRY_S',
-           'VALIDATION_FRACTION']
+           'MAX_DATA_S', 'MAX_ERROR', 'MAX_FIT_S', 'MIN_JOINTS', 'ONLINE_SETTINGS',
+           'REJUDGE_REFITS', 'RETRY_S', 'VALIDATION_FRACTION']
 
 #: Fewest joints whose chain is learned (fewer: the planar bases serve).
 MIN_JOINTS = 3
@@ -67,6 +73,9 @@ MAX_ATTEMPTS = 3
 VALIDATION_FRACTION = 0.2
 #: A chain is accepted while its held-out torque error (worst joint, RMSE / std) is at most.
 MAX_ERROR = 0.1
+#: Refits in a row of an accepted chain's rigid body with a held-out torque error (worst joint)
+#: above :data:`MAX_ERROR` after which the chain is dropped and learned again.
+REJUDGE_REFITS = 10
 #: Wall seconds after which a running fit is abandoned (at its next stage).
 MAX_FIT_S = 300.0
 #: Lowest CPU priority: the fit's thread takes the cores the node's callbacks leave.
@@ -173,6 +182,8 @@ class ChainLearner:
         self._next_s = self.min_data_s         # of _total_s, for the next fit
         self.structure: Optional[ChainStructure] = None
         self.error = math.nan                  # the accepted chain's held-out torque error
+        self._judged = None                    # the newest rigid-body fit judged
+        self._failing = 0                      # its refits in a row above the bar
 
     def close(self) -> None:
         """Abandon a running fit (the node shuts down)."""
@@ -235,6 +246,31 @@ class ChainLearner:
             self._end = end
             self._total_s += part.duration
         self._trim()
+
+    def judge_in_use(self, fit) -> List[Tuple[str, str]]:
+        """
+        Judge a refit of the accepted chain's rigid body (a :class:`~.rigid_fit.RigidFit`).
+
+        Returns log lines; the chain is dropped (:attr:`structure` None, the data gathered
+        afresh, the attempts counted anew) after :data:`REJUDGE_REFITS` refits in a row
+        with a held-out torque error above the learner's ``max_error``. The same fit seen
+        twice counts once; a fit without held-out samples does not count.
+        """
+        if self.structure is None or fit is None or fit is self._judged:
+            return []
+        self._judged = fit
+        error = fit.error
+        if not math.isfinite(error):
+            return []
+        self._failing = self._failing + 1 if error > self.max_error else 0
+        if self._failing < REJUDGE_REFITS:
+            return []
+        joints = self._joints
+        self.reset()
+        self._joints = joints
+        return [('warning', f'the learned chain no longer explains the torque: held-out error '
+                            f'above {self.max_error:.0%} in {REJUDGE_REFITS} refits in a row '
+                            f'(newest {error:.2%}); it is learned again from new data')]
 
     def changed(self, stamp: float) -> None:
         """
@@ -425,6 +461,10 @@ class ChainSteps:
             return obs
         if obs.reset:
             self._chain.reset()
+        keeper = self._rigid.keeper
+        if keeper is not None and keeper.structure is self._chain.structure:
+            for level, text in self._chain.judge_in_use(keeper.fit):
+                self._out.log(level, text)
         for level, text in self._chain.poll(self._chain_case(obs.settings.case)):
             self._out.log(level, text)
         return self._with_learned(obs)
