@@ -315,15 +315,19 @@ def _learned_chain(args, config, joints, segments, log):
     """
     Return the chain learned from the training part (``--learn-chain``), or None.
 
-    Case 'torque' on 3 to 7 joints only (:func:`~rkgnn_ros.core.fitting.chain_online.
-    learn_chain`); a chain refused is said in the log and the search runs as without it
-    (with a robot description: the description is not checked).
+    Case 'torque' (or 'pd_gains', τ from the known gains) on 3 to 7 joints only
+    (:func:`~rkgnn_ros.core.fitting.chain_online.learn_chain`); a chain refused is said in
+    the log and the search runs as without it (with a robot description: the description
+    is not checked).
     """
-    from rkgnn_ros.core.fitting.chain_online import learn_chain
-    if config.case != 'torque':
-        log('warning', f'--learn-chain: the chain is learned from torque (case torque), the '
-                       f'recording gives case {config.case}: not learned')
+    from rkgnn_ros.core.fitting.chain_online import learn_chain, LEARNED_CASES, servo_torque
+    if config.case not in LEARNED_CASES:
+        log('warning', f'--learn-chain: the chain is learned from torque (case torque, or '
+                       f'pd_gains with the known gains), the recording gives case '
+                       f'{config.case}: not learned')
         return None
+    if config.case == 'pd_gains':     # the servo's torque of the known gains
+        segments = servo_torque(segments, config.settings.kp, config.settings.kd)
     _say(args.quiet, 'learning the chain from the training part')
     structure = learn_chain(segments, joints, log=log)
     if structure is None:
@@ -331,10 +335,13 @@ def _learned_chain(args, config, joints, segments, log):
     return structure
 
 
-def _check(args, structure, learned, segments, validation_fraction, log) -> Optional[dict]:
+def _check(args, config, structure, learned, segments, log) -> Optional[dict]:
     """Return the description checked against the learned chain (``description_check``)."""
+    from rkgnn_ros.core.fitting.chain_online import servo_torque
     from rkgnn_ros.offline.description_check import check_description
-    check = check_description(structure, learned, segments, validation_fraction)
+    if config.case == 'pd_gains':
+        segments = servo_torque(segments, config.settings.kp, config.settings.kd)
+    check = check_description(structure, learned, segments, config['validation_fraction'])
     if check is None:
         log('warning', 'description check: too few data to fit both rigid bodies')
         return None
@@ -441,8 +448,7 @@ def identify(args, started: Optional[float] = None) -> dict:
         if structure is None:
             structure = learned
         elif learned is not None:
-            check = _check(args, structure, learned, train_segments,
-                           config['validation_fraction'], log)
+            check = _check(args, config, structure, learned, train_segments, log)
     _say(args.quiet, f'fitting (case {config.case}, budget {budget:.0f} s'
                      + (f', the rigid body of {structure.describe()})' if structure else ')'))
     result = identify_offline(config.settings, capture, joints, budget_s=budget,

@@ -406,3 +406,67 @@ def test_the_policy_drops_a_wrong_chain_its_refits_cannot_fit(servoed):
         texts += [getattr(e, 'text', '') for e in policy.step(obs).events]
     assert any('no longer explains the torque' in t for t in texts), texts
     assert learner.structure is None and learner.wants_data(NAMES)
+
+
+def test_with_known_gains_and_no_torque_the_chain_is_learned_from_the_servos_torque(servoed):
+    from rkgnn_ros.core.fitting.online import OnlineIdentification
+    from rkgnn_ros.core.fitting.online_records import ModelUpdate, Observation, OnlineSettings
+    from rkgnn_ros.core.fitting.rigid_model import RigidModel
+    from rkgnn_ros.streams.buffer import StreamBuffer
+    data = servoed
+    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=False, need_desired=True)
+    now = [100.0]
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=10.0)
+    policy = OnlineIdentification(lambda: now[0], chain_learner=learner)
+    cfg = OnlineSettings(case='pd_gains', kp=(80.0, 80.0, 40.0), kd=(8.0, 8.0, 4.0),
+                         min_window=100.0, validation_fraction=0.2, model_publish_period=0.5)
+    events, k = [], 0
+    for _ in range(40):
+        now[0] += 0.5
+        while k < data.n_samples and data.t[k] <= now[0] - 100.0:
+            buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k])
+            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+            k += 1
+        obs = Observation(cfg, NAMES, {'state': now[0], 'command': now[0]})
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        events += policy.step(obs).events
+    texts = [getattr(e, 'text', '') for e in events]
+    assert any('identified from now on' in t for t in texts), texts
+    assert axis_errors(learner.structure.chain, arm_chain())['aligned_deg_max'] < 2.0
+    updates = [e for e in events if isinstance(e, ModelUpdate)]
+    model = updates[-1].model
+    assert isinstance(model, RigidModel) and model.arm.structure is learner.structure
+    assert model.case == 'pd_gains' and updates[-1].loop is not None
+
+
+def test_the_servos_torque_of_known_gains():
+    from rkgnn_ros.core.fitting.chain_online import servo_torque
+    data = arm_data(2.0)
+    paired = Dataset(data.t, data.theta, data.theta_dot, theta_d=data.theta + 0.1,
+                     theta_d_dot=data.theta_dot - 0.2, joint_names=NAMES)
+    out, = servo_torque([paired, data], [10.0, 20.0, 30.0], [1.0, 2.0, 3.0])  # data: no θd
+    np.testing.assert_allclose(out.tau, np.tile([10 * 0.1 - 0.2, 2.0 - 0.4, 3.0 - 0.6],
+                                                (data.n_samples, 1)))
+    assert servo_torque([paired], [10.0, 20.0], [1.0, 2.0]) == []
+
+
+def test_identify_bag_learns_the_chain_from_known_gains_without_effort(
+        servoed, tmp_path, capsys, monkeypatch):
+    import yaml
+    from bag_helpers import write_run
+    from rkgnn_ros.identify_bag import main
+    quick = chain_online.learn_chain
+    monkeypatch.setattr(chain_online, 'learn_chain',
+                        lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
+    write_run(tmp_path / 'bag', servoed, names=NAMES, effort=False)
+    params = tmp_path / 'gains.yaml'
+    params.write_text("/**:\n  ros__parameters:\n    case: 'pd_gains'\n"
+                      '    kp: [80.0, 80.0, 40.0]\n    kd: [8.0, 8.0, 4.0]\n')
+    code = main([str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'), '--heldout', '3',
+                 '--params-file', str(params), '--learn-chain', '--budget', '60', '--quiet'])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    model = yaml.safe_load((tmp_path / 'out' / 'model.yaml').read_text())
+    assert model['kind'] == 'rigid_body' and model['case'] == 'pd_gains'
+    assert model['source'] == 'the chain learned from joint data'

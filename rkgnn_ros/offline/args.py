@@ -86,8 +86,8 @@ def parser(node_name: str = 'identifier') -> argparse.ArgumentParser:
                    'rigid body is fitted in closed form (default: robot_description of the '
                    'parameters file, else none)')
     p.add_argument('--learn-chain', action='store_true',
-                   help="case torque, 3 to 7 joints: learn the arm's chain from the "
-                   'training part first (minutes, outside --budget); without a robot '
+                   help="case torque (or pd_gains), 3 to 7 joints: learn the arm's chain "
+                   'from the training part first (minutes, outside --budget); without a robot '
                    'description its rigid body is fitted when it predicts held-out torque, '
                    "with one the description is checked against it (the report's "
                    'description_check) and still fitted')

@@ -15,7 +15,9 @@
 """
 The chain learned online: an arm without a robot description gets its kinematics from data.
 
-:class:`ChainLearner` gathers the buffered data of case 'torque' (θ, θ̇ and τ) beyond the
+:class:`ChainLearner` gathers the buffered data of case 'torque' (θ, θ̇ and τ), or of case
+'pd_gains' with the servo's torque τ = Kp (θd − θ) + Kd (θ̇d − θ̇) of the known gains
+(:func:`servo_torque`: the rigid policy then fits the closed loop on the chain), beyond the
 buffer's window, the newest :data:`MAX_DATA_S` seconds kept. Once :data:`CHAIN_DATA_S`
 seconds are gathered on a spatial arm (:data:`MIN_JOINTS` joints or more) it runs
 :func:`~.chain_fit.fit_chain` on them (:data:`ONLINE_SETTINGS`, the newest
@@ -55,7 +57,8 @@ from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..data import Dataset
 from ..rigid.chain import ChainStructure
 
-__all__ = ['ChainSteps', 'CHAIN_DATA_S', 'ChainLearner', 'judged', 'learn_chain', 'MAX_ATTEMPTS',
+__all__ = ['ChainSteps', 'CHAIN_DATA_S', 'ChainLearner', 'judged', 'learn_chain',
+           'LEARNED_CASES', 'MAX_ATTEMPTS',
            'MAX_DATA_S', 'MAX_ERROR', 'MAX_FIT_S', 'MIN_JOINTS', 'ONLINE_SETTINGS',
            'REJUDGE_REFITS', 'RETRY_S', 'VALIDATION_FRACTION']
 
@@ -83,6 +86,28 @@ FIT_NICE = 19
 #: :func:`~.chain_fit.fit_chain`'s settings online: fewer starts, rows and iterations.
 ONLINE_SETTINGS = ChainSettings(search_rows=100, refine_blocks=40, max_starts=12,
                                 time_budget=60.0, joint_iterations=20, refine_iterations=20)
+
+
+#: The cases whose data teach a chain (τ measured, or computed from the known gains).
+LEARNED_CASES = ('torque', 'pd_gains')
+
+
+def servo_torque(segments: Sequence[Dataset], kp, kd) -> List[Dataset]:
+    """
+    Return ``segments`` with τ = Kp (θd − θ) + Kd (θ̇d − θ̇) (N m) of the known gains.
+
+    Segments without θd are left out; none at all when the gains do not give one value
+    per joint.
+    """
+    kp, kd = np.asarray(kp, dtype=float), np.asarray(kd, dtype=float)
+    out = []
+    for seg in segments:
+        if seg.theta_d is None or kp.shape != (seg.n_joints,) or kd.shape != (seg.n_joints,):
+            continue
+        tau = kp * (seg.theta_d - seg.theta) + kd * (seg.theta_d_dot - seg.theta_dot)
+        out.append(Dataset(seg.t, seg.theta, seg.theta_dot, tau=tau, theta_d=seg.theta_d,
+                           theta_d_dot=seg.theta_d_dot, joint_names=seg.joint_names))
+    return out
 
 
 class Abandoned(Exception):
@@ -310,7 +335,7 @@ class ChainLearner:
         """
         Judge a fit that ended; start one when due; return log lines (level, text).
 
-        A fit is due in case 'torque' once the data gathered reach the next goal
+        A fit is due in a case of :data:`LEARNED_CASES` once the data gathered reach the next goal
         (:data:`CHAIN_DATA_S`, then :data:`RETRY_S` more after each refusal).
         """
         lines: List[Tuple[str, str]] = []
@@ -318,7 +343,7 @@ class ChainLearner:
         if job is not None and job.done.is_set():
             self._job = None
             lines.extend(self._judge(job))
-        if (self._job is None and case == 'torque' and self._joints is not None
+        if (self._job is None and case in LEARNED_CASES and self._joints is not None
                 and self.wants_data(self._joints) and self._total_s >= self._next_s
                 and self.gathered_s >= min(self.min_data_s, MAX_DATA_S)):
             lines.append(self._start())
@@ -453,7 +478,7 @@ class ChainSteps:
 
     def _chain_case(self, case: str) -> str:
         """Return the case the learner may fit in ('' where the planar trigonometric arm holds)."""
-        return case if self._laws.trig is None else ''
+        return case if self._laws.trig is None and self._arm3.loop is None else ''
 
     def _chain_step(self, obs):
         """Without a description: judge or start the chain learner's fit (the module docstring)."""
@@ -470,8 +495,10 @@ class ChainSteps:
         return self._with_learned(obs)
 
     def _chain_feed(self, settings, joints, segments, capture) -> None:
-        """Give the learner the buffered segments of case 'torque'; start a fit now due."""
-        if settings.case == 'torque' and self._chain.wants_data(joints):
+        """Give the learner the buffered segments (with τ); start a fit now due."""
+        if settings.case == 'pd_gains' and joints is not None:
+            segments = servo_torque(segments, settings.kp, settings.kd)
+        if settings.case in LEARNED_CASES and self._chain.wants_data(joints):
             self._chain.feed(joints, segments, capture.time_origin,
                              getattr(capture, 'epoch', None))
             # a fit due now starts before this step's generation
