@@ -56,6 +56,7 @@ from .rigid_change import since
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..data import Dataset
 from ..rigid.chain import ChainStructure
+from ..servo_law import pd_torque
 
 __all__ = ['ChainSteps', 'CHAIN_DATA_S', 'ChainLearner', 'judged', 'learn_chain',
            'LEARNED_CASES', 'MAX_ATTEMPTS',
@@ -104,7 +105,7 @@ def servo_torque(segments: Sequence[Dataset], kp, kd) -> List[Dataset]:
     for seg in segments:
         if seg.theta_d is None or kp.shape != (seg.n_joints,) or kd.shape != (seg.n_joints,):
             continue
-        tau = kp * (seg.theta_d - seg.theta) + kd * (seg.theta_d_dot - seg.theta_dot)
+        tau = pd_torque(kp, kd, seg.theta_d - seg.theta, seg.theta_d_dot - seg.theta_dot)
         out.append(Dataset(seg.t, seg.theta, seg.theta_dot, tau=tau, theta_d=seg.theta_d,
                            theta_d_dot=seg.theta_d_dot, joint_names=seg.joint_names))
     return out
