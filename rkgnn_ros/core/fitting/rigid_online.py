@@ -247,6 +247,9 @@ class RigidKeeper:
         return RigidUpdate(model, loop, [line], self.payload)
 
     def _torque(self, segments, train, validation, lines, prior=None):
+        fit = fit_torque(self.structure, train, validation, prior=prior)
+        if fit is None:              # nothing is published: the law waits for the next refit
+            return None, self.law
         paired = [seg for seg in segments if seg.tau is not None and seg.theta_d is not None]
         law, determined = judge_law(paired, features=self.features) if paired else (None, False)
         usable = law is not None and law.usable(MAX_LAW_FIT_RATIO)
@@ -265,7 +268,6 @@ class RigidKeeper:
             self.law = _integral_to_end(law, paired)
         elif self.law is not None:
             self.law = _integral_to_end(self.law, paired) if paired else self.law
-        fit = fit_torque(self.structure, train, validation, prior=prior)
         return fit, self.law
 
     def _closed(self, case, train, validation, now, kp, kd, prior=None,
