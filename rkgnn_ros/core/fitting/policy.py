@@ -211,10 +211,8 @@ CHECK_S = 1.0
 CHECK_MAX_S = 10.0
 #: [s] A check's new samples are judged in blocks of this length.
 CHANGE_BLOCK_S = 0.25
-#: [mean squared normalised residual] A block's level at or above which the dynamics changed: a
-#: residual ten times its normal RMS (drivers with friction, jitter and drops, and closed loops
-#: with an integral, give blocks of several times it that are no change).
-CHANGE_ALARM = 100.0
+#: [mean squared normalised residual] A block's level at or above which the dynamics changed.
+CHANGE_ALARM = 25.0
 #: [samples] Fewest new samples a block is judged on.
 CHANGE_MIN_ROWS = 5
 #: [normalised residual] Above this marks where the change began.
