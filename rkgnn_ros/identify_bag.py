@@ -320,14 +320,12 @@ def _learned_chain(args, config, joints, segments, log):
     the log and the search runs as without it (with a robot description: the description
     is not checked).
     """
-    from rkgnn_ros.core.fitting.chain_online import learn_chain, LEARNED_CASES, servo_torque
+    from rkgnn_ros.core.fitting.chain_online import learn_chain, LEARNED_CASES
     if config.case not in LEARNED_CASES:
         log('warning', f'--learn-chain: the chain is learned from torque (case torque, or '
                        f'pd_gains with the known gains), the recording gives case '
                        f'{config.case}: not learned')
         return None
-    if config.case == 'pd_gains':     # the servo's torque of the known gains
-        segments = servo_torque(segments, config.settings.kp, config.settings.kd)
     _say(args.quiet, 'learning the chain from the training part')
     structure = learn_chain(segments, joints, log=log)
     if structure is None:
@@ -337,10 +335,7 @@ def _learned_chain(args, config, joints, segments, log):
 
 def _check(args, config, structure, learned, segments, log) -> Optional[dict]:
     """Return the description checked against the learned chain (``description_check``)."""
-    from rkgnn_ros.core.fitting.chain_online import servo_torque
     from rkgnn_ros.offline.description_check import check_description
-    if config.case == 'pd_gains':
-        segments = servo_torque(segments, config.settings.kp, config.settings.kd)
     check = check_description(structure, learned, segments, config['validation_fraction'])
     if check is None:
         log('warning', 'description check: too few data to fit both rigid bodies')
@@ -444,11 +439,15 @@ def identify(args, started: Optional[float] = None) -> dict:
     structure = _structure(args, config, joints, log)
     check = None
     if getattr(args, 'learn_chain', False):
-        learned = _learned_chain(args, config, joints, train_segments, log)
+        taught = train_segments        # with τ: measured, or the servo's of the known gains
+        if config.case == 'pd_gains':
+            from rkgnn_ros.core.fitting.chain_online import servo_torque
+            taught = servo_torque(train_segments, config.settings.kp, config.settings.kd)
+        learned = _learned_chain(args, config, joints, taught, log)
         if structure is None:
             structure = learned
         elif learned is not None:
-            check = _check(args, config, structure, learned, train_segments, log)
+            check = _check(args, config, structure, learned, taught, log)
     _say(args.quiet, f'fitting (case {config.case}, budget {budget:.0f} s'
                      + (f', the rigid body of {structure.describe()})' if structure else ')'))
     result = identify_offline(config.settings, capture, joints, budget_s=budget,

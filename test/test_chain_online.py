@@ -184,13 +184,36 @@ def servoed():
     return simulate(arm, servo, reference, 14.0, rate=100.0, joint_names=NAMES)
 
 
+def stream(policy, now, data, cfg, steps):
+    """
+    Step ``policy`` ``steps`` times, 0.5 s apart on the clock list ``now``; return results.
+
+    ``data`` reaches a buffer as the arm streams it (effort only in case 'torque').
+    """
+    from rkgnn_ros.core.fitting.online_records import Observation
+    from rkgnn_ros.streams.buffer import StreamBuffer
+    effort = cfg.case == 'torque'
+    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=effort, need_desired=True)
+    results, k = [], 0
+    for _ in range(steps):
+        now[0] += 0.5
+        while k < data.n_samples and data.t[k] <= now[0] - 100.0:
+            buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k],
+                             data.tau[k] if effort else None)
+            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+            k += 1
+        obs = Observation(cfg, NAMES, {'state': now[0], 'command': now[0]})
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        results.append(policy.step(obs))
+    return results
+
+
 def test_the_policy_hands_the_learned_chain_to_the_rigid_body_policy(servoed):
     from rkgnn_ros.core.fitting.online import OnlineIdentification
-    from rkgnn_ros.core.fitting.online_records import ModelUpdate, Observation, OnlineSettings
+    from rkgnn_ros.core.fitting.online_records import ModelUpdate, OnlineSettings
     from rkgnn_ros.core.fitting.rigid_model import RigidModel
-    from rkgnn_ros.streams.buffer import StreamBuffer
     data = servoed
-    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
     now = [100.0]
     learner = ChainLearner(SETTINGS, at_once, min_data_s=10.0)
     policy = OnlineIdentification(lambda: now[0], chain_learner=learner)
@@ -198,19 +221,9 @@ def test_the_policy_hands_the_learned_chain_to_the_rigid_body_policy(servoed):
     cfg = OnlineSettings(case='torque', min_window=100.0, validation_fraction=0.2,
                          model_publish_period=0.5)
     policy._changes.since = T0 + 1.5   # a change the search saw: the rigid body starts there
-    events, k = [], 0
-    for _ in range(40):
-        now[0] += 0.5
-        while k < data.n_samples and data.t[k] <= now[0] - 100.0:
-            buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
-            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
-            k += 1
-        obs = Observation(cfg, NAMES, {'state': now[0], 'command': now[0]})
-        if policy.data_due(obs):
-            obs = obs._replace(data=buffer.capture())
-        result = policy.step(obs)
-        assert not result.ran
-        events += result.events
+    results = stream(policy, now, data, cfg, 40)
+    assert not any(result.ran for result in results)
+    events = [e for result in results for e in result.events]
     texts = [getattr(e, 'text', '') for e in events]
     assert any('identified from now on' in t for t in texts), texts
     updates = [e for e in events if isinstance(e, ModelUpdate)]
@@ -382,10 +395,7 @@ def test_an_accepted_chain_that_stops_explaining_the_torque_is_learned_again():
 
 def test_the_policy_drops_a_wrong_chain_its_refits_cannot_fit(servoed):
     from rkgnn_ros.core.fitting.online import OnlineIdentification
-    from rkgnn_ros.core.fitting.online_records import Observation, OnlineSettings
-    from rkgnn_ros.streams.buffer import StreamBuffer
-    data = servoed
-    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+    from rkgnn_ros.core.fitting.online_records import OnlineSettings
     now = [100.0]
     learner = ChainLearner(SETTINGS, at_once, min_data_s=1000.0)
     learner._joints = NAMES
@@ -393,44 +403,22 @@ def test_the_policy_drops_a_wrong_chain_its_refits_cannot_fit(servoed):
     policy = OnlineIdentification(lambda: now[0], chain_learner=learner)
     cfg = OnlineSettings(case='torque', min_window=100.0, validation_fraction=0.2,
                          model_publish_period=0.5)
-    texts, k = [], 0
-    for _ in range(28):
-        now[0] += 0.5
-        while k < data.n_samples and data.t[k] <= now[0] - 100.0:
-            buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
-            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
-            k += 1
-        obs = Observation(cfg, NAMES, {'state': now[0], 'command': now[0]})
-        if policy.data_due(obs):
-            obs = obs._replace(data=buffer.capture())
-        texts += [getattr(e, 'text', '') for e in policy.step(obs).events]
+    texts = [getattr(e, 'text', '') for result in stream(policy, now, servoed, cfg, 28)
+             for e in result.events]
     assert any('no longer explains the torque' in t for t in texts), texts
     assert learner.structure is None and learner.wants_data(NAMES)
 
 
 def test_with_known_gains_and_no_torque_the_chain_is_learned_from_the_servos_torque(servoed):
     from rkgnn_ros.core.fitting.online import OnlineIdentification
-    from rkgnn_ros.core.fitting.online_records import ModelUpdate, Observation, OnlineSettings
+    from rkgnn_ros.core.fitting.online_records import ModelUpdate, OnlineSettings
     from rkgnn_ros.core.fitting.rigid_model import RigidModel
-    from rkgnn_ros.streams.buffer import StreamBuffer
-    data = servoed
-    buffer = StreamBuffer(NAMES, 0.01, 20.0, 0.1, need_tau=False, need_desired=True)
     now = [100.0]
     learner = ChainLearner(SETTINGS, at_once, min_data_s=10.0)
     policy = OnlineIdentification(lambda: now[0], chain_learner=learner)
     cfg = OnlineSettings(case='pd_gains', kp=(80.0, 80.0, 40.0), kd=(8.0, 8.0, 4.0),
                          min_window=100.0, validation_fraction=0.2, model_publish_period=0.5)
-    events, k = [], 0
-    for _ in range(40):
-        now[0] += 0.5
-        while k < data.n_samples and data.t[k] <= now[0] - 100.0:
-            buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k])
-            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
-            k += 1
-        obs = Observation(cfg, NAMES, {'state': now[0], 'command': now[0]})
-        if policy.data_due(obs):
-            obs = obs._replace(data=buffer.capture())
-        events += policy.step(obs).events
+    events = [e for result in stream(policy, now, servoed, cfg, 40) for e in result.events]
     texts = [getattr(e, 'text', '') for e in events]
     assert any('identified from now on' in t for t in texts), texts
     assert axis_errors(learner.structure.chain, arm_chain())['aligned_deg_max'] < 2.0

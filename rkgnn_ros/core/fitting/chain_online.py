@@ -497,9 +497,9 @@ class ChainSteps:
 
     def _chain_feed(self, settings, joints, segments, capture) -> None:
         """Give the learner the buffered segments (with τ); start a fit now due."""
-        if settings.case == 'pd_gains' and joints is not None:
-            segments = servo_torque(segments, settings.kp, settings.kd)
         if settings.case in LEARNED_CASES and self._chain.wants_data(joints):
+            if settings.case == 'pd_gains':
+                segments = servo_torque(segments, settings.kp, settings.kd)
             self._chain.feed(joints, segments, capture.time_origin,
                              getattr(capture, 'epoch', None))
             # a fit due now starts before this step's generation
