@@ -135,6 +135,30 @@ def test_the_consistent_fit_recovers_exact_torques_and_stays_realizable(pair):
     assert error < 1e-2 * np.sqrt(np.mean((fresh @ truth) ** 2))
 
 
+def test_an_svd_that_does_not_converge_falls_back_to_the_iterative_step(pair, monkeypatch):
+    # LAPACK's SVD in the dense trust-region step failed to converge once online; the fit
+    # takes the iterative step then instead of failing the refit
+    import scipy.optimize
+    _, structure, params = pair
+    rng = np.random.default_rng(7)
+    q, v, a = structure.random_states(200, rng)
+    rows = structure.rows(q, v, a)
+    tau = rows @ params
+    real = scipy.optimize.least_squares
+    solvers = []
+
+    def flaky(*args, **kwargs):
+        solvers.append(kwargs.get('tr_solver', 'exact'))
+        if solvers[-1] == 'exact':
+            raise np.linalg.LinAlgError('SVD did not converge')
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(scipy.optimize, 'least_squares', flaky)
+    fit = fit_consistent(structure, rows, tau)
+    assert solvers == ['exact', 'lsmr']
+    assert fit.rms_residual < 1e-2 * np.sqrt(np.mean(tau ** 2))
+
+
 def test_a_description_with_a_prismatic_joint_is_refused():
     urdf = ('<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/>'
             '<inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>'
