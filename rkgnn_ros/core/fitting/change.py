@@ -21,23 +21,29 @@ carry the change. :class:`ChangeDetector` tests the model's residual on the newe
 samples against the residual's normal level per joint, measured where the model was fitted
 (its held-out RMS residual, floored at :data:`~.policy.CHANGE_RELATIVE_FLOOR` of the
 joint's torque spread: a model fitted to rounding would otherwise call any rounding a
-change). The test is a generalised likelihood ratio for a jump of the residual's scale in
-a block of new samples: the block's mean squared normalised residual, about 1 while
-nothing changed; a change is declared when it exceeds :data:`~.policy.CHANGE_ALARM` on a
-joint over at least :data:`~.policy.CHANGE_MIN_ROWS` samples (the residual's RMS
-:data:`~.policy.CHANGE_ALARM`^½ times its normal level). The new samples of a check are
-cut into blocks of :data:`~.policy.CHANGE_BLOCK_S` (one check may judge seconds of them
-when it came late, and a change in their last quarter second must not be averaged away by
-what came before it). A block that passes is a suspect (:attr:`ChangeDetector.suspect`:
-the model is not refitted meanwhile); the change is declared when the next block passes
-too, at the suspect's onset: one block can pass by chance, a payload's residual stays
-large. The residual's normal level is measured on the model's own held-out data, with
-the encoders' noise in it, and the rigid-body model is global, so new motion does not
-raise it; a threshold this far above 1 keeps a model somewhat worse on motion it never
-saw from counting as a change. The time of the change is where the stretch of large
-residuals begins, in the suspect block or the one before it: the sample from which to the
-block's end the sum of the squared normalised residual less :data:`~.policy.CHANGE_ONSET`²
-is largest (the change point of a CUSUM with that drift).
+change). The test is a generalised likelihood ratio for a jump of the residual's scale in a block
+of new samples: the block's mean squared normalised residual (its statistic), about 1
+while nothing changed. The new samples of a check are cut into blocks of
+:data:`~.policy.CHANGE_BLOCK_S` (one check may judge seconds of them when it came late, and
+a change in their last quarter second must not be averaged away by what came before it). A
+block whose statistic reaches :data:`~.policy.CHANGE_ALARM` on a joint (over at least
+:data:`~.policy.CHANGE_MIN_ROWS` samples) opens a suspect (:attr:`ChangeDetector.suspect`:
+the model is not refitted meanwhile), a block below it on every joint closes it. The
+evidence of a joint's run of passing blocks is the product of their statistics over the
+alarm; the change is declared once a run of at least two blocks holds
+:data:`~.policy.CHANGE_EVIDENCE` of it, at the suspect's onset. A model's residual is not
+Gaussian: where it misses a little of the motion (friction at a reversal, a closed loop's
+integral) it comes in bursts of up to a second at tens of times its normal square; a
+payload's stays hundreds to thousands of times above it for as long as the payload is
+carried. So a large change is declared on its second block, a burst never, a small
+lasting change (wear) after the blocks that make up the evidence. The residual's normal
+level is measured on the model's own held-out data, with the encoders' noise in it, and the
+rigid-body model is global, so new motion does not raise it; an alarm this far above 1
+keeps a model somewhat worse on motion it never saw from counting as a change. The time of
+the change is where the stretch of large residuals begins, in the run's first block or the
+one before it: the sample from which to the block's end the sum of the squared normalised
+residual less :data:`~.policy.CHANGE_ONSET`² is largest (the change point of a CUSUM with
+that drift).
 """
 
 import math
@@ -45,8 +51,8 @@ from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .policy import (CHANGE_ALARM, CHANGE_BLOCK_S, CHANGE_LEVEL_GROWTH, CHANGE_MIN_ROWS,
-                     CHANGE_ONSET, CHANGE_RELATIVE_FLOOR)
+from .policy import (CHANGE_ALARM, CHANGE_BLOCK_S, CHANGE_EVIDENCE, CHANGE_LEVEL_GROWTH,
+                     CHANGE_MIN_ROWS, CHANGE_ONSET, CHANGE_RELATIVE_FLOOR)
 
 __all__ = ['Change', 'ChangeDetector']
 
@@ -56,7 +62,7 @@ class Change(NamedTuple):
 
     time: float
     joints: tuple            # indices of the joints whose statistic passed
-    statistic: np.ndarray    # per joint: the block's mean squared normalised residual
+    statistic: np.ndarray    # per joint: the largest block mean squared normalised residual
 
 
 class ChangeDetector:
@@ -65,8 +71,10 @@ class ChangeDetector:
     def __init__(self):
         self.level: Optional[np.ndarray] = None
         self.last_time = -math.inf
-        #: a block that passed, waiting for the next to confirm it (its onset, statistic)
+        #: a run of blocks that passed, not yet enough evidence (its onset, joints, statistic)
         self.suspect: Optional[Change] = None
+        self._evidence: Optional[np.ndarray] = None   # per joint: log evidence of its run
+        self._blocks: Optional[np.ndarray] = None     # per joint: blocks in its run
 
     def set_normal(self, residual_rms, spread) -> None:
         """
@@ -103,20 +111,42 @@ class ChangeDetector:
             with np.errstate(all='ignore'):
                 statistic = np.mean(normalised[rows] ** 2, axis=0)
             statistic = np.where(np.isfinite(statistic), statistic, 0.0)
-            joints = tuple(int(j) for j in np.flatnonzero(statistic >= CHANGE_ALARM))
-            if not joints:
-                self.suspect = None
-            elif self.suspect is not None:           # confirmed: the change is the suspect's
-                found, self.suspect = self.suspect, None
-                both = tuple(sorted(set(found.joints) | set(joints)))
-                return Change(found.time, both, np.maximum(found.statistic, statistic))
-            else:
-                span = slice(start, rows.stop)      # the onset may lie in the block before
-                z2 = np.max(normalised[span][:, list(joints)] ** 2, axis=1)
-                gain = np.where(np.isfinite(z2), z2, CHANGE_ONSET ** 2) - CHANGE_ONSET ** 2
-                first = int(np.argmax(np.cumsum(gain[::-1])[::-1]))
-                self.suspect = Change(float(times[span][first]), joints, statistic)
+            change = self._judge(statistic, normalised[start:rows.stop], times[start:rows.stop])
+            if change is not None:
+                return change
             start = rows.start
+        return None
+
+    def _judge(self, statistic: np.ndarray, span: np.ndarray, times: np.ndarray):
+        """
+        Add one block's ``statistic`` (n,) to the runs; return the declared Change or None.
+
+        ``span``, ``times``: the normalised residual of the block and the one before it (the
+        onset of a new run is looked for there).
+        """
+        passing = statistic >= CHANGE_ALARM
+        if not np.any(passing):
+            self.suspect = self._evidence = self._blocks = None
+            return None
+        if self.suspect is None:
+            joints = list(np.flatnonzero(passing))
+            z2 = np.max(span[:, joints] ** 2, axis=1)
+            gain = np.where(np.isfinite(z2), z2, CHANGE_ONSET ** 2) - CHANGE_ONSET ** 2
+            first = int(np.argmax(np.cumsum(gain[::-1])[::-1]))
+            self.suspect = Change(float(times[first]), (), np.zeros_like(statistic))
+            self._evidence = np.zeros_like(statistic)
+            self._blocks = np.zeros(statistic.shape, dtype=int)
+        with np.errstate(divide='ignore'):
+            gain = np.log(np.maximum(statistic, 1e-300) / CHANGE_ALARM)
+        self._evidence = np.where(passing, self._evidence + gain, 0.0)
+        self._blocks = np.where(passing, self._blocks + 1, 0)
+        suspect = self.suspect
+        joints = tuple(sorted(set(suspect.joints) | {int(j) for j in np.flatnonzero(passing)}))
+        self.suspect = Change(suspect.time, joints, np.maximum(suspect.statistic, statistic))
+        if np.any((self._blocks >= 2) & (self._evidence >= math.log(CHANGE_EVIDENCE))):
+            found = self.suspect
+            self.suspect = self._evidence = self._blocks = None
+            return found
         return None
 
 

@@ -211,8 +211,12 @@ CHECK_S = 1.0
 CHECK_MAX_S = 10.0
 #: [s] A check's new samples are judged in blocks of this length.
 CHANGE_BLOCK_S = 0.25
-#: [mean squared normalised residual] A block's level at or above which the dynamics changed.
+#: [mean squared normalised residual] A block at or above this on a joint opens or continues a
+#: suspect run of blocks ...
 CHANGE_ALARM = 25.0
+#: [product of (statistic / CHANGE_ALARM) over a joint's run] ... which is a change of the
+#: dynamics once it holds this much evidence over at least two blocks.
+CHANGE_EVIDENCE = 100.0
 #: [samples] Fewest new samples a block is judged on.
 CHANGE_MIN_ROWS = 5
 #: [normalised residual] Above this marks where the change began.
