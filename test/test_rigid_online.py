@@ -214,3 +214,41 @@ def test_the_closed_loop_form_is_chosen_again_when_the_data_have_doubled(ur5, mo
         keeper.refresh('unknown', [data.slice(0, n)], 0.2, T0, T0 + seconds)
         counts.append(len(calls))
     assert counts == [1, 1, 2]
+
+
+def test_the_first_fit_is_tried_at_every_check_until_the_data_suffice(ur5, monkeypatch):
+    """Before its first fit the rigid body is refitted every 0.25 s, after it every 1 s."""
+    from rkgnn_ros.core.fitting import rigid_online
+    _, structure, data, _ = ur5
+    tries = []
+    real = rigid_online.RigidKeeper.refresh
+
+    def counted(self, *args, **kwargs):
+        update = real(self, *args, **kwargs)
+        tries.append((clock.now - 100.0, update is not None))
+        return update
+    monkeypatch.setattr(rigid_online.RigidKeeper, 'refresh', counted)
+    joints = tuple(structure.joint_names)
+    buffer = StreamBuffer(joints, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+    clock = Clock()
+    policy = OnlineIdentification(clock)
+    cfg = OnlineSettings(case='torque', min_window=2.0, validation_fraction=0.2,
+                         model_publish_period=0.5)
+    k = 0
+    while clock.now < 106.0:
+        clock.now += 0.25
+        while k < data.n_samples and data.t[k] <= clock.now - 100.0:
+            buffer.add_state(T0 + data.t[k], data.theta[k], data.theta_dot[k], data.tau[k])
+            buffer.add_command(T0 + data.t[k], data.theta_d[k], data.theta_d_dot[k])
+            k += 1
+        obs = Observation(cfg, joints, {'state': clock.now, 'command': clock.now},
+                          structure=structure)
+        if policy.data_due(obs):
+            obs = obs._replace(data=buffer.capture())
+        policy.step(obs)
+    first = next(i for i, (_, fitted) in enumerate(tries) if fitted)
+    before = np.diff([t for t, _ in tries[:first + 1]])
+    after = np.diff([t for t, _ in tries[first:]])
+    assert first >= 2 and np.allclose(before, 0.25)
+    assert after.size >= 2 and np.all(after >= 1.0 - 1e-9)
+    assert tries[first][0] <= 2.5          # 2 s of data (RIGID_MIN_DATA_S) and one check

@@ -323,7 +323,8 @@ class RigidPolicy:
     :class:`~.online.OnlineIdentification` hands it every step whose observation carries a
     structure: it refits at most every :data:`RIGID_REFRESH_S` and publishes the model at most
     every ``model_publish_period`` (the first after a change of the dynamics at once, its
-    refit tried at every check until the data since the change suffice); a reset, another
+    refit tried at every check until the data since the change suffice; the first fit too is
+    tried at every check until the data suffice); a reset, another
     structure or another case starts it afresh. ``emit`` takes events,
     ``set_status(state, detail, **numbers)`` the status, ``staleness`` is the policy's
     :class:`~.online_rules.Staleness`.
@@ -378,7 +379,7 @@ class RigidPolicy:
         for event in events:
             self._emit(event)
         if update is None:
-            if keeper.change is not None:    # after a change: again at the next check
+            if keeper.change is not None or keeper.fit is None:   # again at the next check
                 self._last_refresh = now - RIGID_REFRESH_S + CHECK_EVERY_S
             self._set_status('waiting for data', 'too few data for the rigid-body fit yet')
             return False
