@@ -58,6 +58,14 @@ over the same ones (``bench/online_servos.py``'s ``score``); beside it under ``o
 both errors, the curve of every 5 s bin, what was published, the identifier's log lines of
 the chain learner and the machine's load. ``--merge`` keeps every other entry of the file.
 
+Case 3 (``--case-three``): the same simulated arms' 30 s without effort and no gains given
+(``fit_chain(case='unknown')``: the gains are learned with the chain, up to one common
+factor); under ``case_three`` per arm: ``axis_error_deg_max`` as above,
+``equation_error_heldout`` (the closed loop's equation error on the 10 s held out, RMSE /
+std of the servo's torque, the worst joint), ``kp_ratio_error_max`` (the learned Kp over
+its mean against the true Kp over theirs, the worst relative error),
+``kd_over_kp_error_max`` and ``fit_s``.
+
 Writes ``bench/results/learned_chain.json`` (``--out``) and each learned arm beside it as
 ``learned_chain_<arm>.urdf``. Goals (issue 33): torque NRMSE <= 0.03, axes
 within 5 degrees, fit <= 600 s; real Panda nMSE mean <= 0.03; online ratio at 120 s
@@ -160,6 +168,39 @@ def run_arm(name, settings, log, path=RESULTS):
     return out
 
 
+def run_case_three(name, settings, log):
+    """Return the case-3 figures of one simulated arm (module docstring)."""
+    from rkgnn_ros.core.data import Dataset
+    from rkgnn_ros.core.fitting.chain_fit import fit_chain
+    from rkgnn_ros.core.rigid.chain import axis_errors, chain_of
+    from rkgnn_ros.core.rigid.structure import RigidStructure
+    sim, train, held = simulated(name)
+
+    def without_effort(data):
+        return Dataset(data.t, data.theta, data.theta_dot, theta_d=data.theta_d,
+                       theta_d_dot=data.theta_d_dot, joint_names=data.joint_names)
+    truth = RigidStructure(sim.urdf, sim.joint_names)
+    wall = time.perf_counter()
+    found = fit_chain([without_effort(train)], [without_effort(held)], settings, log=log,
+                      case='unknown')
+    wall = time.perf_counter() - wall
+    if found is None:
+        return {'error': 'fit_chain returned None'}
+    values = _values(name)
+    kp, kd = np.array(values['kp'], dtype=float), np.array(values['kd'], dtype=float)
+    law = found.fit.law
+    ratio = (law.kp / law.kp.mean()) / (kp / kp.mean()) - 1.0
+    damping = (law.kd / law.kp) / (kd / kp) - 1.0
+    return {'axis_error_deg_max': axis_errors(found.chain, chain_of(truth))['aligned_deg_max'],
+            'equation_error_heldout': float(np.max(found.fit.errors)),
+            'equation_error_heldout_per_joint': found.fit.errors.tolist(),
+            'kp_ratio_error_max': float(np.max(np.abs(ratio))),
+            'kp_ratio_error': ratio.tolist(),
+            'kd_over_kp_error_max': float(np.max(np.abs(damping))),
+            'form': law.describe(), 'fit_s': wall, 'consistent': found.arm.consistent(),
+            'load_average': os.getloadavg(), 'report': found.report}
+
+
 def _write_urdf(name, found, out):
     """Write the learned arm's URDF beside the results: ``<out without .json>_<arm>.urdf``."""
     path = f'{os.path.splitext(out)[0]}_{name}.urdf'
@@ -239,6 +280,8 @@ def main(argv=None) -> int:
     parser.add_argument('--merge', action='store_true', help='keep entries not rerun')
     parser.add_argument('--set', action='append', default=[],
                         help='a ChainSettings field, e.g. --set refine_blocks=120')
+    parser.add_argument('--case-three', action='store_true',
+                        help='case 3 instead: the simulated arms without effort or gains')
     parser.add_argument('--online', action='store_true',
                         help='the online figure instead: sim_arm and the identifier without '
                         'a robot description (the arms of --arms other than real_panda)')
@@ -268,17 +311,27 @@ def main(argv=None) -> int:
 
     for name in [a for a in args.arms.split(',') if a]:
         print(f'== {name}', flush=True)
+        if args.case_three:
+            if name in ARMS:
+                found = run_case_three(name, settings, log)
+                results.setdefault('case_three', {})[name] = found
+                print(json.dumps({k: v for k, v in results['case_three'][name].items()
+                                  if k != 'report'}), flush=True)
+            continue
         if name == 'real_panda':
             results[name] = run_real_panda(settings, log, args.data, args.out)
         else:
             results[name] = run_arm(name, settings, log, args.out)
         print(json.dumps({k: (np.round(v, 4).tolist() if isinstance(v, list) else v)
                           for k, v in results[name].items() if k != 'report'}), flush=True)
-    results['goals'] = dict(GOALS)
-    results['meta'] = {'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
-                       'blas': blas, 'seed': args.seed, 'settings': repr(settings),
-                       'load_average': os.getloadavg(),
-                       'metric': 'module docstring of bench/learned_chain.py'}
+    meta = {'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
+            'blas': blas, 'seed': args.seed, 'settings': repr(settings),
+            'load_average': os.getloadavg(),
+            'metric': 'module docstring of bench/learned_chain.py'}
+    if args.case_three:
+        results.setdefault('case_three', {})['meta'] = meta
+    else:
+        results['goals'], results['meta'] = dict(GOALS), meta
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, 'w', encoding='utf-8') as f:
         json.dump(results, f, indent=2)

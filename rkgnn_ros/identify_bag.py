@@ -315,19 +315,20 @@ def _learned_chain(args, config, joints, segments, log):
     """
     Return the chain learned from the training part (``--learn-chain``), or None.
 
-    Case 'torque' (or 'pd_gains', τ from the known gains) on 3 to 7 joints only
+    Case 'torque' (or 'pd_gains', τ from the known gains, or 'unknown', the gains learned
+    with it) on 3 to 7 joints only
     (:func:`~rkgnn_ros.core.fitting.chain_online.learn_chain`); a chain refused is said in
     the log and the search runs as without it (with a robot description: the description
     is not checked).
     """
-    from rkgnn_ros.core.fitting.chain_online import learn_chain, LEARNED_CASES
+    from rkgnn_ros.core.fitting.chain_online import chain_case, learn_chain, LEARNED_CASES
     if config.case not in LEARNED_CASES:
-        log('warning', f'--learn-chain: the chain is learned from torque (case torque, or '
-                       f'pd_gains with the known gains), the recording gives case '
-                       f'{config.case}: not learned')
+        log('warning', f'--learn-chain: the chain is learned in cases '
+                       f'{list(LEARNED_CASES)}, the recording gives case {config.case}: not '
+                       'learned')
         return None
     _say(args.quiet, 'learning the chain from the training part')
-    structure = learn_chain(segments, joints, log=log)
+    structure = learn_chain(segments, joints, log=log, case=chain_case(config.case))
     if structure is None:
         _say(args.quiet, 'the learned chain was not used (see the log)')
     return structure
@@ -446,6 +447,9 @@ def identify(args, started: Optional[float] = None) -> dict:
         learned = _learned_chain(args, config, joints, taught, log)
         if structure is None:
             structure = learned
+        elif learned is not None and config.case == 'unknown':
+            log('warning', 'description check: it compares torques; case unknown has none '
+                           '(not checked)')
         elif learned is not None:
             check = _check(args, config, structure, learned, taught, log)
     _say(args.quiet, f'fitting (case {config.case}, budget {budget:.0f} s'

@@ -181,6 +181,41 @@ def test_a_three_joint_chain_is_recovered_from_exact_data():
                                rtol=1e-6, atol=1e-6)
 
 
+def test_without_torque_and_gains_the_chain_and_the_gains_ratios_are_learned():
+    # case 3: a PD servo whose gains nobody gives, joint_states without effort
+    pytest.importorskip('pinocchio')
+    from rkgnn_ros.core.rigid.urdf_out import identified_urdf
+    from rkgnn_ros.core.sim.servo import Servo
+    from rkgnn_ros.core.sim.simulate import simulate
+    from rkgnn_ros.core.sim.trajectories import SumOfSines
+    from rkgnn_ros.core.sim.urdf_arm import UrdfArm
+    names = ('a', 'b', 'c')
+    truth = ChainStructure(arm_chain(), names)
+    parameters = bodies(3, np.random.default_rng(11))
+    parameters[30:] = 0.0
+    arm = UrdfArm(identified_urdf(truth, parameters, 'test arm'), list(names))
+    kp, kd = np.array([80.0, 80.0, 40.0]), np.array([8.0, 8.0, 4.0])
+    reference = SumOfSines.random(3, np.random.default_rng(1), n_terms=3, amplitude=0.5)
+    data = simulate(arm, Servo(kp, kd), reference, 16.0, rate=100.0, joint_names=names)
+
+    def without_effort(part):
+        return Dataset(part.t, part.theta, part.theta_dot, theta_d=part.theta_d,
+                       theta_d_dot=part.theta_d_dot, joint_names=names)
+    settings = ChainSettings(refine_blocks=40, block_length=8, max_starts=20, seed=1,
+                             joint_iterations=40)
+    found = fit_chain([without_effort(data.slice(0, 1200))],
+                      [without_effort(data.slice(1200, 1600))], settings, case='unknown')
+    assert found is not None and found.report['case'] == 'unknown'
+    assert axis_errors(found.chain, arm_chain())['aligned_deg_max'] < 1.0
+    assert found.arm.consistent()
+    assert np.max(found.fit.errors) < 0.01     # held-out closed-loop equation error
+    for learned in (np.array(found.report['gains']['kp']), found.fit.law.kp):
+        np.testing.assert_allclose(learned / learned.mean(), kp / kp.mean(), rtol=0.03)
+    np.testing.assert_allclose(found.fit.law.kd / found.fit.law.kp, kd / kp, rtol=0.03)
+    with pytest.raises(ValueError):
+        fit_chain([data], case='pd')
+
+
 def test_an_axis_the_data_cannot_see_is_reported_undetermined():
     chain = arm_chain()
     truth = ChainStructure(chain)

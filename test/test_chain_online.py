@@ -107,7 +107,7 @@ def test_the_learner_refuses_garbage_and_tries_again_later():
     assert learner.structure is None
     assert lines[-1][0] == 'warning' and 'not used' in lines[-1][1], lines
     assert learner.wants_data(NAMES)        # a refusal: more data, another try later
-    # a case without torque never starts a fit
+    # a case whose data were not gathered (torque gathered, case 3 asked) starts no fit
     other = ChainLearner(settings, at_once, min_data_s=1.0)
     other.feed(NAMES, [data], T0)
     assert other.poll('unknown') == [] and not other.running
@@ -116,7 +116,7 @@ def test_the_learner_refuses_garbage_and_tries_again_later():
 def test_the_fit_runs_in_the_background_at_low_priority(monkeypatch):
     release, seen = threading.Event(), {}
 
-    def slow_fit(train, validation, settings, names, log):
+    def slow_fit(train, validation, settings, names, log, case='torque'):
         seen['nice'] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
         seen['thread'] = threading.current_thread().name
         release.wait(30.0)
@@ -145,7 +145,7 @@ def held_fit(monkeypatch):
     """Make the chain fit wait for the returned event, then end at its next stage line."""
     release = threading.Event()
 
-    def slow_fit(train, validation, settings, names, log):
+    def slow_fit(train, validation, settings, names, log, case='torque'):
         release.wait(30.0)
         log('search: done')
         raise AssertionError('not reached: the stage line ends a cancelled fit')
@@ -428,6 +428,30 @@ def test_with_known_gains_and_no_torque_the_chain_is_learned_from_the_servos_tor
     assert model.case == 'pd_gains' and updates[-1].loop is not None
 
 
+def test_with_nothing_known_about_the_servo_the_chain_is_learned_with_its_gains(servoed):
+    # case 3: no effort, no gains: the chain and the gains' ratios from θ, θd alone
+    from rkgnn_ros.core.fitting.online import OnlineIdentification
+    from rkgnn_ros.core.fitting.online_records import ModelUpdate, OnlineSettings
+    from rkgnn_ros.core.fitting.rigid_model import RigidModel
+    now = [100.0]
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=10.0)
+    policy = OnlineIdentification(lambda: now[0], chain_learner=learner)
+    cfg = OnlineSettings(case='unknown', min_window=100.0, validation_fraction=0.2,
+                         model_publish_period=0.5)
+    events = [e for result in stream(policy, now, servoed, cfg, 40) for e in result.events]
+    texts = [getattr(e, 'text', '') for e in events]
+    assert any('closed-loop equation error' in t and 'identified from now on' in t
+               for t in texts), texts
+    assert axis_errors(learner.structure.chain, arm_chain())['aligned_deg_max'] < 2.0
+    updates = [e for e in events if isinstance(e, ModelUpdate)]
+    model = updates[-1].model
+    assert isinstance(model, RigidModel) and model.arm.structure is learner.structure
+    assert model.case == 'unknown' and updates[-1].loop is not None
+    kp = updates[-1].loop.loop.law.kp
+    np.testing.assert_allclose(kp / kp.mean(), np.array([80.0, 80.0, 40.0]) / 200.0 * 3,
+                               rtol=0.05)
+
+
 def test_the_servos_torque_of_known_gains():
     from rkgnn_ros.core.fitting.chain_online import servo_torque
     data = arm_data(2.0)
@@ -458,3 +482,35 @@ def test_identify_bag_learns_the_chain_from_known_gains_without_effort(
     model = yaml.safe_load((tmp_path / 'out' / 'model.yaml').read_text())
     assert model['kind'] == 'rigid_body' and model['case'] == 'pd_gains'
     assert model['source'] == 'the chain learned from joint data'
+
+
+def test_identify_bag_learns_the_chain_with_nothing_known_about_the_servo(
+        servoed, tmp_path, capsys, monkeypatch):
+    import yaml
+    from bag_helpers import write_run
+    from rkgnn_ros.identify_bag import main
+    quick = chain_online.learn_chain
+    monkeypatch.setattr(chain_online, 'learn_chain',
+                        lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
+    write_run(tmp_path / 'bag', servoed, names=NAMES, effort=False)
+    code = main([str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'), '--heldout', '3',
+                 '--learn-chain', '--budget', '60', '--quiet'])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    model = yaml.safe_load((tmp_path / 'out' / 'model.yaml').read_text())
+    assert model['kind'] == 'rigid_body' and model['case'] == 'unknown'
+    assert model['source'] == 'the chain learned from joint data'
+
+
+def test_fit_best_learns_the_chain_with_nothing_known_about_the_servo(servoed, monkeypatch):
+    from rkgnn_ros.core.fitting.identify import fit_best
+    from rkgnn_ros.core.fitting.rigid_model import RigidModel
+    quick = chain_online.learn_chain
+    monkeypatch.setattr(chain_online, 'learn_chain',
+                        lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
+    data = Dataset(servoed.t, servoed.theta, servoed.theta_dot, theta_d=servoed.theta_d,
+                   theta_d_dot=servoed.theta_d_dot, joint_names=NAMES)
+    result = fit_best([data], 'unknown', learn_chain=True)
+    assert result.history[0]['phase'] == 'chain' and result.history[0]['accepted']
+    assert isinstance(result.model, RigidModel) and result.model.case == 'unknown'
+    assert 'learned_chain' in result.model.info and result.final_cost < 0.05

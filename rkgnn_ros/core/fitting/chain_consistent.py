@@ -52,6 +52,7 @@ class JointRefinement(NamedTuple):
     parameters: np.ndarray      # full parameters (P,), every body realizable
     cost: float                 # ‖W (Y π − τ)‖² / ‖W τ‖² on the rows
     evaluations: int
+    extra: np.ndarray = np.zeros(0)   # the coefficients of the rows' extra columns
 
 
 #: λ per row of the pull towards the prior parameters: far weaker than a robot
@@ -66,6 +67,7 @@ class JointOptions(NamedTuple):
     max_iterations: int = 60
     step: float = 1e-6
     prior_weight: float = JOINT_PRIOR_WEIGHT
+    extra0: object = None       # a start of the rows' extra coefficients (zeros)
 
 
 def refine_jointly(rows: ChainRows, weights, coding: ChainCoding, x0, parameters0, prior,
@@ -75,12 +77,15 @@ def refine_jointly(rows: ChainRows, weights, coding: ChainCoding, x0, parameters
 
     ``x0``: the chain's numbers; ``parameters0`` (P,): a start (made realizable);
     ``prior`` (P,): what the parameters are pulled towards where the rows do not decide;
-    ``length_prior``: λ.
+    ``length_prior``: λ. The rows' extra columns (case 3's gains), if any, are fitted
+    along, free.
     """
-    max_iterations, step, prior_weight = JointOptions(**options)
+    max_iterations, step, prior_weight, extra0 = JointOptions(**options)
     from scipy.optimize import least_squares
     n = coding.n
     nx, nphi, npsi = coding.size, N_INERTIAL * n, N_JOINT * n
+    extra = np.zeros((rows.n_rows * n, 0)) if rows.extra is None else rows.extra
+    ne = extra.shape[1]
     w = np.tile(np.asarray(weights, dtype=float), rows.n_rows)
     target = (rows.tau * np.asarray(weights, dtype=float)).reshape(-1)
     norm = max(float(np.linalg.norm(target)), 1e-300)
@@ -97,21 +102,21 @@ def refine_jointly(rows: ChainRows, weights, coding: ChainCoding, x0, parameters
     count = [0]
 
     def unpack(z):
-        return z[:nx], z[nx:nx + nphi], z[nx + nphi:]
+        return z[:nx], z[nx:nx + nphi], z[nx + nphi:nx + nphi + npsi], z[nx + nphi + npsi:]
 
     def full(phi, psi):
         inertial = consistency.parameters(phi.reshape(n, N_INERTIAL)).reshape(-1)
         return np.concatenate([inertial, psi])
 
     def residual(z):
-        x, phi, psi = unpack(z)
+        x, phi, psi, k = unpack(z)
         count[0] += 1
-        data = (rows.torques(coding.tree(x), full(phi, psi)) * w - target) / norm
+        data = ((rows.torques(coding.tree(x), full(phi, psi)) + extra @ k) * w - target) / norm
         return np.concatenate([data, s_phi * (phi - phi0), s_psi * (psi - psi0),
                                pull * x[lengths]])
 
     def jacobian(z):
-        x, phi, psi = unpack(z)
+        x, phi, psi, _ = unpack(z)
         inertial, d_inertial = consistency.parameters(phi.reshape(n, N_INERTIAL),
                                                       jacobian=True)
         pi = np.concatenate([inertial.reshape(-1), psi])
@@ -125,27 +130,28 @@ def refine_jointly(rows: ChainRows, weights, coding: ChainCoding, x0, parameters
         a = rows.design(tree)
         j_phi = np.concatenate([a[:, N_INERTIAL * i:N_INERTIAL * (i + 1)] @ d_inertial[i]
                                 for i in range(n)], axis=1)
-        top = np.hstack([j_x, j_phi, a[:, nphi:]]) * (w / norm)[:, None]
-        size = nx + nphi + npsi
+        top = np.hstack([j_x, j_phi, a[:, nphi:], extra]) * (w / norm)[:, None]
+        size = nx + nphi + npsi + ne
         bottom = np.zeros((nphi + npsi + lengths.size, size))
         bottom[np.arange(nphi), nx + np.arange(nphi)] = s_phi
         bottom[nphi + np.arange(npsi), nx + nphi + np.arange(npsi)] = s_psi
         bottom[nphi + npsi + np.arange(lengths.size), lengths] = pull
         return np.vstack([top, bottom])
 
-    lower = np.full(nx + nphi + npsi, -np.inf)
-    upper = np.full(nx + nphi + npsi, np.inf)
+    lower = np.full(nx + nphi + npsi + ne, -np.inf)
+    upper = np.full(nx + nphi + npsi + ne, np.inf)
     lower[:nx], upper[:nx] = coding.bounds()
     for j in range(n):      # rotor inertia, viscous and Coulomb friction >= 0
         lower[nx + nphi + N_JOINT * j:nx + nphi + N_JOINT * j + 3] = 0.0
     start = np.asarray(parameters0, dtype=float)
     z0 = np.concatenate([np.clip(x0, lower[:nx], upper[:nx]),
                          consistency.coordinates(start[:nphi].reshape(n, N_INERTIAL)).reshape(-1),
-                         np.clip(start[nphi:], lower[nx + nphi:], None)])
+                         np.clip(start[nphi:], lower[nx + nphi:nx + nphi + npsi], None),
+                         np.zeros(ne) if extra0 is None else np.asarray(extra0, dtype=float)])
     result = least_squares(residual, z0, jac=jacobian, bounds=(lower, upper), method='trf',
                            x_scale='jac', max_nfev=int(max_iterations), xtol=1e-10,
                            ftol=1e-10, gtol=1e-10)
-    x, phi, psi = unpack(result.x)
+    x, phi, psi, k = unpack(result.x)
     pi = full(phi, psi)
-    data = rows.torques(coding.tree(x), pi) * w - target
-    return JointRefinement(coding.wrap(x), pi, float(data @ data) / norm ** 2, count[0])
+    data = (rows.torques(coding.tree(x), pi) + extra @ k) * w - target
+    return JointRefinement(coding.wrap(x), pi, float(data @ data) / norm ** 2, count[0], k)

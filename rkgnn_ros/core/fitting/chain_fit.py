@@ -45,6 +45,18 @@ known up to a mirror image of the whole arm (the same dynamics: no data tell the
 Data sampled faster than :data:`SEARCH_RATE` are thinned for steps 1-4
 (:func:`decimated`); step 5 takes them whole. BLAS runs on one thread during the fit (its
 threads only slow these small products).
+
+Case 3 (no torque, a PD servo of unknown gains; ``case='unknown'``). The closed loop's
+equation Y π = Kp (θd − θ) + Kd (θ̇d − θ̇) is linear in π and the gains together, and
+homogeneous: the gains' mean Kp is made the unit
+(:meth:`~.chain_rows.ChainRows.with_unknown_gains`), the gains are unknowns of the variable
+projection beside π, and the same steps run on it. Each joint's equation is weighted by its
+tracking error for the search, by the servo's torque of the gains the search's chain
+implies after it. Masses and gains are known up to one common factor; the joint refinement
+takes the prior's total mass as the masses' unit (its consistent start,
+:data:`CASE_THREE_START_EVALUATIONS`), step 5 is :func:`~.rigid_fit.fit_closed` of case 3
+on the learned chain (the gains in N m/rad of that unit), and the report holds the gains
+relative to their mean Kp.
 """
 
 import dataclasses
@@ -55,11 +67,11 @@ from typing import Callable, NamedTuple, Optional, Sequence
 import numpy as np
 
 from .chain_consistent import JOINT_PRIOR_WEIGHT, refine_jointly
-from .chain_rows import block_rows, ChainScore, state_rows, torque_weights
+from .chain_rows import block_rows, ChainRows, ChainScore, state_rows, torque_weights
 from .chain_search import (ChainCoding, determinacy, multistart, refine, SEARCH_PRIOR,
                            turn_axes)
 from .rigid_data import choose_sigma
-from .rigid_fit import fit_torque, RigidArm, RigidFit
+from .rigid_fit import fit_closed, fit_torque, RigidArm, RigidFit
 from ..data import Dataset
 from ..rigid.chain import Chain, ChainStructure, dh_of_lines, lines
 from ..rigid.solve import fit_consistent
@@ -73,6 +85,10 @@ MAX_JOINTS = 7
 #: Highest sampling rate (Hz) the search and the refinement take the data at.
 SEARCH_RATE = 250.0
 
+#: Most solver evaluations of case 3's consistent start (its bodies begin at the prior's
+#: shapes, scaled to the prior's total mass, far from the data's).
+CASE_THREE_START_EVALUATIONS = 2000
+
 
 def decimated(segment: Dataset, rate: float = SEARCH_RATE) -> Dataset:
     """
@@ -85,9 +101,13 @@ def decimated(segment: Dataset, rate: float = SEARCH_RATE) -> Dataset:
     if k <= 1:
         return segment
     box = np.ones(k) / k
-    tau = np.stack([np.convolve(segment.tau[:, j], box, 'same')
-                    for j in range(segment.tau.shape[1])], 1)
-    return Dataset(segment.t[::k], segment.theta[::k], segment.theta_dot[::k], tau=tau[::k],
+    tau = None if segment.tau is None else np.stack(
+        [np.convolve(segment.tau[:, j], box, 'same') for j in range(segment.tau.shape[1])],
+        1)[::k]
+    desired = [None if x is None else x[::k]
+               for x in (segment.theta_d, segment.theta_d_dot)]
+    return Dataset(segment.t[::k], segment.theta[::k], segment.theta_dot[::k], tau=tau,
+                   theta_d=desired[0], theta_d_dot=desired[1],
                    joint_names=segment.joint_names)
 
 
@@ -156,14 +176,24 @@ class ChainFit(NamedTuple):
                                note or 'a chain learned from joint data (no robot description)')
 
 
-def _usable(segments: Sequence[Dataset]):
+def _usable(segments: Sequence[Dataset], case: str = 'torque'):
     out = []
     for seg in segments:
-        if seg.tau is None:
+        needed = ((seg.theta, seg.theta_dot, seg.tau) if case == 'torque'
+                  else (seg.theta, seg.theta_dot, seg.theta_d, seg.theta_d_dot))
+        if any(a is None for a in needed):
             continue
-        if all(np.all(np.isfinite(a)) for a in (seg.theta, seg.theta_dot, seg.tau)):
+        if all(np.all(np.isfinite(a)) for a in needed):
             out.append(seg)
     return out
+
+
+def _servo_weights(segments: Sequence[Dataset], kp, kd) -> np.ndarray:
+    """Return 1 / RMS of Kp e + Kd ė per joint over the segments (1 where it is 0)."""
+    tau = np.concatenate([kp * (seg.theta_d - seg.theta) + kd * (seg.theta_d_dot - seg.theta_dot)
+                          for seg in segments])
+    rms = np.sqrt(np.mean(tau * tau, axis=0))
+    return np.where(np.isfinite(rms) & (rms > 0.0), 1.0 / np.where(rms > 0.0, rms, 1.0), 1.0)
 
 
 def _chain_report(chain: Chain) -> dict:
@@ -181,12 +211,17 @@ def _chain_report(chain: Chain) -> dict:
 def fit_chain(train: Sequence[Dataset], validation: Sequence[Dataset] = (),
               settings: ChainSettings = ChainSettings(),
               joint_names: Optional[Sequence[str]] = None,
-              log: Optional[Callable[[str], None]] = None) -> Optional[ChainFit]:
+              log: Optional[Callable[[str], None]] = None,
+              case: str = 'torque') -> Optional[ChainFit]:
     """
-    Return the chain and dynamics of a serial revolute arm from ``train`` (case 1).
+    Return the chain and dynamics of a serial revolute arm from ``train``.
 
-    ``train`` and ``validation``: segments with θ, θ̇ and τ (others are left out). None when
-    the data are too short for the search's rows. ``log`` takes one line per stage.
+    ``case`` 'torque' (case 1): ``train`` and ``validation`` are segments with θ, θ̇ and τ;
+    'unknown' (case 3): with θ, θ̇, θd and θ̇d under a PD servo of unknown gains (the
+    chain's rows carry the gains as unknowns, :meth:`~.chain_rows.ChainRows.with_unknown_gains`;
+    the masses and gains are known up to one common factor, the mean Kp the unit). Other
+    segments are left out. None when the data are too short for the search's rows. ``log``
+    takes one line per stage.
 
     Raises
     ------
@@ -197,7 +232,9 @@ def fit_chain(train: Sequence[Dataset], validation: Sequence[Dataset] = (),
     import scipy.linalg  # noqa: F401 - its BLAS must be loaded to be limited
     import scipy.optimize  # noqa: F401
     from threadpoolctl import threadpool_limits
-    train, validation = _usable(train), _usable(validation)
+    if case not in ('torque', 'unknown'):
+        raise ValueError(f"case must be 'torque' or 'unknown', got {case!r}")
+    train, validation = _usable(train, case), _usable(validation, case)
     if not train:
         return None
     n = train[0].theta.shape[1]
@@ -207,28 +244,38 @@ def fit_chain(train: Sequence[Dataset], validation: Sequence[Dataset] = (),
         raise ValueError(f'a chain of 1 to {MAX_JOINTS} joints is searched, got {n}')
     names = joint_names or train[0].joint_names or [f'joint{i + 1}' for i in range(n)]
     with threadpool_limits(limits=1, user_api='blas'):
-        return _fit(train, validation, settings, tuple(names), log or (lambda text: None))
+        return _fit(train, validation, settings, tuple(names), log or (lambda text: None),
+                    case)
 
 
-def _fit(train, validation, settings: ChainSettings, names, log) -> Optional[ChainFit]:
+def _fit(train, validation, settings: ChainSettings, names, log,
+         case='torque') -> Optional[ChainFit]:
     began = time.monotonic()
     n = train[0].theta.shape[1]
     rng = np.random.default_rng(settings.seed)
     sigma = choose_sigma(train) if settings.sigma is None else float(settings.sigma)
-    weights = torque_weights(train)
+    servo = case == 'unknown'
+    # case 3: each joint's equation weighted first by its tracking error alone (gains 1)
+    weights = _servo_weights(train, 1.0, 0.0) if servo else torque_weights(train)
     reduced = [decimated(seg, SEARCH_RATE) for seg in train]
     coarse_rows = state_rows(reduced, settings.search_rows, rng, sigma,
-                             settings.measured_velocity)
+                             settings.measured_velocity, servo)
     fine_rows = block_rows(reduced, settings.refine_blocks, settings.block_length, rng, sigma,
-                           settings.measured_velocity)
+                           settings.measured_velocity, servo)
     if coarse_rows is None or fine_rows is None:
         return None
-    coarse, fine = ChainScore(coarse_rows, weights), ChainScore(fine_rows, weights)
+    if servo:
+        coarse_rows, fine_rows = coarse_rows.with_unknown_gains(), fine_rows.with_unknown_gains()
+    coarse = ChainScore(coarse_rows, weights)
     coding = ChainCoding(n, settings.gravity)
     found = multistart(coarse, coding, rng, settings.max_starts, settings.time_budget,
                        settings.agree)
     log(f'search: {found.message}, best cost {found.best.cost:.3e} after '
         f'{len(found.minima)} starts, {found.seconds:.1f} s')
+    if servo:     # then by the servo's torque of the gains the best chain implies
+        kp, kd = coarse_rows.gains(coarse.extra(coding.tree(found.best.x)))
+        weights = _servo_weights(train, kp, kd)
+    fine = ChainScore(fine_rows, weights)
     stage = time.monotonic()
     best = refine(fine, coding, found.best.x, max_iterations=settings.refine_iterations,
                   prior=SEARCH_PRIOR)
@@ -241,16 +288,28 @@ def _fit(train, validation, settings: ChainSettings, names, log) -> Optional[Cha
     refined_s = time.monotonic() - stage
     stage = time.monotonic()
     structure = ChainStructure(coding.chain(best.x), names)
+    unit = 1.0
+    if servo:   # the unit: the prior's bodies' torque on these rows (the mean Kp's is arbitrary)
+        fitted = fine_rows.torques(structure.tree, fine.parameters(structure.tree))
+        prior_torque = fine_rows.torques(structure.tree, structure.prior)
+        unit = float(np.linalg.norm(prior_torque) / max(np.linalg.norm(fitted), 1e-300))
+        fine_rows = ChainRows(fine_rows.q, fine_rows.qd, fine_rows.qdd, fine_rows.tau * unit,
+                              fine_rows.groups, fine_rows.servo, fine_rows.extra)
+        fine = ChainScore(fine_rows, weights)
     w = np.tile(weights, fine_rows.n_rows)
+    extra = None if fine_rows.extra is None else fine_rows.extra * w[:, None]
     start = fit_consistent(structure, fine_rows.design(structure.tree) * w[:, None],
-                           fine.target, prior_weight=JOINT_PRIOR_WEIGHT)
+                           fine.target, extra, prior_weight=JOINT_PRIOR_WEIGHT,
+                           max_evaluations=CASE_THREE_START_EVALUATIONS if servo else 200)
     start_cost = start.rms_residual ** 2 * start.rows / fine.norm ** 2
     joint = refine_jointly(fine_rows, weights, coding, best.x, start.parameters,
-                           structure.prior, prior, max_iterations=settings.joint_iterations)
+                           structure.prior, prior, max_iterations=settings.joint_iterations,
+                           extra0=None if extra is None else start.extra)
     log(f'joint refinement: consistent cost {start_cost:.3e} -> {joint.cost:.3e}, '
         f'{time.monotonic() - stage:.1f} s')
     chain = coding.chain(joint.x)
-    report = {'search': {'message': found.message, 'starts': len(found.minima),
+    report = {'case': case,
+              'search': {'message': found.message, 'starts': len(found.minima),
                          'agreeing': found.agreeing,
                          'costs': [m.cost for m in found.minima],
                          'evaluations': found.evaluations, 'seconds': found.seconds},
@@ -261,9 +320,18 @@ def _fit(train, validation, settings: ChainSettings, names, log) -> Optional[Cha
               'determinacy': determinacy(fine, coding, joint.x),
               'chain': _chain_report(chain), 'sigma': sigma,
               'symmetry': 'known up to a mirror image of the whole arm (same dynamics)'}
+    if servo:
+        kp, kd = fine_rows.gains(joint.extra / unit)
+        report['gains'] = {'kp': kp.tolist(), 'kd': kd.tolist(),
+                           'unit': 'the mean Kp (masses and gains share one unknown factor)'}
     stage = time.monotonic()
-    fit = fit_torque(ChainStructure(chain, names, prior=joint.parameters), train, validation,
-                     sigma=sigma, measured_velocity=settings.measured_velocity)
+    learned = ChainStructure(chain, names, prior=joint.parameters)
+    if servo:
+        fit = fit_closed(learned, train, validation, sigma=sigma,
+                         measured_velocity=settings.measured_velocity)
+    else:
+        fit = fit_torque(learned, train, validation, sigma=sigma,
+                         measured_velocity=settings.measured_velocity)
     if fit is None:
         return None
     report['consistent_fit'] = {'seconds': time.monotonic() - stage,

@@ -15,9 +15,11 @@
 """
 The chain learned online: an arm without a robot description gets its kinematics from data.
 
-:class:`ChainLearner` gathers the buffered data of case 'torque' (θ, θ̇ and τ), or of case
+:class:`ChainLearner` gathers the buffered data of case 'torque' (θ, θ̇ and τ), of case
 'pd_gains' with the servo's torque τ = Kp (θd − θ) + Kd (θ̇d − θ̇) of the known gains
-(:func:`servo_torque`: the rigid policy then fits the closed loop on the chain), beyond the
+(:func:`servo_torque`: the rigid policy then fits the closed loop on the chain), or of case
+'unknown' with θd and θ̇d (the gains are learned with the chain, up to the common factor
+of case 3: :func:`~.chain_fit.fit_chain`), beyond the
 buffer's window, the newest :data:`MAX_DATA_S` seconds kept. Once :data:`CHAIN_DATA_S`
 seconds are gathered on a spatial arm (:data:`MIN_JOINTS` joints or more) it runs
 :func:`~.chain_fit.fit_chain` on them (:data:`ONLINE_SETTINGS`, the newest
@@ -58,7 +60,7 @@ from ..data import Dataset
 from ..rigid.chain import ChainStructure
 from ..servo_law import pd_torque
 
-__all__ = ['ChainSteps', 'CHAIN_DATA_S', 'ChainLearner', 'judged', 'learn_chain',
+__all__ = ['ChainSteps', 'CHAIN_DATA_S', 'chain_case', 'ChainLearner', 'judged', 'learn_chain',
            'LEARNED_CASES', 'MAX_ATTEMPTS',
            'MAX_DATA_S', 'MAX_ERROR', 'MAX_FIT_S', 'MIN_JOINTS', 'ONLINE_SETTINGS',
            'REJUDGE_REFITS', 'RETRY_S', 'VALIDATION_FRACTION']
@@ -89,8 +91,14 @@ ONLINE_SETTINGS = ChainSettings(search_rows=100, refine_blocks=40, max_starts=12
                                 time_budget=60.0, joint_iterations=20, refine_iterations=20)
 
 
-#: The cases whose data teach a chain (τ measured, or computed from the known gains).
-LEARNED_CASES = ('torque', 'pd_gains')
+#: The cases whose data teach a chain (τ measured, or computed from the known gains, or the
+#: servo's errors with the gains unknown).
+LEARNED_CASES = ('torque', 'pd_gains', 'unknown')
+
+
+def chain_case(case: str) -> str:
+    """Return :func:`~.chain_fit.fit_chain`'s case of an online case ('unknown': case 3)."""
+    return 'unknown' if case == 'unknown' else 'torque'
 
 
 def servo_torque(segments: Sequence[Dataset], kp, kd) -> List[Dataset]:
@@ -118,8 +126,10 @@ class Abandoned(Exception):
 class _Job:
     """One fit: its data, its stage lines, its result."""
 
-    def __init__(self, train, validation, names, seconds: float, started: float):
+    def __init__(self, train, validation, names, seconds: float, started: float,
+                 case: str = 'torque'):
         self.train, self.validation, self.names = train, validation, names
+        self.case = case                # fit_chain's
         self.seconds = seconds          # of data
         self.started = started          # wall clock (time.monotonic)
         self.cancelled = False
@@ -148,6 +158,10 @@ def _thread(target: Callable[[], None]) -> None:
     threading.Thread(target=target, name='rkgnn_chain_learner', daemon=True).start()
 
 
+def _stacked(last, part):
+    return None if last is None or part is None else np.vstack([last, part])
+
+
 def _joined(last: Dataset, part: Dataset) -> Optional[Dataset]:
     """Return ``part`` appended to ``last`` when it continues it on its grid, else None."""
     dt = last.dt
@@ -157,7 +171,10 @@ def _joined(last: Dataset, part: Dataset) -> Optional[Dataset]:
     n = last.n_samples + part.n_samples
     return Dataset(last.t[0] + dt * np.arange(n), np.vstack([last.theta, part.theta]),
                    np.vstack([last.theta_dot, part.theta_dot]),
-                   tau=np.vstack([last.tau, part.tau]), joint_names=last.joint_names)
+                   tau=_stacked(last.tau, part.tau),
+                   theta_d=_stacked(last.theta_d, part.theta_d),
+                   theta_d_dot=_stacked(last.theta_d_dot, part.theta_d_dot),
+                   joint_names=last.joint_names)
 
 
 class ChainLearner:
@@ -192,6 +209,7 @@ class ChainLearner:
         self.max_error = float(max_error)
         self._joints: Optional[Tuple[str, ...]] = None
         self._job: Optional[_Job] = None
+        self._case = 'torque'       # fit_chain's case of the data gathered
         self.reset()
 
     def reset(self) -> None:
@@ -234,25 +252,29 @@ class ChainLearner:
             return True
         return self.structure is None and self._attempts < MAX_ATTEMPTS
 
-    def feed(self, joints, segments: Sequence[Dataset], origin: float, epoch=None) -> None:
+    def feed(self, joints, segments: Sequence[Dataset], origin: float, epoch=None,
+             case: str = 'torque') -> None:
         """
         Gather the new part of ``segments`` (``origin``: the stamp time of their t = 0).
 
-        Only samples after the newest gathered one are taken, with τ, finite; a part that
-        continues the newest segment on its grid extends it. Another joint list starts
-        afresh; another ``epoch`` (the buffer was cleared) starts a new segment.
+        Only samples after the newest gathered one are taken, with τ (``case`` 'torque') or
+        θd and θ̇d (``case`` 'unknown': the servo's gains unknown), finite; a part that
+        continues the newest segment on its grid extends it. Another joint list or case
+        starts afresh; another ``epoch`` (the buffer was cleared) starts a new segment.
         """
         if joints is None:
             return
         joints = tuple(joints)
-        if joints != self._joints:
+        if joints != self._joints or case != self._case:
             self.reset()
-            self._joints = joints
+            self._joints, self._case = joints, case
         if not self.wants_data(joints):
             return
         if epoch != self._epoch:
             self._epoch, self._end = epoch, -math.inf
-        fresh = [seg for seg in segments if seg.tau is not None and seg.n_joints == len(joints)]
+        fresh = [seg for seg in segments if seg.n_joints == len(joints) and (
+            seg.tau is not None if case == 'torque'
+            else seg.theta_d is not None and seg.theta_d_dot is not None)]
         if not fresh:
             return
         if self._origin is None:
@@ -261,7 +283,10 @@ class ChainLearner:
         for part in since(fresh, origin, self._end + 0.5 * step):
             end = float(origin + part.t[-1])
             part = Dataset(part.t + (origin - self._origin), part.theta, part.theta_dot,
-                           tau=part.tau, joint_names=joints)
+                           tau=part.tau if case == 'torque' else None,
+                           theta_d=None if case == 'torque' else part.theta_d,
+                           theta_d_dot=None if case == 'torque' else part.theta_d_dot,
+                           joint_names=joints)
             joined = None
             if self._segments and math.isfinite(self._end):
                 joined = _joined(self._segments[-1], part)
@@ -336,15 +361,17 @@ class ChainLearner:
         """
         Judge a fit that ended; start one when due; return log lines (level, text).
 
-        A fit is due in a case of :data:`LEARNED_CASES` once the data gathered reach the next goal
-        (:data:`CHAIN_DATA_S`, then :data:`RETRY_S` more after each refusal).
+        A fit is due in a case of :data:`LEARNED_CASES` whose data were gathered
+        (:func:`chain_case`) once they reach the next goal (:data:`CHAIN_DATA_S`, then
+        :data:`RETRY_S` more after each refusal).
         """
         lines: List[Tuple[str, str]] = []
         job = self._job
         if job is not None and job.done.is_set():
             self._job = None
             lines.extend(self._judge(job))
-        if (self._job is None and case in LEARNED_CASES and self._joints is not None
+        if (self._job is None and case in LEARNED_CASES and chain_case(case) == self._case
+                and self._joints is not None
                 and self.wants_data(self._joints) and self._total_s >= self._next_s
                 and self.gathered_s >= min(self.min_data_s, MAX_DATA_S)):
             lines.append(self._start())
@@ -356,7 +383,7 @@ class ChainLearner:
                                                       MIN_SEGMENT_SAMPLES)
         self._attempts += 1
         self._next_s = self._total_s + RETRY_S
-        job = _Job(train, validation, self._joints, seconds, time.monotonic())
+        job = _Job(train, validation, self._joints, seconds, time.monotonic(), self._case)
         self._job = job
         settings = replace(self.settings, seed=self.settings.seed + self._attempts - 1)
         self._spawn(lambda: self._run(job, settings))
@@ -370,7 +397,8 @@ class ChainLearner:
         _lower_priority()
         began = time.monotonic()
         try:
-            job.found = fit_chain(job.train, job.validation, settings, job.names, job.stage)
+            job.found = fit_chain(job.train, job.validation, settings, job.names, job.stage,
+                                  job.case)
         except Abandoned:
             job.error = 'abandoned'
         except Exception as exc:  # noqa: B902 - a failed fit is reported, the node goes on
@@ -413,7 +441,9 @@ def judged(found, names, max_error: float = MAX_ERROR, head: str = 'chain learne
     if found is None:
         return None, ('warning', 'chain learning: too few data for its rows')
     error = found.fit.error
-    head = f'{head}: held-out torque error {error:.2%} (worst joint)'
+    what = ('closed-loop equation error' if found.report.get('case') == 'unknown'
+            else 'torque error')
+    head = f'{head}: held-out {what} {error:.2%} (worst joint)'
     if not error <= max_error:
         return None, ('warning', f'{head}, above {max_error:.0%}: not used')
     determined = found.report['determinacy']
@@ -436,16 +466,18 @@ def judged(found, names, max_error: float = MAX_ERROR, head: str = 'chain learne
 def learn_chain(segments: Sequence[Dataset], names=None,
                 settings: ChainSettings = ChainSettings(),
                 validation_fraction: float = VALIDATION_FRACTION, max_error: float = MAX_ERROR,
-                log: Optional[Callable[[str, str], None]] = None) -> Optional[ChainStructure]:
+                log: Optional[Callable[[str, str], None]] = None,
+                case: str = 'torque') -> Optional[ChainStructure]:
     """
-    Return the chain learned from ``segments`` (with τ), or None (offline; module docstring).
+    Return the chain learned from ``segments``, or None (offline; module docstring).
 
-    The newest ``validation_fraction`` is held out to judge it (:func:`judged`); ``log``
-    takes ``(level, text)`` lines. None too for fewer than :data:`MIN_JOINTS` joints.
+    ``case`` 'torque': the segments with τ; 'unknown': with θd and θ̇d, the servo's gains
+    unknown. The newest ``validation_fraction`` is held out to judge it (:func:`judged`);
+    ``log`` takes ``(level, text)`` lines. None too for fewer than :data:`MIN_JOINTS` joints.
     """
     log = log or (lambda level, text: None)
-    segments = [seg for seg in segments
-                if seg.tau is not None and seg.n_samples >= MIN_SEGMENT_SAMPLES]
+    segments = [seg for seg in segments if seg.n_samples >= MIN_SEGMENT_SAMPLES and (
+        seg.tau is not None if case == 'torque' else seg.theta_d is not None)]
     if not segments or not MIN_JOINTS <= segments[0].n_joints <= MAX_JOINTS:
         return None
     names = tuple(names or segments[0].joint_names)
@@ -453,7 +485,7 @@ def learn_chain(segments: Sequence[Dataset], names=None,
                                                   MIN_SEGMENT_SAMPLES)
     began = time.monotonic()
     found = fit_chain(train, validation, settings, names,
-                      lambda text: log('info', f'chain learning: {text}'))
+                      lambda text: log('info', f'chain learning: {text}'), case)
     structure, line = judged(found, names, max_error, f'chain learned in '
                              f'{time.monotonic() - began:.0f} s from {seconds:.1f} s of data')
     log(*line)
@@ -501,7 +533,7 @@ class ChainSteps:
             if settings.case == 'pd_gains':
                 segments = servo_torque(segments, settings.kp, settings.kd)
             self._chain.feed(joints, segments, capture.time_origin,
-                             getattr(capture, 'epoch', None))
+                             getattr(capture, 'epoch', None), chain_case(settings.case))
             # a fit due now starts before this step's generation
             for level, text in self._chain.poll(self._chain_case(settings.case)):
                 self._out.log(level, text)

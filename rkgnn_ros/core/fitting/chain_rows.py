@@ -30,6 +30,9 @@ the weighted rows A (each joint's over its RMS torque, every column scaled to un
 β = argmin ‖A β − y‖ (normal equations with a ridge of :data:`RIDGE` of the mean diagonal,
 which drops the columns no torque depends on), and the residual A β − y over ‖y‖: its
 squared norm is the share of the weighted torque the chain leaves unexplained.
+Case 3's rows (``servo=True``, :meth:`ChainRows.with_unknown_gains`) carry the servo's
+errors filtered as τ and the gains as extra columns, unknowns the projection solves for
+beside the parameters (they do not depend on the chain).
 :meth:`ChainScore.jacobian` is Kaufman's: P⊥ (∂A/∂x) β, (∂A/∂x) β by forward differences
 of the rows' torques at β (:meth:`ChainRows.torques`: one inverse dynamics per coordinate,
 not a regressor, and no solve).
@@ -71,14 +74,56 @@ class ChainRows:
 
     ``q``, ``qd``, ``qdd`` (S, n): the states; ``tau`` (R, n): the rows' torques. Without
     groups R = S (a row per state); with them each group's blocks are filtered to rows.
+    ``servo`` (R, n, 2): the servo's errors θd − θ and θ̇d − θ̇ filtered as τ (case 3's
+    rows carry them); ``extra`` (R n, E): columns of unknowns that do not depend on the
+    chain, fitted beside the parameters (:meth:`with_unknown_gains`).
     """
 
-    def __init__(self, q, qd, qdd, tau, groups: Sequence[_Group] = ()):
+    def __init__(self, q, qd, qdd, tau, groups: Sequence[_Group] = (), servo=None,
+                 extra=None):
         self.q, self.qd, self.qdd = (np.ascontiguousarray(v, dtype=float) for v in (q, qd, qdd))
         self.tau = np.asarray(tau, dtype=float)
         self.groups = tuple(groups)
         self.n = self.q.shape[1]
         self.columns = np.arange((N_INERTIAL + N_JOINT) * self.n)
+        self.servo = None if servo is None else np.asarray(servo, dtype=float)
+        self.extra = None if extra is None else np.asarray(extra, dtype=float)
+
+    def with_unknown_gains(self) -> 'ChainRows':
+        """
+        Return the rows of case 3: a PD servo of unknown gains, their mean Kp the unit.
+
+        Y π = Kp e + Kd ė on every joint is homogeneous in (π, Kp, Kd); with
+        Kp_1 = n − Σ_{j>1} Kp_j (the mean Kp is 1) it is Y π − Σ_{j>1} Kp_j (e_j − e_1)
+        − Σ_j Kd_j ė_j = n e_1: the target holds joint 1's rows, the extra columns the
+        other gains' (:meth:`gains` reads them back).
+        """
+        if self.servo is None:
+            raise ValueError('these rows carry no servo errors')
+        rows, n = self.n_rows, self.n
+        e, ed = self.servo[:, :, 0], self.servo[:, :, 1]
+        columns = []
+        for j in range(1, n):
+            c = np.zeros((rows, n))
+            c[:, j] = e[:, j]
+            c[:, 0] = -e[:, 0]
+            columns.append(c.reshape(-1))
+        for j in range(n):
+            c = np.zeros((rows, n))
+            c[:, j] = ed[:, j]
+            columns.append(c.reshape(-1))
+        target = np.zeros((rows, n))
+        target[:, 0] = n * e[:, 0]
+        out = ChainRows(self.q, self.qd, self.qdd, target, self.groups, self.servo,
+                        -np.stack(columns, axis=1))
+        return out
+
+    def gains(self, extra) -> tuple:
+        """Return (Kp, Kd) (n,), mean Kp 1, of the extra columns' coefficients ``extra``."""
+        n = self.n
+        extra = np.asarray(extra, dtype=float)
+        kp = np.concatenate([[n - float(np.sum(extra[:n - 1]))], extra[:n - 1]])
+        return kp, extra[n - 1:2 * n - 1].copy()
 
     @property
     def n_rows(self) -> int:
@@ -127,15 +172,25 @@ def _sigma(segments, sigma):
     return choose_sigma(segments) if sigma is None else float(sigma)
 
 
+def _servo_errors(seg: Dataset) -> np.ndarray:
+    """Return θd − θ and θ̇d − θ̇ of ``seg``, shape (N, n, 2)."""
+    return np.stack([seg.theta_d - seg.theta, seg.theta_d_dot - seg.theta_dot], axis=2)
+
+
+def _torque(seg: Dataset) -> np.ndarray:
+    return seg.tau if seg.tau is not None else np.zeros_like(seg.theta)
+
+
 def state_rows(segments: Sequence[Dataset], count: int, rng: np.random.Generator,
-               sigma: Optional[float] = None,
-               measured_velocity: bool = False) -> Optional[ChainRows]:
+               sigma: Optional[float] = None, measured_velocity: bool = False,
+               servo: bool = False) -> Optional[ChainRows]:
     """
     Return ``count`` rows at random instants, states and torques filtered by one Gaussian.
 
     ``sigma`` (s): the Gaussian's (default :func:`~.rigid_data.choose_sigma`); θ̇ and θ̈
-    from the measured θ̇ with ``measured_velocity``, else from θ. None when the segments
-    hold fewer instants than ``count``.
+    from the measured θ̇ with ``measured_velocity``, else from θ; ``servo``: the servo's
+    errors too, filtered as τ (the segments need θd and θ̇d). None when the segments hold
+    fewer instants than ``count``.
     """
     sigma = _sigma(segments, sigma)
     parts = []
@@ -149,25 +204,29 @@ def state_rows(segments: Sequence[Dataset], count: int, rng: np.random.Generator
         else:
             rates = [_convolve(seg.theta, d1),
                      _convolve(seg.theta, second_derivative_kernel(seg.dt, s))]
-        parts.append([_convolve(seg.theta, h)] + rates + [_convolve(seg.tau, h)])
+        errors = (np.stack([_convolve(x, h) for x in np.moveaxis(_servo_errors(seg), 2, 0)],
+                           axis=2) if servo else np.zeros((0,)))
+        parts.append([_convolve(seg.theta, h)] + rates + [_convolve(_torque(seg), h), errors])
     if not parts:
         return None
     q, qd, qdd, tau = (np.concatenate([p[k] for p in parts]) for k in range(4))
     if q.shape[0] < count:
         return None
     index = np.sort(rng.choice(q.shape[0], size=int(count), replace=False))
-    return ChainRows(q[index], qd[index], qdd[index], tau[index])
+    errors = np.concatenate([p[4] for p in parts])[index] if servo else None
+    return ChainRows(q[index], qd[index], qdd[index], tau[index], servo=errors)
 
 
 def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
                rng: np.random.Generator, sigma: Optional[float] = None,
-               measured_velocity: bool = False) -> Optional[ChainRows]:
+               measured_velocity: bool = False, servo: bool = False) -> Optional[ChainRows]:
     """
     Return exact filtered rows (module docstring) on about ``blocks`` random blocks.
 
     Each block gives ``per_block`` rows :data:`~.rigid_data.STRIDE_SIGMA` σ apart, as
     :func:`~.rigid_data.filtered_rows` keeps them; blocks are shared among the segments by
-    length and never overlap. None when no segment is long enough for one block.
+    length and never overlap; ``servo``: the servo's errors too, filtered as τ. None when
+    no segment is long enough for one block.
     """
     sigma = _sigma(segments, sigma)
     prepared = []
@@ -188,7 +247,11 @@ def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
         else:
             qd = _convolve(seg.theta, d1)
             qdd = _convolve(seg.theta, second_derivative_kernel(dt, s1))
-        prepared.append((dt, seg.theta[inner], qd, qdd, seg.tau[inner], h, stride, length))
+        signals = [_torque(seg)[inner]]
+        if servo:
+            errors = _servo_errors(seg)[inner]
+            signals += [errors[:, :, 0], errors[:, :, 1]]
+        prepared.append((dt, seg.theta[inner], qd, qdd, signals, h, stride, length))
     if not prepared:
         return None
     total = sum(p[1].shape[0] for p in prepared)
@@ -205,7 +268,8 @@ def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
         for start in starts:
             part = slice(start, start + length)
             entry['states'].append((q[part], qd[part], qdd[part]))
-            entry['tau'].append(_convolve(tau[part], h)[::stride][:per_block])
+            entry['tau'].append(np.stack([_convolve(x[part], h)[::stride][:per_block]
+                                          for x in tau], axis=2))
     states, taus, groups = [], [], []
     for (_, length, stride), entry in by_dt.items():
         h = entry['h']
@@ -218,7 +282,9 @@ def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
         states += entry['states']
         taus += entry['tau']
     q, qd, qdd = (np.concatenate([s[k] for s in states]) for k in range(3))
-    return ChainRows(q, qd, qdd, np.concatenate(taus), groups)
+    signals = np.concatenate(taus)
+    return ChainRows(q, qd, qdd, signals[:, :, 0], groups,
+                     signals[:, :, 1:] if servo else None)
 
 
 class ChainScore:
@@ -246,7 +312,10 @@ class ChainScore:
         """Return (A scaled, column scales, Cholesky factor, β, residual) of a chain."""
         import scipy.linalg
         self.evaluations += 1
-        a = self.rows.design(tree) * self._w[:, None]
+        a = self.rows.design(tree)
+        if self.rows.extra is not None:
+            a = np.hstack([a, self.rows.extra])
+        a = a * self._w[:, None]
         scale = np.sqrt(np.sum(a * a, axis=0))
         scale[~(scale > 0.0)] = 1.0
         a /= scale
@@ -270,7 +339,12 @@ class ChainScore:
     def parameters(self, tree: Tree) -> np.ndarray:
         """Return the chain's least-squares parameters, shape (P,) (no consistency)."""
         _, scale, _, beta, _ = self._solve(tree)
-        return beta / scale
+        return (beta / scale)[:self.rows.columns.size]
+
+    def extra(self, tree: Tree) -> np.ndarray:
+        """Return the least-squares coefficients of the rows' extra columns, shape (E,)."""
+        _, scale, _, beta, _ = self._solve(tree)
+        return (beta / scale)[self.rows.columns.size:]
 
     def jacobian(self, tree_of: Callable[[np.ndarray], Tree], x: np.ndarray,
                  step: float = 1e-6):
@@ -283,7 +357,7 @@ class ChainScore:
         x = np.asarray(x, dtype=float)
         a, scale, factor, beta, r = self._solve(tree_of(x))
         jac = np.empty((r.size, x.size))
-        parameters = beta / scale
+        parameters = (beta / scale)[:self.rows.columns.size]   # the extra columns stay
         here = self.rows.torques(tree_of(x), parameters)
         for k in range(x.size):
             moved = x.copy()

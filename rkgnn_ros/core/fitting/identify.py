@@ -314,22 +314,24 @@ def fit_best(datasets, case, options: Optional[FitOptions] = None, **changes) ->
     robot description) the arm's rigid body is fitted in closed form instead
     (:func:`.rigid_online.fit_rigid`, a second or less, whatever the budget):
     ``model`` is a :class:`~.rigid_model.RigidModel`, ``final_cost`` its held-out error.
-    With ``learn_chain`` and no ``structure``, case 1 on 3 to 7 joints: the arm's chain is
-    learned from the data first (:func:`.chain_online.learn_chain`, minutes, outside the
-    budget) and, when it predicts the held-out torque, its rigid body is fitted so
-    (history's first entry: phase 'chain').
+    With ``learn_chain`` and no ``structure``, case 1 or 3 on 3 to 7 joints: the arm's
+    chain is learned from the data first (:func:`.chain_online.learn_chain`, minutes, outside
+    the budget) and, when it predicts the held-out torque (case 3: the closed loop's
+    equation), its rigid body is fitted so (history's first entry: phase 'chain').
     """
     from . import global_fit
     opts = (FitOptions() if options is None else options).updated(**changes)
     structure = opts.structure
     history_first: List[dict] = []
-    if structure is None and opts.learn_chain and normalize_case(case) == 'torque':
-        from .chain_online import learn_chain as learned_chain
+    if (structure is None and opts.learn_chain
+            and normalize_case(case) in ('torque', 'unknown')):
+        from .chain_online import chain_case, learn_chain as learned_chain
         start = opts.clock()
         lines: List[str] = []
         structure = learned_chain([datasets] if isinstance(datasets, Dataset) else datasets,
                                   validation_fraction=opts.validation_fraction,
-                                  log=lambda level, text: lines.append(text))
+                                  log=lambda level, text: lines.append(text),
+                                  case=chain_case(normalize_case(case)))
         history_first.append({'phase': 'chain', 'accepted': structure is not None,
                               'wall_s': opts.clock() - start, 'log': lines})
     if structure is not None:

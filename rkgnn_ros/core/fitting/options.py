@@ -76,7 +76,7 @@ class FitOptions:
     structure : RigidStructure, optional
         A robot description's rigid body: fitted in closed form instead.
     learn_chain : bool
-        Without ``structure``, case 1 on 3 to 7 joints: learn the arm's chain first (see
+        Without ``structure``, case 1 or 3 on 3 to 7 joints: learn the arm's chain first (see
         :func:`.identify.fit_best`).
     evolution : dict
         More arguments of :class:`Evolution` (substeps, shooting, torque_interpolation, init,
