@@ -242,3 +242,28 @@ def test_the_first_payload_fit_takes_its_filter_support_from_before_the_change(p
     refit = fit_last_body(arm, None, [both.slice(k - 40, k + 80)], 0.08, start=both.t[k])
     assert refit is not None
     assert payload_of(arm, refit)['mass'] == pytest.approx(MASS, rel=0.15)
+
+
+def test_changes_are_judged_with_the_fit_that_armed_the_detector(picked_up):
+    from rkgnn_ros.core.fitting import rigid_online
+    from rkgnn_ros.core.fitting.change import ChangeDetector
+    from rkgnn_ros.core.fitting.rigid_fit import RigidArm, RigidFit
+    from rkgnn_ros.core.rigid.kernels import N_INERTIAL
+    structure, before, _ = picked_up
+    keeper = rigid_online.RigidKeeper(structure, 'torque')
+    keeper.refresh('torque', [before.slice(0, 1500)], 0.2, T0, T0 + 15.0)
+    good = keeper.armed
+    assert good is keeper.fit and keeper.detector.level is not None
+    # a refit that fits worse (here the tip body 2 kg heavier) does not arm the detector
+    parameters = good.arm.parameters.copy()
+    parameters[N_INERTIAL * (structure.n_joints - 1)] += 2.0
+    worse = RigidFit(RigidArm(structure, parameters, dict(good.arm.info)), None,
+                     good.errors * 10.0, good.samples)
+    assert rigid_online._arms(good, None) and not rigid_online._arms(worse, good)
+    assert rigid_online._arms(good._replace(errors=good.errors * 1.5), good)
+    keeper.fit = worse                     # the newest fit; the armed one still judges
+    assert keeper.check([before], T0) is None
+    # judged with the worse fit against the good fit's level, the same data are a change
+    keeper.armed, keeper.detector = worse, ChangeDetector()
+    keeper.detector.set_normal(good.arm.info['residual_rms'], good.arm.info['torque_spread'])
+    assert keeper.check([before], T0) is not None

@@ -223,7 +223,9 @@ CHANGE_MIN_ROWS = 5
 CHANGE_ONSET = 3.0
 #: [share of the joint's torque std] Smallest normal residual level.
 CHANGE_RELATIVE_FLOOR = 0.01
-#: [ratio] A normal residual level rises by at most this at each new fit's level.
+#: [ratio] A normal residual level rises by at most this at each new fit's level; a rigid-body
+#: refit whose held-out error is above this times the armed fit's on a joint does not arm the
+#: detector.
 CHANGE_LEVEL_GROWTH = 2.0
 #: [filter widths (the fit's sigma, s)] The data after a change detected on a rigid body count from
 #: this far after its onset, clear of the filter's reach back.

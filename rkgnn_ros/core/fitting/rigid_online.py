@@ -35,6 +35,14 @@ offered for prediction (the model is still published, with its error). The close
 gravity compensation, an integral) is chosen by held-out error again every
 :data:`~.policy.FORMS_EVERY_S`, and whenever the data have grown by
 :data:`~.policy.FORMS_DATA_GROWTH` since; in between only the chosen form is refitted.
+
+Changes of the dynamics (:mod:`.change`) are judged with the fit whose held-out residual
+gave the detector its normal level (:attr:`RigidKeeper.armed`), never a residual of one fit
+against the level of another: a refit arms the detector when its held-out error is at most
+:data:`~.policy.CHANGE_LEVEL_GROWTH` times the armed fit's on every joint. A refit that fits
+worse (a closed loop whose integral gain the window determines poorly) leaves the better fit
+judging, and a refit whose held-out data hold the first samples of a change cannot raise
+the level that is to show it.
 """
 
 import dataclasses
@@ -48,8 +56,9 @@ from .change import Change, ChangeDetector
 from .online_records import (ClosedLoop, DynamicsChange, GenerationStats, LogLine,
                              model_update, PayloadEstimate)
 from .online_rules import stale_stream
-from .policy import (CHANGE_MARGIN_SIGMAS, CHECK_EVERY_S, CHECK_MAX_S, CHECK_S, DETECT_MIN_S,
-                     FILTER_REACH_SIGMAS, FORMS_DATA_GROWTH, FORMS_EVERY_S, FULL_REFIT_S,
+from .policy import (CHANGE_LEVEL_GROWTH, CHANGE_MARGIN_SIGMAS, CHECK_EVERY_S, CHECK_MAX_S,
+                     CHECK_S, DETECT_MIN_S, FILTER_REACH_SIGMAS, FORMS_DATA_GROWTH,
+                     FORMS_EVERY_S, FULL_REFIT_S,
                      MAX_LAW_FIT_RATIO, MIN_SEGMENT_SAMPLES, PAYLOAD_MIN_S, RIGID_MAX_ERROR,
                      RIGID_MIN_DATA_S, RIGID_REFRESH_S)
 from .rigid_change import fit_last_body, newest_residual, payload_of, since
@@ -108,6 +117,7 @@ class RigidKeeper:
         self.refits = 0
         self._predicting = False
         self.detector = ChangeDetector()
+        self.armed: Optional[RigidFit] = None   # the fit the detector's level is from
         self.since = -math.inf       # stamp (s) from which on the data are the arm's now
         self.change: Optional[Change] = None   # the newest change (its stamp time)
         self.before = None           # the arm in use when it came
@@ -124,7 +134,7 @@ class RigidKeeper:
         A change (:mod:`.change`, its time in stamp seconds) is kept: the data before it are
         no longer fitted, the last body is re-identified first (:meth:`refresh`).
         """
-        fit = self.fit
+        fit = self.armed
         if fit is None or self.detector.level is None or not segments:
             return None
         end = origin + float(segments[-1].t[-1])
@@ -144,6 +154,7 @@ class RigidKeeper:
         self._latest = fit.arm
         self.since = change.time + CHANGE_MARGIN_SIGMAS * sigma
         self.detector = ChangeDetector()       # re-armed by the first full refit after it
+        self.armed = None
         return change
 
     def refresh(self, case: str, segments: Sequence[Dataset], validation_fraction: float,
@@ -179,8 +190,9 @@ class RigidKeeper:
             self.change = None
         self.fit = fit
         info = fit.arm.info
-        if 'residual_rms' in info and span >= DETECT_MIN_S:
+        if 'residual_rms' in info and span >= DETECT_MIN_S and _arms(fit, self.armed):
             self.detector.set_normal(info['residual_rms'], info['torque_spread'])
+            self.armed = fit
         self.refits += 1
         error = fit.error
         info = {'refits': self.refits, 'generation': self.refits, 'held_out_error': error,
@@ -289,6 +301,16 @@ class RigidKeeper:
         integral, gravity = self.form
         return fit_closed(self.structure, train, validation, kp, kd, integral, gravity,
                           features=self.features, prior=prior)
+
+
+def _arms(fit: RigidFit, armed: Optional[RigidFit]) -> bool:
+    """Return whether ``fit`` arms the detector instead of ``armed`` (module docstring)."""
+    if armed is None:
+        return True
+    new, old = np.asarray(fit.errors, dtype=float), np.asarray(armed.errors, dtype=float)
+    if new.shape != old.shape or not np.all(np.isfinite(new)):
+        return new.shape != old.shape
+    return bool(np.all(new <= CHANGE_LEVEL_GROWTH * np.where(np.isfinite(old), old, np.inf)))
 
 
 def refresh_events(keeper: RigidKeeper, settings, capture, now: float, publish: bool):
