@@ -183,7 +183,7 @@ def test_a_burst_of_the_residual_is_no_change_a_lasting_rise_is():
     assert t - 0.01 <= declared.time <= t + 0.25
 
 
-def test_a_large_change_is_declared_on_its_second_block():
+def test_a_large_change_is_declared_on_its_second_block_a_huge_one_on_its_first():
     detector = ChangeDetector()
     detector.set_normal([0.1, 0.1], [10.0, 10.0])
     rng = np.random.default_rng(9)
@@ -195,6 +195,15 @@ def test_a_large_change_is_declared_on_its_second_block():
     change = detector.check(residual[50:], 5.5 + np.arange(25) * 0.01)
     assert change is not None and change.joints == (1,)
     assert change.time == pytest.approx(5.25, abs=0.015)
+    # a block alone 40,000 times the normal square (evidence 1,600) is a change at once
+    again = ChangeDetector()
+    again.set_normal([0.1, 0.1], [10.0, 10.0])
+    jump = rng.normal(0.0, 0.1, (50, 2))
+    jump[25:, 0] += 20.0
+    assert again.check(jump[:25], 8.0 + np.arange(25) * 0.01) is None
+    change = again.check(jump[25:], 8.25 + np.arange(25) * 0.01)
+    assert change is not None and change.joints == (0,)
+    assert change.time == pytest.approx(8.25, abs=0.015)
 
 
 def test_no_refit_while_a_suspect_waits_for_its_confirmation(picked_up):

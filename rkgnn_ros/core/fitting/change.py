@@ -31,12 +31,14 @@ block whose statistic reaches :data:`~.policy.CHANGE_ALARM` on a joint (over at 
 the model is not refitted meanwhile), a block below it on every joint closes it. The
 evidence of a joint's run of passing blocks is the product of their statistics over the
 alarm; the change is declared once a run of at least two blocks holds
-:data:`~.policy.CHANGE_EVIDENCE` of it, at the suspect's onset. A model's residual is not
+:data:`~.policy.CHANGE_EVIDENCE` of it, or one block alone holds
+:data:`~.policy.CHANGE_EVIDENCE_AT_ONCE`, at the suspect's onset. A model's residual is not
 Gaussian: where it misses a little of the motion (friction at a reversal, a closed loop's
 integral) it comes in bursts of up to a second at tens of times its normal square; a
 payload's stays hundreds to thousands of times above it for as long as the payload is
-carried. So a large change is declared on its second block, a burst never, a small
-lasting change (wear) after the blocks that make up the evidence. The residual's normal
+carried. So a large change is declared on its second block, one thousands of times over
+the alarm on its first, a burst never, a small lasting change (wear) after the blocks that
+make up the evidence. The residual's normal
 level is measured on the model's own held-out data, with the encoders' noise in it, and the
 rigid-body model is global, so new motion does not raise it; an alarm this far above 1
 keeps a model somewhat worse on motion it never saw from counting as a change. The time of
@@ -51,8 +53,8 @@ from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .policy import (CHANGE_ALARM, CHANGE_BLOCK_S, CHANGE_EVIDENCE, CHANGE_LEVEL_GROWTH,
-                     CHANGE_MIN_ROWS, CHANGE_ONSET, CHANGE_RELATIVE_FLOOR)
+from .policy import (CHANGE_ALARM, CHANGE_BLOCK_S, CHANGE_EVIDENCE, CHANGE_EVIDENCE_AT_ONCE,
+                     CHANGE_LEVEL_GROWTH, CHANGE_MIN_ROWS, CHANGE_ONSET, CHANGE_RELATIVE_FLOOR)
 
 __all__ = ['Change', 'ChangeDetector']
 
@@ -143,7 +145,8 @@ class ChangeDetector:
         suspect = self.suspect
         joints = tuple(sorted(set(suspect.joints) | {int(j) for j in np.flatnonzero(passing)}))
         self.suspect = Change(suspect.time, joints, np.maximum(suspect.statistic, statistic))
-        if np.any((self._blocks >= 2) & (self._evidence >= math.log(CHANGE_EVIDENCE))):
+        if np.any(((self._blocks >= 2) & (self._evidence >= math.log(CHANGE_EVIDENCE)))
+                  | (self._evidence >= math.log(CHANGE_EVIDENCE_AT_ONCE))):
             found = self.suspect
             self.suspect = self._evidence = self._blocks = None
             return found

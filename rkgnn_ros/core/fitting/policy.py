@@ -215,8 +215,10 @@ CHANGE_BLOCK_S = 0.25
 #: suspect run of blocks ...
 CHANGE_ALARM = 25.0
 #: [product of (statistic / CHANGE_ALARM) over a joint's run] ... which is a change of the
-#: dynamics once it holds this much evidence over at least two blocks.
+#: dynamics once it holds this much evidence over at least two blocks ...
 CHANGE_EVIDENCE = 100.0
+#: [statistic / CHANGE_ALARM] ... or one block alone this much.
+CHANGE_EVIDENCE_AT_ONCE = 1000.0
 #: [samples] Fewest new samples a block is judged on.
 CHANGE_MIN_ROWS = 5
 #: [normalised residual] Above this marks where the change began.
