@@ -76,6 +76,7 @@ from ..data import Dataset
 from ..rigid.chain import Chain, ChainStructure, dh_of_lines, lines
 from ..rigid.solve import fit_consistent
 from ..rigid.urdf_out import identified_urdf
+from ..servo_law import pd_torque
 
 __all__ = ['ChainFit', 'ChainSettings', 'MAX_JOINTS', 'SEARCH_RATE', 'decimated', 'fit_chain']
 
@@ -190,8 +191,8 @@ def _usable(segments: Sequence[Dataset], case: str = 'torque'):
 
 def _servo_weights(segments: Sequence[Dataset], kp, kd) -> np.ndarray:
     """Return 1 / RMS of Kp e + Kd ė per joint over the segments (1 where it is 0)."""
-    tau = np.concatenate([kp * (seg.theta_d - seg.theta) + kd * (seg.theta_d_dot - seg.theta_dot)
-                          for seg in segments])
+    tau = np.concatenate([pd_torque(kp, kd, seg.theta_d - seg.theta,
+                                    seg.theta_d_dot - seg.theta_dot) for seg in segments])
     rms = np.sqrt(np.mean(tau * tau, axis=0))
     return np.where(np.isfinite(rms) & (rms > 0.0), 1.0 / np.where(rms > 0.0, rms, 1.0), 1.0)
 
