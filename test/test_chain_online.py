@@ -463,8 +463,10 @@ def test_the_servos_torque_of_known_gains():
     assert servo_torque([paired], [10.0, 20.0], [1.0, 2.0]) == []
 
 
-def test_identify_bag_learns_the_chain_from_known_gains_without_effort(
-        servoed, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize('case', ['pd_gains', 'unknown'])
+def test_identify_bag_learns_the_chain_without_effort(servoed, tmp_path, capsys, monkeypatch,
+                                                      case):
+    # the known gains in a params file (case 2), or nothing about the servo (case 3)
     import yaml
     from bag_helpers import write_run
     from rkgnn_ros.identify_bag import main
@@ -472,33 +474,18 @@ def test_identify_bag_learns_the_chain_from_known_gains_without_effort(
     monkeypatch.setattr(chain_online, 'learn_chain',
                         lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
     write_run(tmp_path / 'bag', servoed, names=NAMES, effort=False)
-    params = tmp_path / 'gains.yaml'
-    params.write_text("/**:\n  ros__parameters:\n    case: 'pd_gains'\n"
-                      '    kp: [80.0, 80.0, 40.0]\n    kd: [8.0, 8.0, 4.0]\n')
+    extra = []
+    if case == 'pd_gains':
+        params = tmp_path / 'gains.yaml'
+        params.write_text("/**:\n  ros__parameters:\n    case: 'pd_gains'\n"
+                          '    kp: [80.0, 80.0, 40.0]\n    kd: [8.0, 8.0, 4.0]\n')
+        extra = ['--params-file', str(params)]
     code = main([str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'), '--heldout', '3',
-                 '--params-file', str(params), '--learn-chain', '--budget', '60', '--quiet'])
+                 *extra, '--learn-chain', '--budget', '60', '--quiet'])
     err = capsys.readouterr().err
     assert code == 0, err
     model = yaml.safe_load((tmp_path / 'out' / 'model.yaml').read_text())
-    assert model['kind'] == 'rigid_body' and model['case'] == 'pd_gains'
-    assert model['source'] == 'the chain learned from joint data'
-
-
-def test_identify_bag_learns_the_chain_with_nothing_known_about_the_servo(
-        servoed, tmp_path, capsys, monkeypatch):
-    import yaml
-    from bag_helpers import write_run
-    from rkgnn_ros.identify_bag import main
-    quick = chain_online.learn_chain
-    monkeypatch.setattr(chain_online, 'learn_chain',
-                        lambda *args, **kw: quick(*args, settings=SETTINGS, **kw))
-    write_run(tmp_path / 'bag', servoed, names=NAMES, effort=False)
-    code = main([str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'), '--heldout', '3',
-                 '--learn-chain', '--budget', '60', '--quiet'])
-    err = capsys.readouterr().err
-    assert code == 0, err
-    model = yaml.safe_load((tmp_path / 'out' / 'model.yaml').read_text())
-    assert model['kind'] == 'rigid_body' and model['case'] == 'unknown'
+    assert model['kind'] == 'rigid_body' and model['case'] == case
     assert model['source'] == 'the chain learned from joint data'
 
 
