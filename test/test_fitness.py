@@ -489,3 +489,33 @@ def test_missing_inputs_are_reported_clearly(case):
     message = 'needs measured torque' if case == 'torque' else 'desired trajectory'
     with pytest.raises(ValueError, match=message):
         FitnessProblem(NetworkSpec.paper(N, case), Dataset(t, zeros, zeros), kp=KP, kd=KD)
+
+
+def test_the_work_registered_between_chunks_runs_between_them_and_can_end_the_evaluation(
+        generated, monkeypatch):
+    from rkgnn_ros.core.fitting.fitness import between_chunks
+    from rkgnn_ros.core.model import kernels
+    monkeypatch.setattr(fitness, 'CHUNK_S', 0.0)  # one candidate per thread and kernel call
+    spec, g, data = generated('pd_gains', 'cholesky')
+    problem = FitnessProblem(spec, [data], scales=SCALES, kp=KP, kd=KD, substeps=2)
+    population = np.tile(g, (12, 1))
+    order = []
+    real = kernels.population_cost
+
+    def counting(*args):
+        order.append('chunk')
+        return real(*args)
+    monkeypatch.setattr(kernels, 'population_cost', counting)
+
+    def between():
+        order.append('between')
+        if order.count('between') == 2:
+            raise Interrupted('enough')
+
+    def evaluate():
+        interrupt_on(threading.Event())
+        between_chunks(between)
+        return problem.cost(population)
+    with pytest.raises(Interrupted):
+        _in_thread(evaluate)
+    assert order == ['chunk', 'between', 'chunk', 'between']

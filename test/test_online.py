@@ -586,3 +586,59 @@ def test_only_an_rbf_case_three_search_is_fitted_again_on_a_full_window():
     assert not schedule.due(searches['rbf unknown'], 16.0, 100.0 + 0.5 * REWARM_PERIOD_S)
     assert all(schedule.due(spec, 24.0, 100.5)  # grown 1.5 x
                for spec in searches.values())
+
+
+def test_a_change_is_said_between_chunks_of_a_generation_not_after_it(monkeypatch):
+    # a generation on a long window takes seconds: the check that falls due while it runs is
+    # made on a new capture between two chunks of its evaluation, and the change ends it
+    import threading
+    from rkgnn_ros.core.fitting import fitness
+    from rkgnn_ros.core.fitting.online_records import DynamicsChange
+    from rkgnn_ros.core.model import kernels
+    from rkgnn_ros.core.sim.payload import with_payload
+    arm, pd, ref = PlanarArm.paper(), PDController.paper(), paper_reference(3)
+    before = simulate(arm, pd, ref, 12.0, rate=100.0, joint_names=JOINTS)
+    x0 = np.concatenate([before.theta[-1], before.theta_dot[-1]])
+    after = simulate(with_payload(arm, 2.0), pd, ref, 2.0, rate=100.0, x0=x0, t0=12.0,
+                     joint_names=JOINTS)
+
+    def buffer_of(parts):
+        buffer = StreamBuffer(JOINTS, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
+        for d in parts:
+            for k in range(d.n_samples - (d is before and len(parts) > 1)):
+                buffer.add_state(T0 + d.t[k], d.theta[k], d.theta_dot[k], d.tau[k])
+                buffer.add_command(T0 + d.t[k], d.theta_d[k], d.theta_d_dot[k])
+        return buffer
+    rig = Rig(buffer_of([before]), settings(case='torque'))
+    for _ in range(60):              # the law, the arm, a search, an armed detector
+        rig.step(dt=0.25)
+        if rig.policy._evo is not None and rig.policy._changes.detector.level is not None:
+            break
+    assert rig.policy._evo is not None and rig.policy._changes.detector.level is not None
+    rig.step(dt=0.25)                # a check of the normal data has just been made
+    assert not rig.of(DynamicsChange)
+    changed = buffer_of([before, after])
+    monkeypatch.setattr(fitness, 'CHUNK_S', 0.0)   # a chunk per candidate and thread
+    calls = []
+    real = kernels.population_cost
+
+    def slow(*args):                 # each chunk takes 0.3 s of the policy's clock
+        calls.append(args[2].weights.shape[0])
+        rig.clock.now += 0.3
+        return real(*args)
+    monkeypatch.setattr(kernels, 'population_cost', slow)
+    rig.clock.now += 0.01
+    # the step's own data (if any) are the normal ones: only a chunk's check sees the change
+    obs = rig.observe()._replace(recapture=changed.capture)
+    previous = fitness.interrupt_on(threading.Event())
+    try:
+        result = rig.policy.step(obs)
+    finally:
+        fitness.interrupt_on(previous)
+    assert result.ran
+    said = [e for e in result.events if isinstance(e, DynamicsChange)]
+    assert len(said) == 1 and 11.85 <= said[0].time - T0 <= 12.5, said
+    assert calls and sum(calls) < 8     # the generation ended before its end
+    assert any('the dynamics changed' in e.text for e in result.events
+               if isinstance(e, LogLine) and 'restarting the search' in e.text)
+    assert rig.policy._evo is None

@@ -146,21 +146,29 @@ class SearchWorker(ThreadPart):
                 self._stop.wait(IDLE_WAIT_S)
 
     def step(self) -> bool:
-        """Observe, step the policy once, queue its events; return whether a generation ran."""
+        """
+        Observe, step the policy once, queue its events; return whether a generation ran.
+
+        The policy may take new captures of the buffer during the step (``recapture``).
+        """
         config, joints, buffer, received = self._ingestion.view()
         with self._lock:
             reset, self._reset = self._reset, False
             paused = self._paused
         structure = None if self._description is None else self._description.structure(joints)
+        captures = []
+
+        def recapture():
+            captures.append(buffer.capture())
+            return captures[-1]
         obs = Observation(config.settings, joints, received, paused, reset,
                           estimate_velocity=self._ingestion.velocity_estimated,
-                          structure=structure)
-        capture = None
+                          structure=structure,
+                          recapture=None if buffer is None else recapture)
         if buffer is not None and self._policy.data_due(obs):
-            capture = buffer.capture()
-            obs = obs._replace(data=capture)
+            obs = obs._replace(data=recapture())
         result = self._policy.step(obs)
-        if capture is not None:
+        for capture in captures:
             buffer.count_failures(capture)
         self._queue(result.events)
         return result.ran

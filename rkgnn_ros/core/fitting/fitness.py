@@ -38,12 +38,14 @@ A thread that must be able to stop mid-generation (the identifier's worker: a ge
 wall-time budget) registers its stop event with :func:`interrupt_on`; ``cost`` and
 ``rollouts`` called from that thread then evaluate the population in chunks of about
 :data:`CHUNK_S` seconds and raise :class:`Interrupted` between two once the event is set.
+Such a thread may also register work to run between two chunks with :func:`between_chunks`
+(the identifier checks for a change of the dynamics there, not only once a generation).
 Other threads (benchmarks) evaluate in one call, as before.
 """
 
 import threading
 import time
-from typing import List, NamedTuple, Optional, Sequence
+from typing import Callable, List, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -80,6 +82,20 @@ def interrupt_on(event) -> Optional[object]:
     return previous
 
 
+def between_chunks(callback: Optional[Callable[[], None]]) -> Optional[Callable[[], None]]:
+    """
+    Let ``callback()`` run between two chunks of the calling thread's evaluations (None: no).
+
+    Only a thread with an interrupt event (:func:`interrupt_on`) evaluates in chunks, so
+    ``callback`` runs about every :data:`CHUNK_S` seconds of a generation; it may raise
+    :class:`Interrupted` (or a subclass) to end the evaluation there. Returns the callback
+    registered before (to restore it).
+    """
+    previous = getattr(_interrupts, 'between', None)
+    _interrupts.between = callback
+    return previous
+
+
 def _chunked(evaluate, params, event, problem) -> np.ndarray:
     """
     Evaluate ``params`` in chunks of about CHUNK_S s; raise Interrupted once ``event``.
@@ -88,17 +104,21 @@ def _chunked(evaluate, params, event, problem) -> np.ndarray:
     in parallel); the first, that many, times the rest. An event with a ``left()`` (a
     :class:`~.budget.Budget`) also stops before a chunk that the seconds per candidate
     measured so far (``problem.seconds_per_candidate``, the largest: a candidate that
-    diverges early is quick) say would end past it.
+    diverges early is quick) say would end past it. Between two chunks the thread's
+    :func:`between_chunks` callback runs.
     """
     import numba
     pop = params.weights.shape[0]
     out = None
     least = max(1, int(numba.get_num_threads()))
     left = getattr(event, 'left', None)
+    between = getattr(_interrupts, 'between', None)
     per = problem.seconds_per_candidate
     start, size = 0, least
     while start < pop:
         stop = min(pop, start + size)
+        if start > 0 and between is not None:
+            between()
         if event.is_set() or (left is not None and per is not None
                               and left() < per * (stop - start)):
             raise Interrupted('the search was asked to stop')

@@ -74,6 +74,7 @@ from .case_one import LawKeeper, search_segments
 from .case_three import ArmKeeper
 from .chain_online import ChainLearner, ChainSteps
 from .controller import ControllerLaw
+from .fitness import between_chunks
 from .identify import Evolution
 from .memory import MemoryFeed
 from .online_records import (AUTO_BASIS, ClosedLoop, GenerationStats, LogLine, LoopUpdate,
@@ -88,7 +89,7 @@ from .policy import (DATA_REFRESH_S, EVOLUTION_MIN_PERIOD, LOG_THROTTLE_S,
 from .rigid_online import RigidPolicy
 from .search_starts import (hand_over_settings, restart_around, rewarm, RewarmSchedule,
                             warm_start)
-from .trig_change import TrigChangeMonitor
+from .trig_change import ChangedMeanwhile, TrigChangeMonitor
 from .validation import split_validation, validation_nrmse
 from ..data import Dataset
 from ..differentiate import centred_derivative
@@ -97,6 +98,7 @@ from ..model.model import RKGNNModel
 __all__ = ['AUTO_BASIS', 'OnlineIdentification', 'OnlineSettings', 'Observation',
            'StreamCapture', 'Status', 'ClosedLoop', 'ModelUpdate', 'LoopUpdate',
            'GenerationStats', 'LogLine', 'StepResult', 'model_update', 'split_validation']
+
 
 #: Cases whose predictions use the linear closed-loop fit on the trigonometric basis
 #: (:class:`.case_three.ArmKeeper`): it needs neither torque nor the gains.
@@ -347,12 +349,8 @@ class OnlineIdentification(ChainSteps, _Publishing):
         events = [] if obs.data is None or settings.case != 'torque' else \
             self._changes.observe(obs.data, self._laws.trig, settings.validation_fraction,
                                   self._clock(), obs.joints)
-        if events:   # the dynamics changed: what the old data built goes, the search anew
-            self._out.extend(events)
-            self._laws.trig, self._memory = None, MemoryFeed()
-            self._chain.changed(self._changes.since)
-            if self._evo is not None:
-                self._drop_search('the dynamics changed')
+        if events:
+            self._changed(events)
         since = self._clock() - self._last_refresh
         due = since >= DATA_REFRESH_S or (self._evo is None and since >= WAITING_REFRESH_S)
         if due and obs.data is not None:
@@ -366,9 +364,26 @@ class OnlineIdentification(ChainSteps, _Publishing):
         self._algorithm = settings.optimizer
         if line:
             self._out.log('info', line)
-        stats = self._evo.step()
+        # a change is looked for between the chunks of a generation too (it takes seconds)
+        previous = between_chunks(lambda: self._changes.meanwhile(obs, self._laws.trig,
+                                                                  self._clock()))
+        try:
+            stats = self._evo.step()
+        except ChangedMeanwhile as changed:
+            self._changed(changed.events)
+            return True
+        finally:
+            between_chunks(previous)
         self._after_generation(settings, stats, obs.joints)
         return True
+
+    def _changed(self, events: List[object]) -> None:
+        """Say the change; drop what the data before it built; restart the search."""
+        self._out.extend(events)
+        self._laws.trig, self._memory = None, MemoryFeed()
+        self._chain.changed(self._changes.since)
+        if self._evo is not None:
+            self._drop_search('the dynamics changed')
 
     def _searching(self, obs: Observation) -> bool:
         """Return whether a search will be running after the restarts of ``obs``."""

@@ -23,7 +23,7 @@ state.
 
 from dataclasses import dataclass, field, replace
 import math
-from typing import Dict, List, Mapping, NamedTuple, Optional, Tuple
+from typing import Callable, Dict, List, Mapping, NamedTuple, Optional, Tuple
 
 import numpy as np
 
@@ -142,6 +142,9 @@ class Observation(NamedTuple):
     estimate_velocity: bool = False
     #: the robot description's rigid-body structure for ``joints`` (None: none given)
     structure: Optional[object] = None
+    #: takes a new StreamCapture during the step (a change check within a generation; None:
+    #: the step has only ``data``)
+    recapture: Optional[Callable[[], object]] = None
 
 
 class Status(NamedTuple):

@@ -23,15 +23,17 @@ normal level (the residual's RMS on the held-out part of the fit, once the data 
 :data:`~.policy.DETECT_MIN_S`) has the same noise in it. The newest data are judged
 with the arm that level was taken from, kept while the keeper drops its loop (a change
 makes the loop stop explaining the data, which is when it is dropped). A change is said
-with its time; the policy then drops what the data before it built (:mod:`.online`).
+with its time; the policy then drops what the data before it built (:mod:`.online`). A check
+falls due between two chunks of a generation too (:meth:`TrigChangeMonitor.meanwhile`).
 """
 
 import math
-from typing import Optional, Sequence
+from typing import List, Optional, Sequence
 
 import numpy as np
 
 from .change import Change, ChangeDetector
+from .fitness import Interrupted
 from .online_records import DynamicsChange, LogLine
 from .policy import (CHECK_EVERY_S, CHECK_MAX_S, CHECK_S, DETECT_MIN_S, MIN_SEGMENT_SAMPLES,
                      TRIG_CHANGE_MARGIN_S)
@@ -41,7 +43,7 @@ from .validation import split_validation
 from ..data import Dataset
 from ..differentiate import centred_derivative, CENTRED_ORDER, CENTRED_WINDOW
 
-__all__ = ['TrigChangeMonitor']
+__all__ = ['ChangedMeanwhile', 'TrigChangeMonitor']
 
 
 def _residual(arm, segments: Sequence[Dataset], origin: float):
@@ -59,6 +61,14 @@ def _residual(arm, segments: Sequence[Dataset], origin: float):
     if not parts:
         return None
     return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
+class ChangedMeanwhile(Interrupted):
+    """A check between two chunks of a generation found a change (``events`` say it)."""
+
+    def __init__(self, events: List[object]):
+        super().__init__('the dynamics changed')
+        self.events = events
 
 
 class TrigChangeMonitor:
@@ -109,6 +119,21 @@ class TrigChangeMonitor:
             _, validation, _ = split_validation(segments, fraction, MIN_SEGMENT_SAMPLES)
             self.rearm(loop, validation, origin, data_span(segments))
         return []
+
+    def meanwhile(self, obs, loop, now: float) -> None:
+        """
+        Between two chunks of a generation: check a new capture when a check is due.
+
+        ``obs`` is the step's observation (its ``recapture`` takes the capture; case torque
+        only). A change raises :class:`ChangedMeanwhile` with its events, which ends the
+        generation: a change is said within a chunk of evaluation, not a generation.
+        """
+        if obs.recapture is None or obs.settings.case != 'torque' or not self.due(now):
+            return
+        events = self.observe(obs.recapture(), loop, obs.settings.validation_fraction, now,
+                              obs.joints)
+        if events:
+            raise ChangedMeanwhile(events)
 
     def rearm(self, loop, validation: Sequence[Dataset], origin: float, span: float) -> None:
         """Take the normal level of ``loop``'s arm from ``validation`` (once per loop)."""
