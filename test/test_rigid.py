@@ -189,3 +189,18 @@ def test_the_identified_urdf_reads_back_as_the_same_dynamics(pair):
     np.testing.assert_allclose(again.inverse_dynamics(again.prior, q, v, a),
                                structure.inverse_dynamics(fitted, q, v, a), atol=1e-9)
     assert text.startswith('<!-- identified by rkgnn_ros: a test')
+
+
+@pytest.mark.parametrize('rows', [3, 7, 4001, 4500])
+def test_triangular_rows_keep_every_residual_by_blocks_of_rows(rows, monkeypatch):
+    from rkgnn_ros.core.rigid import solve
+    from rkgnn_ros.core.rigid.solve import triangular_rows
+    monkeypatch.setattr(solve, 'QR_BLOCK_ROWS', 1000)
+    rng = np.random.default_rng(rows)
+    a, y = rng.standard_normal((rows, 6)), rng.standard_normal(rows)
+    r, c, rest = triangular_rows(a, y)
+    assert r.shape == (6, 6) and c.shape == (6,) and rest >= 0.0
+    assert np.allclose(np.tril(r, -1), 0.0)
+    for x in rng.standard_normal((5, 6)):
+        np.testing.assert_allclose(np.sum((a @ x - y) ** 2),
+                                   np.sum((r @ x - c) ** 2) + rest, rtol=1e-10)

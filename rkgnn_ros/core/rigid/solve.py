@@ -25,12 +25,12 @@ part) and free linear unknowns k (a servo's gains and gravity weights in the clo
 cases, one linear equality fixing their scale in case 3). Only the base parameters
 P π (:class:`.structure.BaseParameters`) change A π, so the data term is reduced once to
 the triangular factor R of [A_B  B] (A_B: A's independent columns): ‖R [P π; k] − Qᵀ y‖²
-plus a constant. The prior term pulls only where the data do not: φ₀ are the URDF's
-bodies (moved just inside where not strictly realizable), s is 1 for the logarithms and
-:data:`LENGTH_SCALE` for the lengths; λ is :data:`PRIOR_WEIGHT` times the number of rows,
-so a direction counts as determined by data once moving it by one unit of φ changes the
-weighted torque by about 1 % RMS. Bounded trust-region least squares (scipy's ``trf``)
-with the exact Jacobian solves it, from the prior.
+plus a constant (:func:`triangular_rows`). The prior term pulls only where the data do
+not: φ₀ are the URDF's bodies (moved just inside where not strictly realizable), s is 1
+for the logarithms and :data:`LENGTH_SCALE` for the lengths; λ is :data:`PRIOR_WEIGHT`
+times the number of rows, so a direction counts as determined by data once moving it by one
+unit of φ changes the weighted torque by about 1 % RMS. Bounded trust-region least squares
+(scipy's ``trf``) with the exact Jacobian solves it, from the prior.
 """
 
 import math
@@ -41,7 +41,7 @@ import numpy as np
 from . import consistency
 from .kernels import N_INERTIAL, N_JOINT
 
-__all__ = ['ConsistentFit', 'PRIOR_WEIGHT', 'fit_consistent']
+__all__ = ['ConsistentFit', 'PRIOR_WEIGHT', 'fit_consistent', 'triangular_rows']
 
 #: λ per weighted row (module docstring).
 PRIOR_WEIGHT = 1e-6
@@ -51,6 +51,30 @@ LENGTH_SCALE = 0.1
 
 #: Scale (in their own units) of the joint parameters' pull towards their prior.
 JOINT_SCALE = np.array([10.0, 100.0, 100.0, 100.0])
+#: Rows of [A | y] factorised per call by :func:`triangular_rows`.
+QR_BLOCK_ROWS = 2000
+
+
+def triangular_rows(a: np.ndarray, y: np.ndarray):
+    """
+    Return (R, c, rest) with ‖a x − y‖² = ‖R x − c‖² + rest for every x.
+
+    R (P, P) is upper triangular (zero rows where ``a`` has fewer rows than columns), c (P,)
+    and rest >= 0: the triangular factor of Householder QR of [a | y], taken
+    :data:`QR_BLOCK_ROWS` rows at a time on the factor so far (Q is never formed). numpy's
+    QR holds the GIL: a block is a call of milliseconds, so the node's other threads never
+    wait for a whole factorisation of a long window.
+    """
+    a = np.asarray(a, dtype=float)
+    stacked = np.hstack([a, np.asarray(y, dtype=float).reshape(-1, 1)])
+    n_par = a.shape[1]
+    factor = np.zeros((0, n_par + 1))
+    for start in range(0, stacked.shape[0], QR_BLOCK_ROWS):
+        factor = np.linalg.qr(np.vstack([factor, stacked[start:start + QR_BLOCK_ROWS]]),
+                              mode='r')
+    full = np.zeros((n_par + 1, n_par + 1))
+    full[:factor.shape[0]] = factor[:n_par + 1]
+    return full[:n_par, :n_par], full[:n_par, n_par], float(full[n_par, n_par] ** 2)
 
 
 class ConsistentFit(NamedTuple):
@@ -145,9 +169,7 @@ def fit_consistent(structure, a: np.ndarray, y: np.ndarray, b: Optional[np.ndarr
     # the data term through R of [A_B  B N] (targets moved by B k0)
     design = np.hstack([a[:, base.independent], b @ null])
     target = y - b @ k0
-    q_mat, r_mat = np.linalg.qr(design)
-    c_vec = q_mat.T @ target
-    constant = float(target @ target - c_vec @ c_vec)
+    r_mat, c_vec, constant = triangular_rows(design, target)
     if extra_ridge > 0.0 and n_z:
         col = np.sqrt(np.mean((b @ null) ** 2, axis=0))
         ridge = math.sqrt(extra_ridge * n_rows) * np.maximum(col, 1e-12)
