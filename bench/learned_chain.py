@@ -64,7 +64,9 @@ factor); under ``case_three`` per arm: ``axis_error_deg_max`` as above,
 ``equation_error_heldout`` (the closed loop's equation error on the 10 s held out, RMSE /
 std of the servo's torque, the worst joint), ``kp_ratio_error_max`` (the learned Kp over
 its mean against the true Kp over theirs, the worst relative error),
-``kd_over_kp_error_max`` and ``fit_s``.
+``kd_over_kp_error_max`` and ``fit_s``. With ``--online`` too: the online figure in case 3
+(sensors ``no_effort``: no effort published, no gains given), under
+``online_case_three_ratio_120s`` and ``online_case_three`` per arm.
 
 Writes ``bench/results/learned_chain.json`` (``--out``) and each learned arm beside it as
 ``learned_chain_<arm>.urdf``. Goals (issue 33): torque NRMSE <= 0.03, axes
@@ -233,13 +235,13 @@ def run_real_panda(settings, log, data, path=RESULTS):
             'report': found.report}
 
 
-def run_online(name, duration, domain, at=ONLINE_AT):
-    """Return the online figures of one arm (module docstring)."""
+def run_online(name, duration, domain, at=ONLINE_AT, sensors='exact'):
+    """Return the online figures of one arm (module docstring; 'no_effort': case 3)."""
     import urdf_arms
     log_dir = os.path.join(ROOT, 'log', 'bench')
-    prefix = f'learned_chain_online_{name}_'
+    prefix = f'learned_chain_online_{name}_{sensors}_'
     began = time.monotonic()
-    cell = urdf_arms.run_cell(name, 'pd', 'exact', duration, 2.0, domain, log_dir,
+    cell = urdf_arms.run_cell(name, 'pd', sensors, duration, 2.0, domain, log_dir,
                               identifier_args=NO_DESCRIPTION, prefix=prefix, torque=False)
     cell['wall_s'] = time.monotonic() - began
     lines = []
@@ -350,11 +352,15 @@ def main_online(args) -> int:
                   else args.domain + i)
         print(f'== {name} online, no robot description: {args.online_duration:.0f} s on '
               f'ROS_DOMAIN_ID={domain}', flush=True)
-        figures = run_online(name, args.online_duration, domain)
+        figures = run_online(name, args.online_duration, domain,
+                             sensors='no_effort' if args.case_three else 'exact')
+        if args.case_three:   # case 3: no effort, no gains; its own keys
+            figures = {'online_case_three_ratio_120s': figures['online_ratio_120s'],
+                       'online_case_three': figures['online']}
         entry = results.setdefault(name, {})
         entry.update(figures)
-        cell = figures['online']
-        print(json.dumps({'online_ratio_120s': figures['online_ratio_120s'],
+        cell = figures['online_case_three' if args.case_three else 'online']
+        print(json.dumps({'ratio_120s': figures[next(iter(figures))],
                           **{k: cell.get(k) for k in (
                               'prediction_nrmse_120s', 'follow_reference_nrmse_120s',
                               'first_model_prediction_s', 'published_sources',
@@ -362,10 +368,11 @@ def main_online(args) -> int:
         for line in cell.get('chain_log', []):
             print('  ' + line, flush=True)
     results['goals'] = dict(results.get('goals', {}), **GOALS)
-    results.setdefault('meta', {})['online'] = {
+    results.setdefault('meta', {})['online_case_three' if args.case_three else 'online'] = {
         'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
         'duration_s': args.online_duration, 'at_s': ONLINE_AT, 'servo': 'pd',
-        'sensors': 'exact', 'load_average_end': os.getloadavg(),
+        'sensors': 'no_effort' if args.case_three else 'exact',
+        'load_average_end': os.getloadavg(),
         'metric': 'module docstring of bench/learned_chain.py (online)'}
     with open(args.out, 'w', encoding='utf-8') as f:
         json.dump(results, f, indent=2)
