@@ -159,6 +159,31 @@ def test_an_svd_that_does_not_converge_falls_back_to_the_iterative_step(pair, mo
     assert fit.rms_residual < 1e-2 * np.sqrt(np.mean(tau ** 2))
 
 
+def test_a_trial_step_that_overflows_is_no_warning_of_the_consistent_fit(pair, monkeypatch):
+    # the trust region may try a step whose log-Cholesky exponentials overflow; the solver
+    # rejects the non-finite residual, and the node's log gets no RuntimeWarning for it
+    import scipy.optimize
+    import warnings
+    _, structure, params = pair
+    rng = np.random.default_rng(8)
+    q, v, a = structure.random_states(200, rng)
+    rows = structure.rows(q, v, a)
+    tau = rows @ params
+    real = scipy.optimize.least_squares
+    tried = []
+
+    def far_first(residual, x0, **kwargs):
+        tried.append(residual(np.full_like(x0, 800.0)))   # a step far out: exp overflows
+        return real(residual, x0, **kwargs)
+
+    monkeypatch.setattr(scipy.optimize, 'least_squares', far_first)
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        fit = fit_consistent(structure, rows, tau)
+    assert not np.all(np.isfinite(tried[0]))
+    assert fit.rms_residual < 1e-2 * np.sqrt(np.mean(tau ** 2))
+
+
 def test_a_description_with_a_prismatic_joint_is_refused():
     urdf = ('<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/>'
             '<inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link>'

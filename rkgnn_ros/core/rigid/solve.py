@@ -227,12 +227,16 @@ def fit_consistent(structure, a: np.ndarray, y: np.ndarray, b: Optional[np.ndarr
     x0 = np.concatenate([phi0, np.clip(psi0, lower[n_phi:n_phi + n_psi], None), z0])
     settings = {'jac': jacobian, 'bounds': (lower, upper), 'method': 'trf', 'x_scale': 'jac',
                 'max_nfev': int(max_evaluations), 'xtol': 1e-10, 'ftol': 1e-10, 'gtol': 1e-10}
-    try:
-        result = least_squares(residual, x0, **settings)
-    except np.linalg.LinAlgError:
-        # LAPACK's SVD of the trust-region step can fail to converge on an ill-conditioned
-        # Jacobian (seen once online on noisy data): the iterative step needs no SVD
-        result = least_squares(residual, x0, tr_solver='lsmr', **settings)
+    # a trial step far out overflows the log-Cholesky exponentials: the solver rejects a
+    # non-finite residual and shrinks its region, so the overflow is no fault to report
+    with np.errstate(over='ignore', invalid='ignore'):
+        try:
+            result = least_squares(residual, x0, **settings)
+        except np.linalg.LinAlgError:
+            # LAPACK's SVD of the trust-region step can fail to converge on an
+            # ill-conditioned Jacobian (seen once online on noisy data): the iterative step
+            # needs no SVD
+            result = least_squares(residual, x0, tr_solver='lsmr', **settings)
     phi, psi, z = unpack(result.x)
     data = r_b @ (projection_b @ full(phi, psi)) + r_k @ z - c_vec
     rms = math.sqrt(max(float(data @ data) + constant, 0.0) / n_rows)
