@@ -501,3 +501,21 @@ def test_fit_best_learns_the_chain_with_nothing_known_about_the_servo(servoed, m
     assert result.history[0]['phase'] == 'chain' and result.history[0]['accepted']
     assert isinstance(result.model, RigidModel) and result.model.case == 'unknown'
     assert 'learned_chain' in result.model.info and result.final_cost < 0.05
+
+
+def test_each_case_takes_only_segments_with_every_signal_it_needs(monkeypatch):
+    # one rule (chain_fit.case_signals) for the learner, learn_chain and the fit: case
+    # 'unknown' needs θd and θ̇d; a recording with θd but no θ̇d is not handed to the fit
+    from rkgnn_ros.core.fitting.chain_fit import case_signals
+    data = arm_data(6.0)
+    plan = Dataset(data.t, data.theta, data.theta_dot, theta_d=data.theta,
+                   joint_names=NAMES)                   # θd, no θ̇d
+    assert case_signals(data, 'torque') is not None and case_signals(data, 'unknown') is None
+    assert case_signals(plan, 'unknown') is None and case_signals(plan, 'torque') is None
+    fits = []
+    monkeypatch.setattr(chain_online, 'fit_chain', lambda *args: fits.append(args))
+    assert chain_online.learn_chain([plan], case='unknown') is None
+    assert not fits
+    learner = ChainLearner(SETTINGS, at_once, min_data_s=100.0)
+    learner.feed(NAMES, [plan], T0, case='unknown')
+    assert learner.gathered_s == 0.0

@@ -78,7 +78,8 @@ from ..rigid.solve import fit_consistent
 from ..rigid.urdf_out import identified_urdf
 from ..servo_law import pd_torque
 
-__all__ = ['ChainFit', 'ChainSettings', 'MAX_JOINTS', 'SEARCH_RATE', 'decimated', 'fit_chain']
+__all__ = ['case_signals', 'ChainFit', 'ChainSettings', 'MAX_JOINTS', 'SEARCH_RATE', 'decimated',
+           'fit_chain']
 
 #: Most joints a chain is searched for.
 MAX_JOINTS = 7
@@ -177,14 +178,23 @@ class ChainFit(NamedTuple):
                                note or 'a chain learned from joint data (no robot description)')
 
 
+def case_signals(seg: Dataset, case: str = 'torque'):
+    """
+    Return the arrays a chain's fit of ``case`` takes from ``seg``, or None if one is missing.
+
+    'torque': θ, θ̇ and τ; 'unknown' (the servo's gains unknown) and a servo's torque of known
+    gains: θ, θ̇, θd and θ̇d.
+    """
+    needed = ((seg.theta, seg.theta_dot, seg.tau) if case == 'torque'
+              else (seg.theta, seg.theta_dot, seg.theta_d, seg.theta_d_dot))
+    return None if any(a is None for a in needed) else needed
+
+
 def _usable(segments: Sequence[Dataset], case: str = 'torque'):
     out = []
     for seg in segments:
-        needed = ((seg.theta, seg.theta_dot, seg.tau) if case == 'torque'
-                  else (seg.theta, seg.theta_dot, seg.theta_d, seg.theta_d_dot))
-        if any(a is None for a in needed):
-            continue
-        if all(np.all(np.isfinite(a)) for a in needed):
+        needed = case_signals(seg, case)
+        if needed is not None and all(np.all(np.isfinite(a)) for a in needed):
             out.append(seg)
     return out
 

@@ -53,7 +53,7 @@ from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from .chain_fit import ChainSettings, fit_chain, MAX_JOINTS
+from .chain_fit import case_signals, ChainSettings, fit_chain, MAX_JOINTS
 from .rigid_change import since
 from .validation import MIN_SEGMENT_SAMPLES, split_validation
 from ..data import Dataset
@@ -272,9 +272,8 @@ class ChainLearner:
             return
         if epoch != self._epoch:
             self._epoch, self._end = epoch, -math.inf
-        fresh = [seg for seg in segments if seg.n_joints == len(joints) and (
-            seg.tau is not None if case == 'torque'
-            else seg.theta_d is not None and seg.theta_d_dot is not None)]
+        fresh = [seg for seg in segments
+                 if seg.n_joints == len(joints) and case_signals(seg, case) is not None]
         if not fresh:
             return
         if self._origin is None:
@@ -476,8 +475,8 @@ def learn_chain(segments: Sequence[Dataset], names=None,
     ``log`` takes ``(level, text)`` lines. None too for fewer than :data:`MIN_JOINTS` joints.
     """
     log = log or (lambda level, text: None)
-    segments = [seg for seg in segments if seg.n_samples >= MIN_SEGMENT_SAMPLES and (
-        seg.tau is not None if case == 'torque' else seg.theta_d is not None)]
+    segments = [seg for seg in segments if seg.n_samples >= MIN_SEGMENT_SAMPLES
+                and case_signals(seg, case) is not None]
     if not segments or not MIN_JOINTS <= segments[0].n_joints <= MAX_JOINTS:
         return None
     names = tuple(names or segments[0].joint_names)
