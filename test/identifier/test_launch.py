@@ -18,9 +18,9 @@ import ast
 import os
 
 import pytest
+from repo_paths import REPO_ROOT
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-LAUNCH = os.path.join(os.path.dirname(HERE), 'launch', 'identify_sim.launch.py')
+LAUNCH = os.path.join(REPO_ROOT, 'launch', 'identify_sim.launch.py')
 
 
 def test_launch_file_starts_both_nodes_with_their_config():
@@ -33,7 +33,7 @@ def test_launch_file_starts_both_nodes_with_their_config():
     text = open(LAUNCH, encoding='utf-8').read()
     assert "'sim_arm.yaml'" in text and "'identifier.yaml'" in text
     for name in ('sim_arm.yaml', 'identifier.yaml'):
-        assert os.path.exists(os.path.join(os.path.dirname(HERE), 'config', name))
+        assert os.path.exists(os.path.join(REPO_ROOT, 'config', name))
 
 
 def test_launch_description_builds():

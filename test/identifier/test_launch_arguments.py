@@ -18,9 +18,9 @@ import ast
 import os
 
 import pytest
+from repo_paths import REPO_ROOT
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-LAUNCH = os.path.join(os.path.dirname(HERE), 'launch', 'identify_sim.launch.py')
+LAUNCH = os.path.join(REPO_ROOT, 'launch', 'identify_sim.launch.py')
 
 
 def _calls(name):

@@ -25,10 +25,11 @@ import pytest
 
 pytest.importorskip('rosbags')
 
+from repo_paths import REPO_ROOT  # noqa: E402
 from rkgnn_ros.core.fitting.identify import RKGNNModel  # noqa: E402
 from rkgnn_ros.identify_bag import main, read_parameters  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(REPO_ROOT)
 CONFIG = str(REPO / 'config' / 'identifier.yaml')
 FAST = ['--max-generations', '3', '--budget', '60', '--quiet']
 

@@ -41,6 +41,7 @@ from rclpy.serialization import serialize_message
 
 pytest.importorskip('pinocchio')
 
+from repo_paths import REPO_ROOT  # noqa: E402
 from rkgnn_ros import sim_arm  # noqa: E402
 from rkgnn_ros.core.rigid.urdf import MAX_URDF_BYTES  # noqa: E402
 from rkgnn_ros.core.sim.arm_simulator import ArmSimulator  # noqa: E402
@@ -56,7 +57,7 @@ from rkgnn_ros.wire.cdr import parse_trajectory_efforts_cdr  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 from urdf_helpers import planar_urdf  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(REPO_ROOT)
 PATIENCE = 60.0
 
 

@@ -17,7 +17,9 @@
 import pathlib
 import re
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+from repo_paths import REPO_ROOT
+
+ROOT = pathlib.Path(REPO_ROOT)
 MARKER = re.compile(r'^(<{7}|={7}|>{7})( |$)', re.MULTILINE)
 SUFFIXES = {'.py', '.md', '.yaml', '.yml', '.cfg', '.xml', '.txt', '.json', '.launch'}
 

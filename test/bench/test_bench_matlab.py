@@ -19,10 +19,11 @@ import os
 
 import numpy as np
 import pytest
+from repo_paths import REPO_ROOT
 
 
 def _bench_module(name):
-    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'bench',
+    path = os.path.join(REPO_ROOT, 'bench',
                         name + '.py')
     spec = importlib.util.spec_from_file_location('bench_' + name, path)
     module = importlib.util.module_from_spec(spec)

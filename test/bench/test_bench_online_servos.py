@@ -20,8 +20,9 @@ import sys
 
 import numpy as np
 import pytest
+from repo_paths import REPO_ROOT
 
-_BENCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'bench')
+_BENCH = os.path.join(REPO_ROOT, 'bench')
 _PATH = os.path.join(_BENCH, 'online_servos.py')
 if _BENCH not in sys.path:
     sys.path.insert(0, _BENCH)  # its sibling bench/monitor.py

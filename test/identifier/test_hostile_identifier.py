@@ -28,12 +28,13 @@ import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
+from repo_paths import REPO_ROOT
 from rkgnn_ros.identification.parameters import ConfigurationError
 from rkgnn_ros.identifier import IdentifierNode
 
 pytestmark = pytest.mark.ros
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = REPO_ROOT
 DOMAIN_ID = int(os.environ.get('ROS_DOMAIN_ID') or random.SystemRandom().randint(150, 199))
 JOINTS = ['j1', 'j2', 'j3']
 PATIENCE = 60.0

@@ -17,7 +17,9 @@
 import os
 import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+from repo_paths import REPO_ROOT
+
+sys.path.insert(0, os.path.join(REPO_ROOT,
                                 'tools'))
 
 import precompile  # noqa: E402, I100  (tools/precompile.py, run by make build)

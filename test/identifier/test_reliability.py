@@ -53,6 +53,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
+from repo_paths import REPO_ROOT
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
 from rkgnn_ros.core.fitting.identify import Evolution, precompile
 from rkgnn_ros.core.fitting.online import LogLine, OnlineIdentification
@@ -78,7 +79,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 pytestmark = pytest.mark.ros
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = REPO_ROOT
 DOMAIN_ID = int(os.environ.get('ROS_DOMAIN_ID', random.randint(150, 230)))
 JOINTS = ('j1', 'j2', 'j3')
 KP, KD = [32.84, 42.05, 42.31], [42.44, 0.19, 4.86]

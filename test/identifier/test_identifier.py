@@ -46,6 +46,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from repo_paths import REPO_ROOT
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.sim.plant import PDController, PlanarArm
 from rkgnn_ros.core.sim.simulate import simulate
@@ -60,7 +61,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 pytestmark = pytest.mark.ros
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = REPO_ROOT
 DOMAIN_ID = random.randint(150, 230)
 NS = f'/idtest{os.getpid()}_{random.randint(0, 9999)}'
 JOINTS = ('j1', 'j2', 'j3')

@@ -17,12 +17,13 @@
 import os
 
 import pytest
+from repo_paths import REPO_ROOT
 from rkgnn_ros.core.fitting import policy
 from rkgnn_ros.core.fitting.policy import retry_wait, still_holds, table
 from rkgnn_ros.identification.parameters import PARAMETERS
 import yaml
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = REPO_ROOT
 
 #: What config/identifier.yaml sets to other than the default, and why (its comment says so).
 CONFIGURED = {'feedforward.max_effort': 'the paper arm of sim_arm.yaml'}

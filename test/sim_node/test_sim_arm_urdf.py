@@ -28,6 +28,7 @@ pytest.importorskip('pinocchio')
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from repo_paths import REPO_ROOT  # noqa: E402
 from rkgnn_ros.core.sim.arm_simulator import ArmSimulator  # noqa: E402
 from rkgnn_ros.core.sim.servo import Servo  # noqa: E402
 from rkgnn_ros.core.sim.simulate import simulate  # noqa: E402
@@ -40,7 +41,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 from urdf_helpers import planar_urdf  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(REPO_ROOT)
 DOMAIN_ID = int(os.environ.get('ROS_DOMAIN_ID') or random.SystemRandom().randint(150, 199))
 PATIENCE = 60.0
 UR5 = 'example-robot-data:ur_description/urdf/ur5_robot.urdf'

@@ -17,8 +17,9 @@
 import os
 import xml.etree.ElementTree as ElementTree
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-LAYOUT = os.path.join(os.path.dirname(HERE), 'config', 'plotjuggler_prediction.xml')
+from repo_paths import REPO_ROOT
+
+LAYOUT = os.path.join(REPO_ROOT, 'config', 'plotjuggler_prediction.xml')
 
 
 def test_layout_plots_each_joint_measured_and_predicted_on_header_stamps():
