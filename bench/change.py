@@ -174,12 +174,14 @@ def self_check_figures(pt0, err, meas_t, meas_theta, listener, theta_range):
     started in each 10 s window (slid by 1 s) over the better of following the reference
     (θd 2 s on) and holding the start's θ, range-normalised, mean over the joints; and the
     largest per-joint ratio, and where it is: ``(start of the window (s, stamp time), joint
-    index)``. None where no window has predictions and commands.
+    index)``; and the worst window over the joints: ``(its start, the published and the two
+    baselines' errors there, mean over joints)``. None where no window has predictions and
+    commands.
     """
     with listener.lock:
         cmd_t, theta_d = np.array(listener.cmd_t), np.array(listener.theta_d)
     if pt0.size < 2 or cmd_t.size < 2:
-        return None, None, None
+        return None, None, None, None
     order = np.argsort(cmd_t)
     cmd_t, theta_d = cmd_t[order], theta_d[order]
     ahead = pt0 + HORIZON
@@ -191,7 +193,7 @@ def self_check_figures(pt0, err, meas_t, meas_theta, listener, theta_range):
     planned = np.column_stack([np.interp(ahead, cmd_t, theta_d[:, j]) for j in range(n)])
     errors = {'prediction': err, 'follow_reference': planned - actual, 'hold_last': start - actual}
     scale = np.maximum(theta_range, 1e-12)
-    worst = worst_joint = where = None
+    worst = worst_joint = where = worst_at = None
     for a in np.arange(pt0[0], pt0[-1] - 10.0 + 1e-9, 1.0):
         sel = (pt0 >= a) & (pt0 < a + 10.0)
         if sel.sum() < 2:
@@ -202,10 +204,11 @@ def self_check_figures(pt0, err, meas_t, meas_theta, listener, theta_range):
             min(np.mean(per['follow_reference']), np.mean(per['hold_last'])), 1e-12))
         joints = per['prediction'] / np.maximum(better, 1e-12)
         joint = float(np.max(joints))
-        worst = ratio if worst is None else max(worst, ratio)
+        if worst is None or ratio > worst:
+            worst, worst_at = ratio, (float(a), {k: float(np.mean(v)) for k, v in per.items()})
         if worst_joint is None or joint > worst_joint:
             worst_joint, where = joint, (float(a), int(np.argmax(joints)))
-    return worst, worst_joint, where
+    return worst, worst_joint, where, worst_at
 
 
 def event_stamps(log_path):
@@ -270,13 +273,15 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
     start = float(meas_t[0])
     pt0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, HORIZON)
     theta_range = np.ptp(meas_theta, axis=0)
-    ratio, joint_ratio, where = self_check_figures(pt0, err, meas_t, meas_theta, listener,
-                                                   theta_range)
+    ratio, joint_ratio, where, worst_at = self_check_figures(pt0, err, meas_t, meas_theta,
+                                                             listener, theta_range)
     cell = {'exit_codes': codes,
             'load_average': [round(load, 2), round(os.getloadavg()[0], 2)],
             'self_check_worst_ratio': ratio, 'self_check_worst_joint_ratio': joint_ratio,
             'self_check_worst_joint_window': None if where is None else {
                 'start_s': round(where[0] - start, 2), 'joint': int(where[1])},
+            'self_check_worst_window': None if worst_at is None else {
+                'start_s': round(worst_at[0] - start, 2), **worst_at[1]},
             'changes_said': [[round(n - start, 3), round(w - start, 3)]
                              for n, w in listener.changes],
             'payloads': [[round(n - start, 3), m, c] for n, m, c in listener.payloads]}
