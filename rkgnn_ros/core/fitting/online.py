@@ -99,7 +99,6 @@ __all__ = ['AUTO_BASIS', 'OnlineIdentification', 'OnlineSettings', 'Observation'
            'StreamCapture', 'Status', 'ClosedLoop', 'ModelUpdate', 'LoopUpdate',
            'GenerationStats', 'LogLine', 'StepResult', 'model_update', 'split_validation']
 
-
 #: Cases whose predictions use the linear closed-loop fit on the trigonometric basis
 #: (:class:`.case_three.ArmKeeper`): it needs neither torque nor the gains.
 _CLOSED_FIT_CASES = ('unknown', 'pd_gains')

@@ -135,15 +135,19 @@ def test_the_consistent_fit_recovers_exact_torques_and_stays_realizable(pair):
     assert error < 1e-2 * np.sqrt(np.mean((fresh @ truth) ** 2))
 
 
+def exact_rows(structure, params, seed, n=200):
+    """Return the regressor's rows at ``n`` random states and their exact torque."""
+    q, v, a = structure.random_states(n, np.random.default_rng(seed))
+    rows = structure.rows(q, v, a)
+    return rows, rows @ params
+
+
 def test_an_svd_that_does_not_converge_falls_back_to_the_iterative_step(pair, monkeypatch):
     # LAPACK's SVD in the dense trust-region step failed to converge once online; the fit
     # takes the iterative step then instead of failing the refit
     import scipy.optimize
     _, structure, params = pair
-    rng = np.random.default_rng(7)
-    q, v, a = structure.random_states(200, rng)
-    rows = structure.rows(q, v, a)
-    tau = rows @ params
+    rows, tau = exact_rows(structure, params, seed=7)
     real = scipy.optimize.least_squares
     solvers = []
 
@@ -165,10 +169,7 @@ def test_a_trial_step_that_overflows_is_no_warning_of_the_consistent_fit(pair, m
     import scipy.optimize
     import warnings
     _, structure, params = pair
-    rng = np.random.default_rng(8)
-    q, v, a = structure.random_states(200, rng)
-    rows = structure.rows(q, v, a)
-    tau = rows @ params
+    rows, tau = exact_rows(structure, params, seed=8)
     real = scipy.optimize.least_squares
     tried = []
 
