@@ -32,18 +32,18 @@ import pytest
 from rkgnn_ros.core.data import Dataset
 from rkgnn_ros.core.fitting.fitness import FitnessProblem
 from rkgnn_ros.core.model import kernels
-from rkgnn_ros.core.model.basis import base, poly, rbf, registry, trig
+from rkgnn_ros.core.model.basis import base, imq, poly, rbf, registry, trig
 from rkgnn_ros.core.model.network import BatchedNetwork, feature_gradients, features
 from rkgnn_ros.core.model.spec import NetworkSpec
 from rkgnn_ros.core.sim.trajectories import paper_reference
 
-BASES = ('rbf', 'poly', 'poly+rbf', 'rbf+poly', 'trig', 'trig3d', 'trig+rbf')
+BASES = ('rbf', 'poly', 'poly+rbf', 'rbf+poly', 'trig', 'trig3d', 'trig+rbf', 'imq', 'imq+rbf')
 SCALES = unit_scales(3, theta_spread=[0.4, 0.5, 0.6], torque=[3.0, 2.0, 1.0],
                      acceleration=[5.0, 5.0, 5.0])
 
 
 def test_registry_names_and_sums():
-    assert set(registry.BASES) == {'rbf', 'poly', 'trig', 'trig3d'}
+    assert set(registry.BASES) == {'rbf', 'poly', 'trig', 'trig3d', 'imq'}
     assert [b.name for b in registry.lookup('poly+rbf')] == ['poly', 'rbf']
     assert len({b.kind for b in registry.BASES.values()}) == len(registry.BASES)
     assert all(isinstance(b, base.Basis) for b in registry.BASES.values())
@@ -104,6 +104,24 @@ def test_the_polynomial_features_are_the_monomials_of_the_normalised_angles():
     z1, z2 = (1.5 - 0.5) / 2.0, (1.0 + 1.0) / 4.0
     np.testing.assert_allclose(features(spec, params, theta)[0],
                                [z1, z2, z1 * z1, z1 * z2, z2 * z2], rtol=1e-15)
+
+
+def test_the_inverse_multiquadric_units_reach_beyond_the_gaussian_ones():
+    """φ = 1/sqrt(1 + |θ - c|²/s²): 1 at the centre, 1/sqrt(5) two widths out (Gaussian e^-4)."""
+    spec = NetworkSpec(2, basis='imq+rbf', theta_units=1, bias=True)
+    scales = unit_scales(2, theta_center=[0.5, -1.0], theta_spread=[3.0, 4.0])
+    genome = spec.initial_genome()
+    layout = {b.name: b for b in spec.blocks()}
+    for name in ('imq_centres', 'theta_centres'):
+        genome[layout[name].start:layout[name].stop] = 0.0
+    params = spec.decode(genome, scales)
+    assert registry.lookup('imq')[0].kind == imq.KIND
+    width = 5.0                                  # |spread| with zero width genes
+    theta = np.array([[0.5, -1.0], [0.5 + 2 * width, -1.0], [0.5, -1.0 + 20 * width]])
+    phi = features(spec, params, theta)
+    np.testing.assert_allclose(phi[:, 0], [1.0, 1 / np.sqrt(5.0), 1 / np.sqrt(401.0)],
+                               rtol=1e-14)
+    np.testing.assert_allclose(phi[:, 1], [1.0, np.exp(-4.0), np.exp(-400.0)], rtol=1e-14)
 
 
 @pytest.mark.parametrize('name, n, size', [('trig', 3, 12), ('trig', 6, 42), ('trig3d', 3, 42),
@@ -169,7 +187,7 @@ def test_compiled_kernels_equal_the_numpy_reference_for_every_basis(data, basis,
                                    rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.parametrize('basis', ['poly', 'poly+rbf', 'trig+rbf'])
+@pytest.mark.parametrize('basis', ['poly', 'poly+rbf', 'trig+rbf', 'imq+rbf'])
 def test_the_model_of_another_basis_rolls_out_and_saves(basis, tmp_path):
     from rkgnn_ros.core.model.model import RKGNNModel
     spec = NetworkSpec(3, 'torque', inertia='cholesky', velocity='christoffel', bias=True,
@@ -216,7 +234,8 @@ def test_christoffel_velocity_conserves_kinetic_energy_with_a_penalty_inertia():
 
 def test_the_kernels_know_the_fingerprint_of_what_they_inline():
     crc = 0
-    for module in (base, rbf, poly, trig, registry):
+    assert registry.MODULES == (rbf, poly, trig, imq)
+    for module in (base, *registry.MODULES, registry):
         with open(module.__file__, 'rb') as f:
             crc = zlib.crc32(f.read(), crc)
     assert registry.source_fingerprint() == crc

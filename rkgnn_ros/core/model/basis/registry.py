@@ -39,15 +39,15 @@ import zlib
 from numba import njit
 import numpy as np
 
-from . import base, poly, rbf, trig
+from . import base, imq, poly, rbf, trig
 from .base import Basis
 
 #: The basis modules, each with KIND, prepare, value, gradient and one Basis subclass.
-MODULES = (rbf, poly, trig)
+MODULES = (rbf, poly, trig, imq)
 
 #: Every registered basis by name (``NetworkSpec.basis`` joins names with '+').
 BASES = {b.name: b for b in (rbf.GaussianRBF(), poly.Polynomial(), trig.Trigonometric(),
-                             trig.SpatialTrigonometric())}
+                             trig.SpatialTrigonometric(), imq.InverseMultiquadric())}
 
 if len({b.kind for b in BASES.values()}) != len(BASES):
     raise RuntimeError('two bases share a kind code')
@@ -152,6 +152,8 @@ def _prepare(kind, x, n, work):
         poly.prepare(x, n, work)
     elif kind == trig.KIND or kind == trig.KIND_SPATIAL:
         trig.prepare(x, n, work)
+    elif kind == imq.KIND:
+        imq.prepare(x, n, work)
 
 
 @njit(cache=True, nogil=True)
@@ -162,6 +164,8 @@ def _value(kind, x, n, codes, data, f, work):
         return poly.value(x, n, codes, data, f, work)
     if kind == trig.KIND or kind == trig.KIND_SPATIAL:
         return trig.value(x, n, codes, data, f, work)
+    if kind == imq.KIND:
+        return imq.value(x, n, codes, data, f, work)
     return math.nan
 
 
@@ -173,6 +177,8 @@ def _gradient(kind, x, n, codes, data, f, k, phi_f, work):
         return poly.gradient(x, n, codes, data, f, k, phi_f, work)
     if kind == trig.KIND or kind == trig.KIND_SPATIAL:
         return trig.gradient(x, n, codes, data, f, k, phi_f, work)
+    if kind == imq.KIND:
+        return imq.gradient(x, n, codes, data, f, k, phi_f, work)
     return math.nan
 
 
