@@ -64,8 +64,10 @@ factor); under ``case_three`` per arm: ``axis_error_deg_max`` as above,
 ``equation_error_heldout`` (the closed loop's equation error on the 10 s held out, RMSE /
 std of the servo's torque, the worst joint), ``kp_ratio_error_max`` (the learned Kp over
 its mean against the true Kp over theirs, the worst relative error),
-``kd_over_kp_error_max`` and ``fit_s``. With ``--online`` too: the online figure in case 3
-(sensors ``no_effort``: no effort published, no gains given), under
+``kd_over_kp_error_max`` and ``fit_s``. ``--servo pid``: the same under a PID servo (Ki =
+0.5 Kp /s), fitted with the integral's columns (``ChainSettings.integral``), under
+``case_three_pid``, with ``ki_over_kp_error_max`` too. With ``--online`` too: the online
+figure in case 3 (sensors ``no_effort``: no effort published, no gains given), under
 ``online_case_three_ratio_120s`` and ``online_case_three`` per arm.
 
 Writes ``bench/results/learned_chain.json`` (``--out``) and each learned arm beside it as
@@ -94,6 +96,8 @@ RESULTS = os.path.join(HERE, 'results', 'learned_chain.json')
 ARMS = {'ur5': 'sim_arm_ur5.yaml', 'panda': 'sim_arm_panda.yaml'}
 TRAIN_S, HELD_S, RATE = 30.0, 10.0, 100.0
 TORQUE_SIGMA = 0.05
+#: Ki / Kp (1/s) of ``--servo pid`` (as bench/urdf_arms.py's pid servo)
+PID_KI_PER_KP = 0.5
 GOALS = {'torque_nrmse_heldout': 0.03, 'axis_error_deg_max': 5.0, 'fit_s': 600.0,
          'real_panda_nmse_mean': 0.03, 'online_ratio_120s': 1.0 / 3.0}
 ONLINE_AT = 120.0
@@ -109,8 +113,12 @@ def _values(arm):
         return yaml.safe_load(f)['/**/sim_arm']['ros__parameters']
 
 
-def simulated(arm):
-    """Return (UrdfArm, training Dataset, held-out Dataset) of an arm (module docstring)."""
+def simulated(arm, servo_form='pd'):
+    """
+    Return (UrdfArm, training Dataset, held-out Dataset) of an arm (module docstring).
+
+    ``servo_form`` 'pid': the config's PD gains and Ki = :data:`PID_KI_PER_KP` Kp.
+    """
     from rkgnn_ros.core.sim.servo import Servo
     from rkgnn_ros.core.sim.simulate import simulate
     from rkgnn_ros.core.sim.trajectories import SumOfSines
@@ -122,7 +130,9 @@ def simulated(arm):
         sim.set_armature(values['urdf']['armature'])
     home = np.array(values['urdf']['home'], dtype=float)
     amplitude = float(values.get('reference', {}).get('amplitude', 0.5))
-    servo = Servo(np.array(values['kp']), np.array(values['kd']))
+    kp = np.array(values['kp'], dtype=float)
+    ki = PID_KI_PER_KP * kp if servo_form == 'pid' else 0.0
+    servo = Servo(kp, np.array(values['kd']), ki=ki)
     n = home.size
     train = simulate(sim, servo, SumOfSines.random(n, np.random.default_rng(1), n_terms=3,
                                                    amplitude=amplitude, offsets=home),
@@ -170,13 +180,15 @@ def run_arm(name, settings, log, path=RESULTS):
     return out
 
 
-def run_case_three(name, settings, log):
-    """Return the case-3 figures of one simulated arm (module docstring)."""
+def run_case_three(name, settings, log, servo_form='pd'):
+    """Return the case-3 figures of one simulated arm under a 'pd' or 'pid' servo."""
     from rkgnn_ros.core.data import Dataset
     from rkgnn_ros.core.fitting.chain_fit import fit_chain
     from rkgnn_ros.core.rigid.chain import axis_errors, chain_of
     from rkgnn_ros.core.rigid.structure import RigidStructure
-    sim, train, held = simulated(name)
+    sim, train, held = simulated(name, servo_form)
+    if servo_form == 'pid':
+        settings = dataclasses.replace(settings, integral=True)
 
     def without_effort(data):
         return Dataset(data.t, data.theta, data.theta_dot, theta_d=data.theta_d,
@@ -193,6 +205,11 @@ def run_case_three(name, settings, log):
     law = found.fit.law
     ratio = (law.kp / law.kp.mean()) / (kp / kp.mean()) - 1.0
     damping = (law.kd / law.kp) / (kd / kp) - 1.0
+    extra = {}
+    if servo_form == 'pid':
+        integral = law.ki / law.kp / PID_KI_PER_KP - 1.0
+        extra = {'ki_over_kp_error_max': float(np.max(np.abs(integral))),
+                 'ki_over_kp_error': integral.tolist()}
     return {'axis_error_deg_max': axis_errors(found.chain, chain_of(truth))['aligned_deg_max'],
             'equation_error_heldout': float(np.max(found.fit.errors)),
             'equation_error_heldout_per_joint': found.fit.errors.tolist(),
@@ -200,7 +217,8 @@ def run_case_three(name, settings, log):
             'kp_ratio_error': ratio.tolist(),
             'kd_over_kp_error_max': float(np.max(np.abs(damping))),
             'form': law.describe(), 'fit_s': wall, 'consistent': found.arm.consistent(),
-            'load_average': os.getloadavg(), 'report': found.report}
+            'servo': servo_form, **extra, 'load_average': os.getloadavg(),
+            'report': found.report}
 
 
 def _write_urdf(name, found, out):
@@ -284,6 +302,9 @@ def main(argv=None) -> int:
                         help='a ChainSettings field, e.g. --set refine_blocks=120')
     parser.add_argument('--case-three', action='store_true',
                         help='case 3 instead: the simulated arms without effort or gains')
+    parser.add_argument('--servo', choices=('pd', 'pid'), default='pd',
+                        help="case 3's servo: 'pid' has Ki = 0.5 Kp, fitted with the "
+                        "integral's columns; its figures go under 'case_three_pid'")
     parser.add_argument('--online', action='store_true',
                         help='the online figure instead: sim_arm and the identifier without '
                         'a robot description (the arms of --arms other than real_panda)')
@@ -307,6 +328,7 @@ def main(argv=None) -> int:
         changes[key] = (value == 'true' if kind is bool
                         else kind(value) if kind in (int, float) else float(value))
     settings = ChainSettings(seed=args.seed, **changes)
+    key_three = 'case_three' if args.servo == 'pd' else 'case_three_pid'
 
     def log(text):
         print('  ' + text, flush=True)
@@ -315,10 +337,10 @@ def main(argv=None) -> int:
         print(f'== {name}', flush=True)
         if args.case_three:
             if name in ARMS:
-                found = run_case_three(name, settings, log)
-                results.setdefault('case_three', {})[name] = found
-                print(json.dumps({k: v for k, v in results['case_three'][name].items()
-                                  if k != 'report'}), flush=True)
+                found = run_case_three(name, settings, log, args.servo)
+                results.setdefault(key_three, {})[name] = found
+                print(json.dumps({k: v for k, v in found.items() if k != 'report'}),
+                      flush=True)
             continue
         if name == 'real_panda':
             results[name] = run_real_panda(settings, log, args.data, args.out)
@@ -331,7 +353,7 @@ def main(argv=None) -> int:
             'load_average': os.getloadavg(),
             'metric': 'module docstring of bench/learned_chain.py'}
     if args.case_three:
-        results.setdefault('case_three', {})['meta'] = meta
+        results.setdefault(key_three, {})['meta'] = meta
     else:
         results['goals'], results['meta'] = dict(GOALS), meta
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)

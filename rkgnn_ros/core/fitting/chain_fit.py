@@ -67,7 +67,7 @@ from typing import Callable, NamedTuple, Optional, Sequence
 import numpy as np
 
 from .chain_consistent import JOINT_PRIOR_WEIGHT, refine_jointly
-from .chain_rows import block_rows, ChainRows, ChainScore, state_rows, torque_weights
+from .chain_rows import block_rows, ChainScore, state_rows, torque_weights
 from .chain_search import (ChainCoding, determinacy, multistart, refine, SEARCH_PRIOR,
                            turn_axes)
 from .rigid_data import choose_sigma
@@ -146,6 +146,9 @@ class ChainSettings:
     refine_iterations : int
         Most iterations of each of the refinement's local fits (its axes turned: 40 at
         most).
+    integral : bool
+        Case 3: the servo has an integral term (PID): its gain and each segment's start
+        are unknowns beside the PD gains (:meth:`~.chain_rows.ChainRows.with_unknown_gains`).
 
     """
 
@@ -162,6 +165,7 @@ class ChainSettings:
     joint_iterations: int = 100
     length_pull: float = 30.0
     refine_iterations: int = 60
+    integral: bool = False
 
 
 class ChainFit(NamedTuple):
@@ -201,8 +205,13 @@ def _usable(segments: Sequence[Dataset], case: str = 'torque'):
 
 def _servo_weights(segments: Sequence[Dataset], kp, kd) -> np.ndarray:
     """Return 1 / RMS of Kp e + Kd ė per joint over the segments (1 where it is 0)."""
-    tau = np.concatenate([pd_torque(kp, kd, seg.theta_d - seg.theta,
-                                    seg.theta_d_dot - seg.theta_dot) for seg in segments])
+    return _inverse_rms(np.concatenate([pd_torque(kp, kd, seg.theta_d - seg.theta,
+                                                  seg.theta_d_dot - seg.theta_dot)
+                                        for seg in segments]))
+
+
+def _inverse_rms(tau: np.ndarray) -> np.ndarray:
+    """Return 1 / RMS per joint of torques (K, n) (1 where it is 0 or not finite)."""
     rms = np.sqrt(np.mean(tau * tau, axis=0))
     return np.where(np.isfinite(rms) & (rms > 0.0), 1.0 / np.where(rms > 0.0, rms, 1.0), 1.0)
 
@@ -276,7 +285,8 @@ def _fit(train, validation, settings: ChainSettings, names, log,
     if coarse_rows is None or fine_rows is None:
         return None
     if servo:
-        coarse_rows, fine_rows = coarse_rows.with_unknown_gains(), fine_rows.with_unknown_gains()
+        coarse_rows = coarse_rows.with_unknown_gains(settings.integral)
+        fine_rows = fine_rows.with_unknown_gains(settings.integral)
     coarse = ChainScore(coarse_rows, weights)
     coding = ChainCoding(n, settings.gravity)
     found = multistart(coarse, coding, rng, settings.max_starts, settings.time_budget,
@@ -284,8 +294,11 @@ def _fit(train, validation, settings: ChainSettings, names, log,
     log(f'search: {found.message}, best cost {found.best.cost:.3e} after '
         f'{len(found.minima)} starts, {found.seconds:.1f} s')
     if servo:     # then by the servo's torque of the gains the best chain implies
-        kp, kd = coarse_rows.gains(coarse.extra(coding.tree(found.best.x)))
-        weights = _servo_weights(train, kp, kd)
+        extra = coarse.extra(coding.tree(found.best.x))
+        if settings.integral:   # the integral's share needs each segment's start: on the rows
+            weights = _inverse_rms(coarse_rows.servo_torque(extra))
+        else:
+            weights = _servo_weights(train, *coarse_rows.gains(extra))
     fine = ChainScore(fine_rows, weights)
     stage = time.monotonic()
     best = refine(fine, coding, found.best.x, max_iterations=settings.refine_iterations,
@@ -304,8 +317,7 @@ def _fit(train, validation, settings: ChainSettings, names, log,
         fitted = fine_rows.torques(structure.tree, fine.parameters(structure.tree))
         prior_torque = fine_rows.torques(structure.tree, structure.prior)
         unit = float(np.linalg.norm(prior_torque) / max(np.linalg.norm(fitted), 1e-300))
-        fine_rows = ChainRows(fine_rows.q, fine_rows.qd, fine_rows.qdd, fine_rows.tau * unit,
-                              fine_rows.groups, fine_rows.servo, fine_rows.extra)
+        fine_rows = fine_rows.scaled(unit)
         fine = ChainScore(fine_rows, weights)
     w = np.tile(weights, fine_rows.n_rows)
     extra = None if fine_rows.extra is None else fine_rows.extra * w[:, None]
@@ -334,11 +346,12 @@ def _fit(train, validation, settings: ChainSettings, names, log,
     if servo:
         kp, kd = fine_rows.gains(joint.extra / unit)
         report['gains'] = {'kp': kp.tolist(), 'kd': kd.tolist(),
+                           'ki': fine_rows.integral_gains(joint.extra / unit).tolist(),
                            'unit': 'the mean Kp (masses and gains share one unknown factor)'}
     stage = time.monotonic()
     learned = ChainStructure(chain, names, prior=joint.parameters)
     if servo:
-        fit = fit_closed(learned, train, validation, sigma=sigma,
+        fit = fit_closed(learned, train, validation, integral=settings.integral, sigma=sigma,
                          measured_velocity=settings.measured_velocity)
     else:
         fit = fit_torque(learned, train, validation, sigma=sigma,

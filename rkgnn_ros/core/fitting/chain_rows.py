@@ -74,13 +74,14 @@ class ChainRows:
 
     ``q``, ``qd``, ``qdd`` (S, n): the states; ``tau`` (R, n): the rows' torques. Without
     groups R = S (a row per state); with them each group's blocks are filtered to rows.
-    ``servo`` (R, n, 2): the servo's errors θd − θ and θ̇d − θ̇ filtered as τ (case 3's
-    rows carry them); ``extra`` (R n, E): columns of unknowns that do not depend on the
+    ``servo`` (R, n, 3): the servo's errors θd − θ, θ̇d − θ̇ and ∫(θd − θ) dt from the
+    segment's start, filtered as τ (case 3's rows carry them); ``segment`` (R,): the segment
+    each row comes from; ``extra`` (R n, E): columns of unknowns that do not depend on the
     chain, fitted beside the parameters (:meth:`with_unknown_gains`).
     """
 
     def __init__(self, q, qd, qdd, tau, groups: Sequence[_Group] = (), servo=None,
-                 extra=None):
+                 extra=None, segment=None):
         self.q, self.qd, self.qdd = (np.ascontiguousarray(v, dtype=float) for v in (q, qd, qdd))
         self.tau = np.asarray(tau, dtype=float)
         self.groups = tuple(groups)
@@ -88,15 +89,21 @@ class ChainRows:
         self.columns = np.arange((N_INERTIAL + N_JOINT) * self.n)
         self.servo = None if servo is None else np.asarray(servo, dtype=float)
         self.extra = None if extra is None else np.asarray(extra, dtype=float)
+        self.segment = (np.zeros(self.tau.shape[0], dtype=np.int64) if segment is None
+                        else np.asarray(segment, dtype=np.int64))
+        self.integral = False
 
-    def with_unknown_gains(self) -> 'ChainRows':
+    def with_unknown_gains(self, integral: bool = False) -> 'ChainRows':
         """
         Return the rows of case 3: a PD servo of unknown gains, their mean Kp the unit.
 
         Y π = Kp e + Kd ė on every joint is homogeneous in (π, Kp, Kd); with
         Kp_1 = n − Σ_{j>1} Kp_j (the mean Kp is 1) it is Y π − Σ_{j>1} Kp_j (e_j − e_1)
         − Σ_j Kd_j ė_j = n e_1: the target holds joint 1's rows, the extra columns the
-        other gains' (:meth:`gains` reads them back).
+        other gains' (:meth:`gains` reads them back). ``integral``: a PID servo, + Ki ∫e on
+        every joint, ∫e from each segment's start: a column of Ki per joint, and per joint a
+        constant for every segment after the first (Ki times the integral at the segment's
+        start; the first segment's is the arm's offset, a column of Y).
         """
         if self.servo is None:
             raise ValueError('these rows carry no servo errors')
@@ -112,10 +119,23 @@ class ChainRows:
             c = np.zeros((rows, n))
             c[:, j] = ed[:, j]
             columns.append(c.reshape(-1))
+        if integral:
+            if self.servo.shape[2] < 3:
+                raise ValueError('these rows carry no integral of the servo errors')
+            for j in range(n):
+                c = np.zeros((rows, n))
+                c[:, j] = self.servo[:, j, 2]
+                columns.append(c.reshape(-1))
+            for seg in np.unique(self.segment)[1:]:
+                for j in range(n):
+                    c = np.zeros((rows, n))
+                    c[self.segment == seg, j] = 1.0
+                    columns.append(c.reshape(-1))
         target = np.zeros((rows, n))
         target[:, 0] = n * e[:, 0]
         out = ChainRows(self.q, self.qd, self.qdd, target, self.groups, self.servo,
-                        -np.stack(columns, axis=1))
+                        -np.stack(columns, axis=1), self.segment)
+        out.integral = bool(integral)
         return out
 
     def gains(self, extra) -> tuple:
@@ -124,6 +144,25 @@ class ChainRows:
         extra = np.asarray(extra, dtype=float)
         kp = np.concatenate([[n - float(np.sum(extra[:n - 1]))], extra[:n - 1]])
         return kp, extra[n - 1:2 * n - 1].copy()
+
+    def scaled(self, factor: float) -> 'ChainRows':
+        """Return these rows with their target (τ, or case 3's n e_1) times ``factor``."""
+        out = ChainRows(self.q, self.qd, self.qdd, self.tau * factor, self.groups, self.servo,
+                        self.extra, self.segment)
+        out.integral = self.integral
+        return out
+
+    def integral_gains(self, extra) -> np.ndarray:
+        """Return Ki (n,), in the mean Kp's unit (zeros where the rows carry no integral)."""
+        n = self.n
+        if not self.integral:
+            return np.zeros(n)
+        return np.asarray(extra, dtype=float)[2 * n - 1:3 * n - 1].copy()
+
+    def servo_torque(self, extra) -> np.ndarray:
+        """Return the servo's torque on case 3's rows (R, n), mean Kp 1, of ``extra``."""
+        return (self.tau.reshape(-1) - self.extra @ np.asarray(extra, dtype=float)).reshape(
+            self.n_rows, self.n)
 
     @property
     def n_rows(self) -> int:
@@ -173,8 +212,11 @@ def _sigma(segments, sigma):
 
 
 def _servo_errors(seg: Dataset) -> np.ndarray:
-    """Return θd − θ and θ̇d − θ̇ of ``seg``, shape (N, n, 2)."""
-    return np.stack([seg.theta_d - seg.theta, seg.theta_d_dot - seg.theta_dot], axis=2)
+    """Return θd − θ, θ̇d − θ̇ and ∫(θd − θ) dt from the start of ``seg``, shape (N, n, 3)."""
+    e = seg.theta_d - seg.theta
+    z = np.zeros_like(e)
+    z[1:] = np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(seg.t)[:, None], axis=0)
+    return np.stack([e, seg.theta_d_dot - seg.theta_dot, z], axis=2)
 
 
 def _torque(seg: Dataset) -> np.ndarray:
@@ -194,7 +236,7 @@ def state_rows(segments: Sequence[Dataset], count: int, rng: np.random.Generator
     """
     sigma = _sigma(segments, sigma)
     parts = []
-    for seg in segments:
+    for index, seg in enumerate(segments):
         s = max(sigma, seg.dt)
         h, d1 = gaussian_kernels(seg.dt, s)
         if seg.n_samples <= h.size:
@@ -206,15 +248,18 @@ def state_rows(segments: Sequence[Dataset], count: int, rng: np.random.Generator
                      _convolve(seg.theta, second_derivative_kernel(seg.dt, s))]
         errors = (np.stack([_convolve(x, h) for x in np.moveaxis(_servo_errors(seg), 2, 0)],
                            axis=2) if servo else np.zeros((0,)))
-        parts.append([_convolve(seg.theta, h)] + rates + [_convolve(_torque(seg), h), errors])
+        q = _convolve(seg.theta, h)
+        parts.append([q] + rates + [_convolve(_torque(seg), h), errors,
+                                    np.full(q.shape[0], index, dtype=np.int64)])
     if not parts:
         return None
-    q, qd, qdd, tau = (np.concatenate([p[k] for p in parts]) for k in range(4))
+    q, qd, qdd, tau, which = (np.concatenate([p[k] for p in parts]) for k in (0, 1, 2, 3, 5))
     if q.shape[0] < count:
         return None
     index = np.sort(rng.choice(q.shape[0], size=int(count), replace=False))
     errors = np.concatenate([p[4] for p in parts])[index] if servo else None
-    return ChainRows(q[index], qd[index], qdd[index], tau[index], servo=errors)
+    return ChainRows(q[index], qd[index], qdd[index], tau[index], servo=errors,
+                     segment=which[index])
 
 
 def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
@@ -230,7 +275,7 @@ def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
     """
     sigma = _sigma(segments, sigma)
     prepared = []
-    for seg in segments:
+    for index, seg in enumerate(segments):
         dt = seg.dt
         s1 = max(DERIVATIVE_SIGMA, dt)
         s = max(sigma, math.sqrt(2.0) * s1)
@@ -250,13 +295,13 @@ def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
         signals = [_torque(seg)[inner]]
         if servo:
             errors = _servo_errors(seg)[inner]
-            signals += [errors[:, :, 0], errors[:, :, 1]]
-        prepared.append((dt, seg.theta[inner], qd, qdd, signals, h, stride, length))
+            signals += [errors[:, :, 0], errors[:, :, 1], errors[:, :, 2]]
+        prepared.append((dt, seg.theta[inner], qd, qdd, signals, h, stride, length, index))
     if not prepared:
         return None
     total = sum(p[1].shape[0] for p in prepared)
     by_dt = {}
-    for dt, q, qd, qdd, tau, h, stride, length in prepared:
+    for dt, q, qd, qdd, tau, h, stride, length, index in prepared:
         room = q.shape[0] // length
         wanted = max(1, int(round(blocks * q.shape[0] / total)))
         # non-overlapping blocks: random slots of a grid of whole blocks, then shifted
@@ -264,13 +309,14 @@ def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
         spare = q.shape[0] - room * length
         starts = slots * length + np.sort(rng.integers(0, spare + 1, slots.size))
         key = (round(dt, 12), length, stride)
-        entry = by_dt.setdefault(key, {'h': h, 'states': [], 'tau': []})
+        entry = by_dt.setdefault(key, {'h': h, 'states': [], 'tau': [], 'segment': []})
         for start in starts:
             part = slice(start, start + length)
             entry['states'].append((q[part], qd[part], qdd[part]))
+            entry['segment'].append(index)
             entry['tau'].append(np.stack([_convolve(x[part], h)[::stride][:per_block]
                                           for x in tau], axis=2))
-    states, taus, groups = [], [], []
+    states, taus, groups, which = [], [], [], []
     for (_, length, stride), entry in by_dt.items():
         h = entry['h']
         m2 = h.size // 2
@@ -281,10 +327,11 @@ def block_rows(segments: Sequence[Dataset], blocks: int, per_block: int,
         groups.append(_Group(first, len(entry['states']), length, filt))
         states += entry['states']
         taus += entry['tau']
+        which += [np.full(per_block, index, dtype=np.int64) for index in entry['segment']]
     q, qd, qdd = (np.concatenate([s[k] for s in states]) for k in range(3))
     signals = np.concatenate(taus)
     return ChainRows(q, qd, qdd, signals[:, :, 0], groups,
-                     signals[:, :, 1:] if servo else None)
+                     signals[:, :, 1:] if servo else None, segment=np.concatenate(which))
 
 
 class ChainScore:

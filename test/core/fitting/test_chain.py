@@ -216,6 +216,49 @@ def test_without_torque_and_gains_the_chain_and_the_gains_ratios_are_learned():
         fit_chain([data], case='pd')
 
 
+def test_under_a_pid_servo_the_chain_and_the_three_gains_are_learned():
+    # case 3 with an integral term: ∫e and each segment's start are unknowns of the rows
+    pytest.importorskip('pinocchio')
+    from rkgnn_ros.core.rigid.urdf_out import identified_urdf
+    from rkgnn_ros.core.sim.servo import Servo
+    from rkgnn_ros.core.sim.simulate import simulate
+    from rkgnn_ros.core.sim.trajectories import SumOfSines
+    from rkgnn_ros.core.sim.urdf_arm import UrdfArm
+    names = ('a', 'b', 'c')
+    truth = ChainStructure(arm_chain(), names)
+    parameters = bodies(3, np.random.default_rng(11))
+    parameters[30:] = 0.0
+    arm = UrdfArm(identified_urdf(truth, parameters, 'test arm'), list(names))
+    kp, kd = np.array([80.0, 80.0, 40.0]), np.array([8.0, 8.0, 4.0])
+    servo = Servo(kp, kd, ki=0.5 * kp)
+    reference = SumOfSines.random(3, np.random.default_rng(1), n_terms=3, amplitude=0.5)
+    data = simulate(arm, servo, reference, 16.0, rate=100.0, joint_names=names)
+
+    def without_effort(part):
+        return Dataset(part.t, part.theta, part.theta_dot, theta_d=part.theta_d,
+                       theta_d_dot=part.theta_d_dot, joint_names=names)
+    # two training segments: the integral's value at the second one's start is unknown
+    train = [without_effort(data.slice(0, 600)), without_effort(data.slice(650, 1200))]
+    held = [without_effort(data.slice(1200, 1600))]
+    settings = ChainSettings(refine_blocks=40, block_length=8, max_starts=20, seed=1,
+                             joint_iterations=40, integral=True)
+    found = fit_chain(train, held, settings, case='unknown')
+    assert found is not None
+    assert axis_errors(found.chain, arm_chain())['aligned_deg_max'] < 1.0
+    assert found.arm.consistent()
+    assert np.max(found.fit.errors) < 0.01     # held-out closed-loop equation error
+    gains = found.report['gains']
+    learned_kp, learned_ki = np.array(gains['kp']), np.array(gains['ki'])
+    np.testing.assert_allclose(learned_kp / learned_kp.mean(), kp / kp.mean(), rtol=0.03)
+    np.testing.assert_allclose(learned_ki / learned_kp, 0.5, rtol=0.05)
+    np.testing.assert_allclose(found.fit.law.ki / found.fit.law.kp, 0.5, rtol=0.05)
+    # the same data without the integral's columns leave the servo's torque unexplained
+    pd_only = fit_chain(train, held, ChainSettings(refine_blocks=40, block_length=8,
+                                                   max_starts=20, seed=1, joint_iterations=40),
+                        case='unknown')
+    assert pd_only is None or np.max(pd_only.fit.errors) > 3 * np.max(found.fit.errors)
+
+
 def test_an_axis_the_data_cannot_see_is_reported_undetermined():
     chain = arm_chain()
     truth = ChainStructure(chain)
