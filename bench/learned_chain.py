@@ -64,11 +64,13 @@ factor); under ``case_three`` per arm: ``axis_error_deg_max`` as above,
 ``equation_error_heldout`` (the closed loop's equation error on the 10 s held out, RMSE /
 std of the servo's torque, the worst joint), ``kp_ratio_error_max`` (the learned Kp over
 its mean against the true Kp over theirs, the worst relative error),
-``kd_over_kp_error_max`` and ``fit_s``. ``--servo pid``: the same under a PID servo (Ki =
-0.5 Kp /s), fitted with the integral's columns (``ChainSettings.integral``), under
-``case_three_pid``, with ``ki_over_kp_error_max`` too. With ``--online`` too: the online
-figure in case 3 (sensors ``no_effort``: no effort published, no gains given), under
-``online_case_three_ratio_120s`` and ``online_case_three`` per arm.
+``kd_over_kp_error_max`` and ``fit_s`` (the integral's columns in the rows, as by default:
+``--set integral=false`` leaves them out). ``--servo pid``: the same under a PID servo (Ki =
+0.5 Kp /s), under ``case_three_pid``, with ``ki_over_kp_error_max`` too. With ``--online``
+too: the online figure in case 3 (sensors ``no_effort``: no effort
+published, no gains given), under ``online_case_three_ratio_120s`` and
+``online_case_three`` per arm; with ``--servo`` other than 'pd' the keys end in
+``_<servo>`` (``online_case_three_pid``, ...).
 
 Writes ``bench/results/learned_chain.json`` (``--out``) and each learned arm beside it as
 ``learned_chain_<arm>.urdf``. Goals (issue 33): torque NRMSE <= 0.03, axes
@@ -98,6 +100,8 @@ TRAIN_S, HELD_S, RATE = 30.0, 10.0, 100.0
 TORQUE_SIGMA = 0.05
 #: Ki / Kp (1/s) of ``--servo pid`` (as bench/urdf_arms.py's pid servo)
 PID_KI_PER_KP = 0.5
+#: case 3's servos (``--servo``)
+SERVOS = ('pd', 'pid')
 GOALS = {'torque_nrmse_heldout': 0.03, 'axis_error_deg_max': 5.0, 'fit_s': 600.0,
          'real_panda_nmse_mean': 0.03, 'online_ratio_120s': 1.0 / 3.0}
 ONLINE_AT = 120.0
@@ -181,14 +185,12 @@ def run_arm(name, settings, log, path=RESULTS):
 
 
 def run_case_three(name, settings, log, servo_form='pd'):
-    """Return the case-3 figures of one simulated arm under a 'pd' or 'pid' servo."""
+    """Return the case-3 figures of one simulated arm under a servo of :data:`SERVOS`."""
     from rkgnn_ros.core.data import Dataset
     from rkgnn_ros.core.fitting.chain_fit import fit_chain
     from rkgnn_ros.core.rigid.chain import axis_errors, chain_of
     from rkgnn_ros.core.rigid.structure import RigidStructure
     sim, train, held = simulated(name, servo_form)
-    if servo_form == 'pid':
-        settings = dataclasses.replace(settings, integral=True)
 
     def without_effort(data):
         return Dataset(data.t, data.theta, data.theta_dot, theta_d=data.theta_d,
@@ -253,13 +255,13 @@ def run_real_panda(settings, log, data, path=RESULTS):
             'report': found.report}
 
 
-def run_online(name, duration, domain, at=ONLINE_AT, sensors='exact'):
+def run_online(name, duration, domain, at=ONLINE_AT, sensors='exact', servo='pd'):
     """Return the online figures of one arm (module docstring; 'no_effort': case 3)."""
     import urdf_arms
     log_dir = os.path.join(ROOT, 'log', 'bench')
-    prefix = f'learned_chain_online_{name}_{sensors}_'
+    prefix = f'learned_chain_online_{name}_{sensors}_{servo}_'
     began = time.monotonic()
-    cell = urdf_arms.run_cell(name, 'pd', sensors, duration, 2.0, domain, log_dir,
+    cell = urdf_arms.run_cell(name, servo, sensors, duration, 2.0, domain, log_dir,
                               identifier_args=NO_DESCRIPTION, prefix=prefix, torque=False)
     cell['wall_s'] = time.monotonic() - began
     lines = []
@@ -302,9 +304,9 @@ def main(argv=None) -> int:
                         help='a ChainSettings field, e.g. --set refine_blocks=120')
     parser.add_argument('--case-three', action='store_true',
                         help='case 3 instead: the simulated arms without effort or gains')
-    parser.add_argument('--servo', choices=('pd', 'pid'), default='pd',
-                        help="case 3's servo: 'pid' has Ki = 0.5 Kp, fitted with the "
-                        "integral's columns; its figures go under 'case_three_pid'")
+    parser.add_argument('--servo', choices=SERVOS, default='pd',
+                        help="case 3's servo: 'pid' has Ki = 0.5 Kp; its figures go under "
+                        "'case_three_pid'")
     parser.add_argument('--online', action='store_true',
                         help='the online figure instead: sim_arm and the identifier without '
                         'a robot description (the arms of --arms other than real_panda)')
@@ -328,7 +330,7 @@ def main(argv=None) -> int:
         changes[key] = (value == 'true' if kind is bool
                         else kind(value) if kind in (int, float) else float(value))
     settings = ChainSettings(seed=args.seed, **changes)
-    key_three = 'case_three' if args.servo == 'pd' else 'case_three_pid'
+    key_three = 'case_three' if args.servo == 'pd' else f'case_three_{args.servo}'
 
     def log(text):
         print('  ' + text, flush=True)
@@ -369,19 +371,24 @@ def main_online(args) -> int:
         with open(args.out, encoding='utf-8') as f:
             results = json.load(f)
     names = [a for a in args.arms.split(',') if a in ARMS]
+    key = 'online_case_three' + ('' if args.servo == 'pd' else f'_{args.servo}')
     for i, name in enumerate(names):
         domain = (20 + (os.getpid() + 37 * i) % 200 if args.domain is None
                   else args.domain + i)
         print(f'== {name} online, no robot description: {args.online_duration:.0f} s on '
               f'ROS_DOMAIN_ID={domain}', flush=True)
         figures = run_online(name, args.online_duration, domain,
-                             sensors='no_effort' if args.case_three else 'exact')
+                             sensors='no_effort' if args.case_three else 'exact',
+                             servo=args.servo)
         if args.case_three:   # case 3: no effort, no gains; its own keys
-            figures = {'online_case_three_ratio_120s': figures['online_ratio_120s'],
-                       'online_case_three': figures['online']}
+            figures = {f'{key}_ratio_120s': figures['online_ratio_120s'],
+                       key: figures['online']}
+        elif args.servo != 'pd':
+            figures = {f'online_{args.servo}_ratio_120s': figures['online_ratio_120s'],
+                       f'online_{args.servo}': figures['online']}
         entry = results.setdefault(name, {})
         entry.update(figures)
-        cell = figures['online_case_three' if args.case_three else 'online']
+        cell = figures[next(k for k in figures if not k.endswith('_ratio_120s'))]
         print(json.dumps({'ratio_120s': figures[next(iter(figures))],
                           **{k: cell.get(k) for k in (
                               'prediction_nrmse_120s', 'follow_reference_nrmse_120s',
@@ -390,9 +397,9 @@ def main_online(args) -> int:
         for line in cell.get('chain_log', []):
             print('  ' + line, flush=True)
     results['goals'] = dict(results.get('goals', {}), **GOALS)
-    results.setdefault('meta', {})['online_case_three' if args.case_three else 'online'] = {
+    results.setdefault('meta', {})[key if args.case_three else 'online'] = {
         'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
-        'duration_s': args.online_duration, 'at_s': ONLINE_AT, 'servo': 'pd',
+        'duration_s': args.online_duration, 'at_s': ONLINE_AT, 'servo': args.servo,
         'sensors': 'no_effort' if args.case_three else 'exact',
         'load_average_end': os.getloadavg(),
         'metric': 'module docstring of bench/learned_chain.py (online)'}

@@ -148,9 +148,11 @@ def refine_jointly(rows: ChainRows, weights, coding: ChainCoding, x0, parameters
                          consistency.coordinates(start[:nphi].reshape(n, N_INERTIAL)).reshape(-1),
                          np.clip(start[nphi:], lower[nx + nphi:nx + nphi + npsi], None),
                          np.zeros(ne) if extra0 is None else np.asarray(extra0, dtype=float)])
-    result = least_squares(residual, z0, jac=jacobian, bounds=(lower, upper), method='trf',
-                           x_scale='jac', max_nfev=int(max_iterations), xtol=1e-10,
-                           ftol=1e-10, gtol=1e-10)
+    # the solver refuses a trial step that overflows: no warning for it in the log
+    with np.errstate(over='ignore', invalid='ignore'):
+        result = least_squares(residual, z0, jac=jacobian, bounds=(lower, upper),
+                               method='trf', x_scale='jac', max_nfev=int(max_iterations),
+                               xtol=1e-10, ftol=1e-10, gtol=1e-10)
     x, phi, psi, k = unpack(result.x)
     pi = full(phi, psi)
     data = (rows.torques(coding.tree(x), pi) + extra @ k) * w - target

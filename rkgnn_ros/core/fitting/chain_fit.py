@@ -147,8 +147,10 @@ class ChainSettings:
         Most iterations of each of the refinement's local fits (its axes turned: 40 at
         most).
     integral : bool
-        Case 3: the servo has an integral term (PID): its gain and each segment's start
-        are unknowns beside the PD gains (:meth:`~.chain_rows.ChainRows.with_unknown_gains`).
+        Case 3: the servo may have an integral term (PID): its gain and each segment's
+        start are unknowns beside the PD gains
+        (:meth:`~.chain_rows.ChainRows.with_unknown_gains`; a PD servo's Ki comes out near
+        0). False: a PD servo.
 
     """
 
@@ -165,7 +167,7 @@ class ChainSettings:
     joint_iterations: int = 100
     length_pull: float = 30.0
     refine_iterations: int = 60
-    integral: bool = False
+    integral: bool = True
 
 
 class ChainFit(NamedTuple):
@@ -294,11 +296,12 @@ def _fit(train, validation, settings: ChainSettings, names, log,
     log(f'search: {found.message}, best cost {found.best.cost:.3e} after '
         f'{len(found.minima)} starts, {found.seconds:.1f} s')
     if servo:     # then by the servo's torque of the gains the best chain implies
-        extra = coarse.extra(coding.tree(found.best.x))
-        if settings.integral:   # the integral's share needs each segment's start: on the rows
-            weights = _inverse_rms(coarse_rows.servo_torque(extra))
+        tree = coding.tree(found.best.x)
+        if settings.integral:   # the servo's torque is Y π's (its integral's start unknown)
+            weights = _inverse_rms(coarse_rows.torques(tree, coarse.parameters(tree))
+                                   .reshape(-1, n))
         else:
-            weights = _servo_weights(train, *coarse_rows.gains(extra))
+            weights = _servo_weights(train, *coarse_rows.gains(coarse.extra(tree)))
     fine = ChainScore(fine_rows, weights)
     stage = time.monotonic()
     best = refine(fine, coding, found.best.x, max_iterations=settings.refine_iterations,
@@ -344,9 +347,10 @@ def _fit(train, validation, settings: ChainSettings, names, log,
               'chain': _chain_report(chain), 'sigma': sigma,
               'symmetry': 'known up to a mirror image of the whole arm (same dynamics)'}
     if servo:
-        kp, kd = fine_rows.gains(joint.extra / unit)
+        gains = joint.extra / unit
+        kp, kd = fine_rows.gains(gains)
         report['gains'] = {'kp': kp.tolist(), 'kd': kd.tolist(),
-                           'ki': fine_rows.integral_gains(joint.extra / unit).tolist(),
+                           'ki': fine_rows.integral_gains(gains).tolist(),
                            'unit': 'the mean Kp (masses and gains share one unknown factor)'}
     stage = time.monotonic()
     learned = ChainStructure(chain, names, prior=joint.parameters)

@@ -159,11 +159,6 @@ class ChainRows:
             return np.zeros(n)
         return np.asarray(extra, dtype=float)[2 * n - 1:3 * n - 1].copy()
 
-    def servo_torque(self, extra) -> np.ndarray:
-        """Return the servo's torque on case 3's rows (R, n), mean Kp 1, of ``extra``."""
-        return (self.tau.reshape(-1) - self.extra @ np.asarray(extra, dtype=float)).reshape(
-            self.n_rows, self.n)
-
     @property
     def n_rows(self) -> int:
         """Return the number of rows R (each n joint equations)."""

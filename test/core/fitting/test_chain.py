@@ -241,7 +241,7 @@ def test_under_a_pid_servo_the_chain_and_the_three_gains_are_learned():
     train = [without_effort(data.slice(0, 600)), without_effort(data.slice(650, 1200))]
     held = [without_effort(data.slice(1200, 1600))]
     settings = ChainSettings(refine_blocks=40, block_length=8, max_starts=20, seed=1,
-                             joint_iterations=40, integral=True)
+                             joint_iterations=40)       # the integral's columns: the default
     found = fit_chain(train, held, settings, case='unknown')
     assert found is not None
     assert axis_errors(found.chain, arm_chain())['aligned_deg_max'] < 1.0
@@ -254,8 +254,8 @@ def test_under_a_pid_servo_the_chain_and_the_three_gains_are_learned():
     np.testing.assert_allclose(found.fit.law.ki / found.fit.law.kp, 0.5, rtol=0.05)
     # the same data without the integral's columns leave the servo's torque unexplained
     pd_only = fit_chain(train, held, ChainSettings(refine_blocks=40, block_length=8,
-                                                   max_starts=20, seed=1, joint_iterations=40),
-                        case='unknown')
+                                                   max_starts=20, seed=1, joint_iterations=40,
+                                                   integral=False), case='unknown')
     assert pd_only is None or np.max(pd_only.fit.errors) > 3 * np.max(found.fit.errors)
 
 
