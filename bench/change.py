@@ -175,8 +175,9 @@ def self_check_figures(pt0, err, meas_t, meas_theta, listener, theta_range):
     (θd 2 s on) and holding the start's θ, range-normalised, mean over the joints; and the
     largest per-joint ratio, and where it is: ``(start of the window (s, stamp time), joint
     index)``; and the worst window over the joints: ``(its start, the published and the two
-    baselines' errors there, mean over joints)``. None where no window has predictions and
-    commands.
+    baselines' errors there, mean over joints, the same per 1 s of prediction starts:
+    [start, published, following the reference, holding the last state])``. None where no
+    window has predictions and commands.
     """
     with listener.lock:
         cmd_t, theta_d = np.array(listener.cmd_t), np.array(listener.theta_d)
@@ -205,7 +206,15 @@ def self_check_figures(pt0, err, meas_t, meas_theta, listener, theta_range):
         joints = per['prediction'] / np.maximum(better, 1e-12)
         joint = float(np.max(joints))
         if worst is None or ratio > worst:
-            worst, worst_at = ratio, (float(a), {k: float(np.mean(v)) for k, v in per.items()})
+            bins = []
+            for b in np.arange(a, a + 10.0 - 1e-9, 1.0):
+                part = (pt0 >= b) & (pt0 < b + 1.0)
+                if part.any():
+                    bins.append([round(float(b), 2)] + [
+                        float(np.mean(np.sqrt(np.mean(e[part] ** 2, axis=0)) / scale))
+                        for e in errors.values()])
+            worst, worst_at = ratio, (float(a), {k: float(np.mean(v)) for k, v in per.items()},
+                                      bins)
         if worst_joint is None or joint > worst_joint:
             worst_joint, where = joint, (float(a), int(np.argmax(joints)))
     return worst, worst_joint, where, worst_at
@@ -281,7 +290,8 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
             'self_check_worst_joint_window': None if where is None else {
                 'start_s': round(where[0] - start, 2), 'joint': int(where[1])},
             'self_check_worst_window': None if worst_at is None else {
-                'start_s': round(worst_at[0] - start, 2), **worst_at[1]},
+                'start_s': round(worst_at[0] - start, 2), **worst_at[1],
+                'bins_1s': [[round(b[0] - start, 2)] + b[1:] for b in worst_at[2]]},
             'changes_said': [[round(n - start, 3), round(w - start, 3)]
                              for n, w in listener.changes],
             'payloads': [[round(n - start, 3), m, c] for n, m, c in listener.payloads]}
