@@ -25,7 +25,8 @@ says something a few widths away.
 
 It is this package's worked example of adding a basis with genome parameters: this file
 and its entries in :mod:`.registry` (``NetworkSpec.basis = 'imq'`` or a sum such as
-'imq+rbf').
+'imq+rbf'); the genome, the decoding and the distance are the Gaussian units'
+(:mod:`.rbf`).
 """
 
 import math
@@ -33,27 +34,16 @@ import math
 from numba import njit
 import numpy as np
 
-from .base import Basis
+from .rbf import GaussianRBF, prepare, squared_distance  # noqa: F401 - prepare is this basis's
 
 #: Code of this basis in the compiled dispatch (:mod:`.registry`).
 KIND = 4
-#: Width genes are read within ±this, as the Gaussian units' are (exp(-2 g) stays finite).
-LOG_WIDTH_LIMIT = 50.0
-
-
-@njit(cache=True, nogil=True)
-def prepare(x, n, work):
-    """Precompute nothing: every unit needs its own distance."""
 
 
 @njit(cache=True, nogil=True)
 def value(x, n, codes, data, f, work):
     """Return φ_f at the state ``x`` (θ = x[:n]); ``data[f] = [c (n), 1/s²]``."""
-    d2 = 0.0
-    for j in range(n):
-        diff = x[j] - data[f, j]
-        d2 += diff * diff
-    return 1.0 / math.sqrt(1.0 + d2 * data[f, n])
+    return 1.0 / math.sqrt(1.0 + squared_distance(x, n, data, f) * data[f, n])
 
 
 @njit(cache=True, nogil=True)
@@ -62,38 +52,19 @@ def gradient(x, n, codes, data, f, k, phi_f, work):
     return -phi_f * phi_f * phi_f * data[f, n] * (x[k] - data[f, k])
 
 
-class InverseMultiquadric(Basis):
+class InverseMultiquadric(GaussianRBF):
     """Inverse multiquadric units over θ: centres and widths are genome elements."""
 
     name = 'imq'
     kind = KIND
-
-    def size(self, spec) -> int:
-        """Return K, the units (``spec.theta_units``)."""
-        return int(spec.theta_units)
-
-    def blocks(self, spec):
-        """Return the centres (K, n) and the log-widths (K,)."""
-        k, n = int(spec.theta_units), spec.n_joints
-        return [('imq_centres', (k, n)), ('imq_widths', (k,))]
-
-    def data_width(self, spec) -> int:
-        """Return n + 1: the centre and 1/s²."""
-        return spec.n_joints + 1
-
-    def decode(self, spec, blocks, scales) -> np.ndarray:
-        """Return ``[c (n), 1/s²]`` per unit, shape (P, K, n + 1)."""
-        centres = scales.theta_center + scales.theta_spread * blocks['imq_centres']
-        width0 = float(np.linalg.norm(scales.theta_spread))
-        log_width = np.clip(blocks['imq_widths'], -LOG_WIDTH_LIMIT, LOG_WIDTH_LIMIT)
-        inv_width2 = np.exp(-2.0 * log_width) / width0 ** 2
-        return np.concatenate([centres, inv_width2[..., None]], axis=-1)
+    centres, widths = 'imq_centres', 'imq_widths'
 
     def initial(self, spec, rng=None):
         """Return centres uniform over ±1.5 spreads of θ (a fixed seed without ``rng``)."""
         k, n = int(spec.theta_units), spec.n_joints
         rng = np.random.default_rng(0) if rng is None else rng
-        return {'imq_centres': rng.uniform(-1.5, 1.5, size=(k, n)), 'imq_widths': np.zeros(k)}
+        return {self.centres: rng.uniform(-1.5, 1.5, size=(k, n)),
+                self.widths: np.zeros(k)}
 
     def features(self, theta, codes, data) -> np.ndarray:
         """Return φ, shape (S, K)."""

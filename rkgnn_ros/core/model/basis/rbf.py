@@ -42,13 +42,19 @@ def prepare(x, n, work):
 
 
 @njit(cache=True, nogil=True, inline='always')
-def value(x, n, codes, data, f, work):
-    """Return φ_f at the state ``x`` (θ = x[:n]); ``data[f] = [c (n), 1/s²]``."""
+def squared_distance(x, n, data, f):
+    """Return |θ - c_f|² (rad²), θ = x[:n] and c_f = data[f, :n]."""
     d2 = 0.0
     for j in range(n):
         diff = x[j] - data[f, j]
         d2 += diff * diff
-    return math.exp(-d2 * data[f, n])
+    return d2
+
+
+@njit(cache=True, nogil=True, inline='always')
+def value(x, n, codes, data, f, work):
+    """Return φ_f at the state ``x`` (θ = x[:n]); ``data[f] = [c (n), 1/s²]``."""
+    return math.exp(-squared_distance(x, n, data, f) * data[f, n])
 
 
 @njit(cache=True, nogil=True, inline='always')
@@ -62,6 +68,8 @@ class GaussianRBF(Basis):
 
     name = 'rbf'
     kind = KIND
+    #: The names of the genome blocks of the centres and of the log-widths.
+    centres, widths = 'theta_centres', 'theta_widths'
 
     def size(self, spec) -> int:
         """Return K, the units (``spec.theta_units``)."""
@@ -70,7 +78,7 @@ class GaussianRBF(Basis):
     def blocks(self, spec):
         """Return the centres (K, n) and the log-widths (K,)."""
         k, n = int(spec.theta_units), spec.n_joints
-        return [('theta_centres', (k, n)), ('theta_widths', (k,))]
+        return [(self.centres, (k, n)), (self.widths, (k,))]
 
     def data_width(self, spec) -> int:
         """Return n + 1: the centre and 1/s²."""
@@ -78,9 +86,9 @@ class GaussianRBF(Basis):
 
     def decode(self, spec, blocks, scales) -> np.ndarray:
         """Return ``[c (n), 1/s²]`` per unit, shape (P, K, n + 1)."""
-        centres = scales.theta_center + scales.theta_spread * blocks['theta_centres']
+        centres = scales.theta_center + scales.theta_spread * blocks[self.centres]
         width0 = float(np.linalg.norm(scales.theta_spread))
-        log_width = np.clip(blocks['theta_widths'], -LOG_WIDTH_LIMIT, LOG_WIDTH_LIMIT)
+        log_width = np.clip(blocks[self.widths], -LOG_WIDTH_LIMIT, LOG_WIDTH_LIMIT)
         inv_width2 = np.exp(-2.0 * log_width) / width0 ** 2
         return np.concatenate([centres, inv_width2[..., None]], axis=-1)
 
@@ -97,7 +105,7 @@ class GaussianRBF(Basis):
             golden = (np.sqrt(5.0) - 1.0) / 2.0
             steps = golden + 0.318 * np.arange(n)
             centres = 3.0 * ((np.arange(1, k + 1)[:, None] * steps) % 1.0) - 1.5
-        return {'theta_centres': centres, 'theta_widths': np.zeros(k)}
+        return {self.centres: centres, self.widths: np.zeros(k)}
 
     def features(self, theta, codes, data) -> np.ndarray:
         """Return φ, shape (S, K)."""
