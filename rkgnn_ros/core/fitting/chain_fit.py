@@ -50,12 +50,15 @@ Case 3 (no torque, a PD servo of unknown gains; ``case='unknown'``). The closed 
 equation Y π = Kp (θd − θ) + Kd (θ̇d − θ̇) is linear in π and the gains together, and
 homogeneous: the gains' mean Kp is made the unit
 (:meth:`~.chain_rows.ChainRows.with_unknown_gains`), the gains are unknowns of the variable
-projection beside π, and the same steps run on it. Each joint's equation is weighted by its
-tracking error for the search, by the servo's torque of the gains the search's chain
-implies after it. Masses and gains are known up to one common factor; the joint refinement
-takes the prior's total mass as the masses' unit (its consistent start,
-:data:`CASE_THREE_START_EVALUATIONS`), step 5 is :func:`~.rigid_fit.fit_closed` of case 3
-on the learned chain (the gains in N m/rad of that unit), and the report holds the gains
+projection beside π, and the same steps run on it; by default (``ChainSettings.integral``)
+the servo may have an integral term: its gain and each segment's start are unknowns too.
+Each joint's equation is weighted by its tracking error for the search, by the servo's
+torque the search's chain implies after it. Masses and gains are known up to one common
+factor; the joint refinement takes the prior's total mass as the masses' unit (its
+consistent start, :data:`CASE_THREE_START_EVALUATIONS`), step 5 is case 3's
+:func:`~.rigid_fit.fit_closed_forms` on the learned chain (the servo's form, PD, PID or with
+θ-terms, as the held-out data support; the gains in N m/rad of that unit;
+:func:`~.rigid_fit.fit_closed`'s PD without the integral), and the report holds the gains
 relative to their mean Kp.
 """
 
@@ -71,7 +74,7 @@ from .chain_rows import block_rows, ChainScore, state_rows, torque_weights
 from .chain_search import (ChainCoding, determinacy, multistart, refine, SEARCH_PRIOR,
                            turn_axes)
 from .rigid_data import choose_sigma
-from .rigid_fit import fit_closed, fit_torque, RigidArm, RigidFit
+from .rigid_fit import fit_closed, fit_closed_forms, fit_torque, RigidArm, RigidFit
 from ..data import Dataset
 from ..rigid.chain import Chain, ChainStructure, dh_of_lines, lines
 from ..rigid.solve import fit_consistent
@@ -120,6 +123,11 @@ class ChainSettings:
 
     Attributes
     ----------
+    integral : bool
+        Case 3: the servo may have an integral term (PID): its gain and each segment's
+        start are unknowns beside the PD gains
+        (:meth:`~.chain_rows.ChainRows.with_unknown_gains`; a PD servo's Ki comes out near
+        0). False: a PD servo.
     search_rows : int
         Filtered states the search scores a chain on.
     refine_blocks, block_length : int
@@ -146,14 +154,10 @@ class ChainSettings:
     refine_iterations : int
         Most iterations of each of the refinement's local fits (its axes turned: 40 at
         most).
-    integral : bool
-        Case 3: the servo may have an integral term (PID): its gain and each segment's
-        start are unknowns beside the PD gains
-        (:meth:`~.chain_rows.ChainRows.with_unknown_gains`; a PD servo's Ki comes out near
-        0). False: a PD servo.
 
     """
 
+    integral: bool = True
     search_rows: int = 150
     refine_blocks: int = 120
     block_length: int = 16
@@ -167,7 +171,6 @@ class ChainSettings:
     joint_iterations: int = 100
     length_pull: float = 30.0
     refine_iterations: int = 60
-    integral: bool = True
 
 
 class ChainFit(NamedTuple):
@@ -354,8 +357,11 @@ def _fit(train, validation, settings: ChainSettings, names, log,
                            'unit': 'the mean Kp (masses and gains share one unknown factor)'}
     stage = time.monotonic()
     learned = ChainStructure(chain, names, prior=joint.parameters)
-    if servo:
-        fit = fit_closed(learned, train, validation, integral=settings.integral, sigma=sigma,
+    if servo and settings.integral:     # the servo's form as the held-out data say
+        fit = fit_closed_forms(learned, train, validation, sigma=sigma,
+                               measured_velocity=settings.measured_velocity)
+    elif servo:
+        fit = fit_closed(learned, train, validation, sigma=sigma,
                          measured_velocity=settings.measured_velocity)
     else:
         fit = fit_torque(learned, train, validation, sigma=sigma,
