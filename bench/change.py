@@ -37,7 +37,9 @@ same over the 2 s bins from the attachment), ``detection_delay_s`` (the arm's ti
 10 s after the attachment; described arms only), and the same for the release; per cell
 ``self_check_worst_ratio`` and ``self_check_worst_joint_ratio``
 (:func:`self_check_figures`: the worst 10 s window of what was published against the
-better baseline, over the joints and per joint).
+better baseline, over the joints and per joint), and ``self_check_without_crossing``: the
+same without the predictions started in the horizon before a change (made before it, their
+horizon crosses it: no self-check can judge them in advance).
 ``--false-alarms``: one 10-minute run of the UR5 with noise, no payload and a task switch at
 5 minutes (``reference.switch_at``), counting ``~/change`` messages.
 
@@ -308,6 +310,17 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
                     'payload_mass_error', 'payload_com_error_m'):
             if key in cell['attach']:
                 cell[key] = cell['attach'][key]
+        # the same without the predictions made before a change whose horizon crosses it
+        crossing = np.zeros(pt0.shape, dtype=bool)
+        for when in at.values():
+            crossing |= (pt0 >= start + when - HORIZON) & (pt0 < start + when)
+        ratio, joint_ratio, where, _ = self_check_figures(pt0[~crossing], err[~crossing],
+                                                          meas_t, meas_theta, listener,
+                                                          theta_range)
+        cell['self_check_without_crossing'] = {
+            'ratio': ratio, 'joint_ratio': joint_ratio,
+            'joint_window': None if where is None else {'start_s': round(where[0] - start, 2),
+                                                        'joint': int(where[1])}}
     return cell
 
 
