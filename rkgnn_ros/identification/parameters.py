@@ -136,8 +136,9 @@ PARAMETERS = (
                   "that arm explains held-out data; else 'rbf' with the other network.* "
                   "settings, which the global network does not use), 'rbf' (the paper's "
                   "Gaussian units, local), 'trig' (the Fourier modes of an arm with parallel "
-                  "axes, global), 'trig3d' (those of a spatial serial chain), 'poly', or a "
-                  "sum such as 'trig+rbf' (rigid-body terms with local corrections). "
+                  "axes, global), 'trig3d' (those of a spatial serial chain), 'poly', 'imq' "
+                  "(inverse multiquadric units, wider reach than 'rbf'), or a sum such as "
+                  "'trig+rbf' (rigid-body terms with local corrections). "
                   + _RESTARTS, change=_RESTART),
     ParameterSpec('network.inertia', _REC.inertia,
                   "'cholesky' (M = L L^T + eps I, positive definite) or 'penalty' (the "
