@@ -187,7 +187,9 @@ class ChainLearner:
         Of each fit.
     spawn : callable
         Runs its argument (a callable without arguments) in the background; default a
-        daemon thread. Tests pass ``lambda run: run()`` to fit at once.
+        daemon thread. Tests pass one that starts a thread and joins it, to fit at once: the
+        fit lowers the priority of the thread it runs in, for good (an unprivileged
+        process cannot raise it again).
     clock : callable
         Wall clock of the fit's deadline (s).
     min_data_s, max_error : float
