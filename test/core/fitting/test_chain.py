@@ -181,8 +181,11 @@ def test_a_three_joint_chain_is_recovered_from_exact_data():
                                rtol=1e-6, atol=1e-6)
 
 
-def test_without_torque_and_gains_the_chain_and_the_gains_ratios_are_learned():
-    # case 3: a PD servo whose gains nobody gives, joint_states without effort
+SERVO_KP, SERVO_KD = np.array([80.0, 80.0, 40.0]), np.array([8.0, 8.0, 4.0])
+
+
+def servoed(ki_per_kp=0.0):
+    """Return 16 s at 100 Hz of the 3-joint arm under its servo (Ki = ``ki_per_kp`` Kp)."""
     pytest.importorskip('pinocchio')
     from rkgnn_ros.core.rigid.urdf_out import identified_urdf
     from rkgnn_ros.core.sim.servo import Servo
@@ -194,13 +197,21 @@ def test_without_torque_and_gains_the_chain_and_the_gains_ratios_are_learned():
     parameters = bodies(3, np.random.default_rng(11))
     parameters[30:] = 0.0
     arm = UrdfArm(identified_urdf(truth, parameters, 'test arm'), list(names))
-    kp, kd = np.array([80.0, 80.0, 40.0]), np.array([8.0, 8.0, 4.0])
+    servo = Servo(SERVO_KP, SERVO_KD, ki=ki_per_kp * SERVO_KP)
     reference = SumOfSines.random(3, np.random.default_rng(1), n_terms=3, amplitude=0.5)
-    data = simulate(arm, Servo(kp, kd), reference, 16.0, rate=100.0, joint_names=names)
+    return simulate(arm, servo, reference, 16.0, rate=100.0, joint_names=names)
 
-    def without_effort(part):
-        return Dataset(part.t, part.theta, part.theta_dot, theta_d=part.theta_d,
-                       theta_d_dot=part.theta_d_dot, joint_names=names)
+
+def without_effort(part):
+    """Return ``part`` as joint_states without effort and the commands: case 3's data."""
+    return Dataset(part.t, part.theta, part.theta_dot, theta_d=part.theta_d,
+                   theta_d_dot=part.theta_d_dot, joint_names=part.joint_names)
+
+
+def test_without_torque_and_gains_the_chain_and_the_gains_ratios_are_learned():
+    # case 3: a PD servo whose gains nobody gives, joint_states without effort
+    data = servoed()
+    kp, kd = SERVO_KP, SERVO_KD
     settings = ChainSettings(refine_blocks=40, block_length=8, max_starts=20, seed=1,
                              joint_iterations=40)
     found = fit_chain([without_effort(data.slice(0, 1200))],
@@ -218,25 +229,8 @@ def test_without_torque_and_gains_the_chain_and_the_gains_ratios_are_learned():
 
 def test_under_a_pid_servo_the_chain_and_the_three_gains_are_learned():
     # case 3 with an integral term: ∫e and each segment's start are unknowns of the rows
-    pytest.importorskip('pinocchio')
-    from rkgnn_ros.core.rigid.urdf_out import identified_urdf
-    from rkgnn_ros.core.sim.servo import Servo
-    from rkgnn_ros.core.sim.simulate import simulate
-    from rkgnn_ros.core.sim.trajectories import SumOfSines
-    from rkgnn_ros.core.sim.urdf_arm import UrdfArm
-    names = ('a', 'b', 'c')
-    truth = ChainStructure(arm_chain(), names)
-    parameters = bodies(3, np.random.default_rng(11))
-    parameters[30:] = 0.0
-    arm = UrdfArm(identified_urdf(truth, parameters, 'test arm'), list(names))
-    kp, kd = np.array([80.0, 80.0, 40.0]), np.array([8.0, 8.0, 4.0])
-    servo = Servo(kp, kd, ki=0.5 * kp)
-    reference = SumOfSines.random(3, np.random.default_rng(1), n_terms=3, amplitude=0.5)
-    data = simulate(arm, servo, reference, 16.0, rate=100.0, joint_names=names)
-
-    def without_effort(part):
-        return Dataset(part.t, part.theta, part.theta_dot, theta_d=part.theta_d,
-                       theta_d_dot=part.theta_d_dot, joint_names=names)
+    data = servoed(ki_per_kp=0.5)
+    kp = SERVO_KP
     # two training segments: the integral's value at the second one's start is unknown
     train = [without_effort(data.slice(0, 600)), without_effort(data.slice(650, 1200))]
     held = [without_effort(data.slice(1200, 1600))]
