@@ -43,7 +43,8 @@ from typing import Callable, NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .rigid_data import choose_sigma, DERIVATIVE_SIGMA, second_derivative_kernel
+from .rigid_data import (choose_sigma, DERIVATIVE_SIGMA, error_integral,
+                         second_derivative_kernel)
 from ..data import Dataset
 from ..differentiate import gaussian_kernels
 from ..rigid import kernels
@@ -91,7 +92,6 @@ class ChainRows:
         self.extra = None if extra is None else np.asarray(extra, dtype=float)
         self.segment = (np.zeros(self.tau.shape[0], dtype=np.int64) if segment is None
                         else np.asarray(segment, dtype=np.int64))
-        self.integral = False
 
     def with_unknown_gains(self, integral: bool = False) -> 'ChainRows':
         """
@@ -133,10 +133,8 @@ class ChainRows:
                     columns.append(c.reshape(-1))
         target = np.zeros((rows, n))
         target[:, 0] = n * e[:, 0]
-        out = ChainRows(self.q, self.qd, self.qdd, target, self.groups, self.servo,
-                        -np.stack(columns, axis=1), self.segment)
-        out.integral = bool(integral)
-        return out
+        return ChainRows(self.q, self.qd, self.qdd, target, self.groups, self.servo,
+                         -np.stack(columns, axis=1), self.segment)
 
     def gains(self, extra) -> tuple:
         """Return (Kp, Kd) (n,), mean Kp 1, of the extra columns' coefficients ``extra``."""
@@ -147,15 +145,13 @@ class ChainRows:
 
     def scaled(self, factor: float) -> 'ChainRows':
         """Return these rows with their target (τ, or case 3's n e_1) times ``factor``."""
-        out = ChainRows(self.q, self.qd, self.qdd, self.tau * factor, self.groups, self.servo,
-                        self.extra, self.segment)
-        out.integral = self.integral
-        return out
+        return ChainRows(self.q, self.qd, self.qdd, self.tau * factor, self.groups, self.servo,
+                         self.extra, self.segment)
 
     def integral_gains(self, extra) -> np.ndarray:
         """Return Ki (n,), in the mean Kp's unit (zeros where the rows carry no integral)."""
         n = self.n
-        if not self.integral:
+        if self.extra is None or self.extra.shape[1] < 3 * n - 1:    # PD: 2 n - 1 columns
             return np.zeros(n)
         return np.asarray(extra, dtype=float)[2 * n - 1:3 * n - 1].copy()
 
@@ -209,9 +205,7 @@ def _sigma(segments, sigma):
 def _servo_errors(seg: Dataset) -> np.ndarray:
     """Return θd − θ, θ̇d − θ̇ and ∫(θd − θ) dt from the start of ``seg``, shape (N, n, 3)."""
     e = seg.theta_d - seg.theta
-    z = np.zeros_like(e)
-    z[1:] = np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(seg.t)[:, None], axis=0)
-    return np.stack([e, seg.theta_d_dot - seg.theta_dot, z], axis=2)
+    return np.stack([e, seg.theta_d_dot - seg.theta_dot, error_integral(e, seg.dt)], axis=2)
 
 
 def _torque(seg: Dataset) -> np.ndarray:

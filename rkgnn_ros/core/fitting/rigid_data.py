@@ -37,7 +37,7 @@ from ..data import Dataset
 from ..differentiate import gaussian_kernels
 
 __all__ = ['DEFAULT_SIGMA', 'DERIVATIVE_SIGMA', 'FilteredRows', 'NOISE_SHARE', 'SIGMAS',
-           'STRIDE_SIGMA', 'choose_sigma', 'encoder_noise', 'filtered_rows',
+           'STRIDE_SIGMA', 'choose_sigma', 'encoder_noise', 'error_integral', 'filtered_rows',
            'second_derivative_kernel']
 
 #: Standard deviation (s) of the whole low-pass the rows see (σ).
@@ -90,6 +90,13 @@ class FilteredRows(NamedTuple):
                             cut(self.error_rate), cut(self.integral),
                             {k: v[index] for k, v in self.gravity.items()}, self.theta[index],
                             self.segment[index], cut(self.time))
+
+
+def error_integral(e: np.ndarray, dt: float) -> np.ndarray:
+    """Return ∫e dt from the first sample (rad s), trapezoids of ``dt`` (s), shape of ``e``."""
+    z = np.zeros_like(e)
+    z[1:] = np.cumsum(0.5 * (e[1:] + e[:-1]), axis=0) * dt
+    return z
 
 
 def second_derivative_kernel(dt: float, sigma: float) -> np.ndarray:
@@ -236,8 +243,7 @@ def filtered_rows(segments: Sequence[Dataset], regressor: Callable,
         part['error'] = part['error_rate'] = part['integral'] = None
         if part['theta_d'] is not None and part['theta_d_dot'] is not None:
             e = part['theta_d'] - theta
-            z = np.zeros_like(e)
-            z[1:] = np.cumsum(0.5 * (e[1:] + e[:-1]), axis=0) * dt
+            z = error_integral(e, dt)
             part['error'] = _smooth_at(e, h, stride)
             part['error_rate'] = _smooth_at(part['theta_d_dot'] - theta_dot, h, stride)
             part['integral'] = _smooth_at(z, h, stride)
