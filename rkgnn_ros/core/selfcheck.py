@@ -23,8 +23,9 @@ candidate model, following the reference and holding the last state) that decide
 with the reason). Trust is earned, never assumed, and lost at once:
 
 - until the model has ``min_scored`` scored predictions at every horizon it reaches, the
-  best-scoring baseline is published (after a change of the dynamics, fewer:
-  :meth:`SelfCheck.dynamics_changed`);
+  best-scoring baseline is published (after a change of the dynamics, fewer, and a
+  candidate's predictions from the states since the change can be made again and scored
+  at once: :meth:`SelfCheck.dynamics_changed`, :meth:`SelfCheck.replay_from`);
 - the model is published once, **on every joint**, its error is at least ``margin`` below
   the better baseline's on that joint at every horizon, over the window and over its last
   ``recent`` seconds (a model good on six joints and bad on the seventh is not published:
@@ -177,6 +178,7 @@ class SelfCheck(PredictionRecord):
         self._quick = ''
         self._on_model = False     # the model is published (it earned it and kept it)
         self._withdrawn = (-math.inf, '')  # (held until this state time, why)
+        self._changed_at = -math.inf       # the time of the newest change (s)
 
     # -- decisions ------------------------------------------------------------------------
 
@@ -192,8 +194,7 @@ class SelfCheck(PredictionRecord):
         scored = [b for b in allowed if any(b in scores[h] for h in self.horizons)]
         reached = self._reached('model')
         counts = [scores[h].get('count', 0) for h in reached]
-        if self._quick == 'new' and reached and min(counts) >= self.min_scored:
-            self._quick = ''
+        self._end_quick()
         needed = self._needed()
         if not reached or min(counts) < needed:
             # the baselines' first scores are few and from the start of the motion, when
@@ -403,22 +404,46 @@ class SelfCheck(PredictionRecord):
                            f'{model:.2%})')
         return Verdict(True, candidate, model)
 
-    def dynamics_changed(self) -> None:
+    def dynamics_changed(self, since: Optional[float] = None) -> None:
         """
-        Say that the arm's dynamics changed: the model in use no longer holds.
+        Say that the arm's dynamics changed at ``since`` (s; None: the newest state's time).
 
-        It is withdrawn at once (:meth:`withdraw`: a baseline is published until a model
-        after the change earns its place). Until a model after it is in use with
-        ``min_scored`` scored predictions at every horizon, a candidate's trial and the
-        model's publication need :data:`QUICK_SHARE` of them (at least :data:`QUICK_MIN`):
-        a change detector's evidence already judged the model in use, and each scored
-        prediction 2 s ahead costs a prediction period of the time the arm is predicted by
-        a model of the arm before the change.
+        The model in use no longer holds: it is withdrawn at once (:meth:`withdraw`: a
+        baseline is published until a model after the change earns its place). Until a
+        model after it is in use with ``min_scored`` scored predictions at every horizon,
+        a candidate's trial and the model's publication need :data:`QUICK_SHARE` of them
+        (at least :data:`QUICK_MIN`): a change detector's evidence already judged the
+        model in use, and each scored prediction 2 s ahead costs a prediction period of
+        the time the arm is predicted by a model of the arm before the change. Meanwhile
+        :meth:`replay_from` says from when a candidate's predictions can be made again.
         """
         self._quick = 'stale'
         latest = self._states.t[-1] if len(self._states) else -math.inf
+        self._changed_at = latest if since is None or not math.isfinite(since) \
+            else min(float(since), latest)
         self.withdraw(latest, 'the dynamics changed: it is the arm before the change')
         self._cache = None
+
+    def replay_from(self) -> Optional[float]:
+        """
+        Return from when (s) a new candidate's predictions are made again, or None.
+
+        After a change of the dynamics (:meth:`dynamics_changed`), until a model after it
+        holds with ``min_scored`` scored predictions at every horizon: the change's time.
+        A candidate then is fitted on the arm since the change, and each prediction it
+        made from a state since then (:meth:`set_candidate`) is scored as soon as its
+        target is measured, instead of 2 s after its trial starts. Its fit saw those
+        targets, so these scores are in-sample; they are the price of seconds while a
+        baseline is published, and the model is judged on its new predictions as always
+        once in use.
+        """
+        self._end_quick()
+        return self._changed_at if self._quick else None
+
+    def _end_quick(self) -> None:
+        """End the quick judging after a change once a model after it is scored in full."""
+        if self._quick == 'new' and self._scored_enough('model'):
+            self._quick = ''
 
     def _needed(self) -> int:
         """Return the scored predictions a trial or the model's publication needs now."""

@@ -44,7 +44,10 @@ prediction (:meth:`Models.take`):
 - a change of the arm's dynamics (:meth:`Models.dynamics_changed`, in the order of the
   offers) drops the candidate and the offer waiting: both were fitted on the arm before
   it, and the first offer after it starts its trial at once, judged on fewer scored
-  predictions until a model holds again (:meth:`SelfCheck.dynamics_changed`).
+  predictions until a model holds again (:meth:`SelfCheck.dynamics_changed`); the
+  predictor makes each new candidate's predictions again from the states since the change
+  (:meth:`SelfCheck.replay_from`), so its trial need not wait 2 s for scores of its own,
+  and the newest offer then takes the place of the candidate on trial at once.
 
 A loop with an integral term (a PID) predicts from its integral at each prediction's start
 (:meth:`Models.integral`): the law's term at the data it was fitted on, carried on with the
@@ -144,10 +147,10 @@ class Models:
         with self._lock:
             self._offers.append(('loop', Slot(model, loop)))
 
-    def dynamics_changed(self) -> None:
-        """Say that the arm's dynamics changed: what waits for a trial is stale (module)."""
+    def dynamics_changed(self, since: Optional[float] = None) -> None:
+        """Say that the arm's dynamics changed at ``since`` (s): what waits is stale (module)."""
         with self._lock:
-            self._offers.append(('change', None))
+            self._offers.append(('change', since))
 
     # -- the prediction thread --------------------------------------------------------------
 
@@ -158,9 +161,12 @@ class Models:
             self._offers.clear()
         for kind, slot in offers:
             self._place(kind, slot, check)
-        if self.candidate is not None and self._waiting is not None and \
-                not predicts(self.candidate) and predicts(self._waiting):
-            self.candidate = None    # it cannot predict: it would hold the trial for nothing
+        if self.candidate is not None and self._waiting is not None and (
+                not predicts(self.candidate) and predicts(self._waiting)
+                or check.replay_from() is not None):
+            # it cannot predict: it would hold the trial for nothing; or after a change,
+            # where the newest offer's predictions are made again from the change on
+            self.candidate = None
             check.discard_candidate()
         if self.candidate is None and self._waiting is not None:
             self.candidate, self._waiting = self._waiting, None
@@ -170,23 +176,31 @@ class Models:
         self._carried = {key: value for key, value in self._carried.items() if key in kept}
         return self.in_use, self.candidate
 
-    def integral(self, closed: ClosedLoop, t0: float, check: SelfCheck) -> np.ndarray:
+    def integral(self, closed: ClosedLoop, t0: float, check: SelfCheck,
+                 carry: bool = True) -> np.ndarray:
         """
         Return ``closed``'s integral term (N m, (n,)) at stamp time ``t0`` (module docstring).
 
         Carried from the last time it was asked (or the loop's ``integral_time``) with the
         law's Ki times ∫ (θd − θ) dt the self-check recorded since; where the record does
-        not reach back that far, the term is left where it was.
+        not reach back that far, the term is left where it was. ``carry`` False: from the
+        loop's own time, before or after ``t0``, and not kept (a prediction made again from
+        a past state).
         """
         law = closed.loop.law
-        held = self._carried.get(id(closed))
+        held = self._carried.get(id(closed)) if carry else None
         since, integral = ((held[1], held[2]) if held is not None and held[0] is closed
                            and held[1] <= t0 else (closed.integral_time, law.integral_term))
         if np.any(law.ki != 0.0):
-            grown = check.error_integral(since, t0)
+            if t0 >= since:
+                grown = check.error_integral(since, t0)
+            else:
+                grown = check.error_integral(t0, since)
+                grown = None if grown is None else -grown
             if grown is not None:
                 since, integral = t0, integral + law.ki * grown
-        self._carried[id(closed)] = (closed, since, integral)
+        if carry:
+            self._carried[id(closed)] = (closed, since, integral)
         return integral
 
     def restart_trial(self, now: float) -> None:
@@ -199,7 +213,7 @@ class Models:
 
     def _place(self, kind: str, slot: Optional[Slot], check: SelfCheck) -> None:
         if kind == 'change':
-            check.dynamics_changed()
+            check.dynamics_changed(slot)
             if self.candidate is not None:
                 self.candidate = None
                 check.discard_candidate()

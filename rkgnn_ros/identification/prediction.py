@@ -34,7 +34,11 @@ What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
   learned law) is a *candidate* (:mod:`rkgnn_ros.identification.candidates`): it predicts
   beside the model in use, and replaces it only once its own scored predictions earned it
   on the same targets (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.trial`). Nothing
-  reaches ``~/prediction`` unjudged.
+  reaches ``~/prediction`` unjudged. After a change of the arm's dynamics, a new
+  candidate also predicts again from the states kept since the change (one per
+  ``CANDIDATE_EVERY_S``, with the inputs their predictions had), so its trial is judged as
+  soon as those targets are measured (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.
+  replay_from`).
 - A rollout that leaves the band the plan and the recent errors allow
   (:mod:`rkgnn_ros.core.band`) is not believed: the model in use is withdrawn at once (a
   baseline goes out instead of that very prediction) until its predictions since are
@@ -240,6 +244,10 @@ class Predictor(ThreadPart):
         self._reported_at = -math.inf
         self._candidate_due = -math.inf  # stamp time the candidate's next rollout is due
         self._scored_at = -math.inf  # stamp time of the last prediction scored
+        # (t0, x0, _Horizon) of scored predictions, one per CANDIDATE_EVERY_S: a candidate
+        # after a change predicts again from them (SelfCheck.replay_from)
+        self._starts: deque = deque()
+        self._replayed: Optional[Slot] = None  # the candidate last predicted again so
         self._ready = threading.Event()  # the rollout kernels ran once (compiled)
         self._wanted = threading.Event()
         self._stop = threading.Event()
@@ -273,9 +281,9 @@ class Predictor(ThreadPart):
         """
         self._models.offer_loop(model, loop)
 
-    def dynamics_changed(self) -> None:
-        """Drop the candidate and the offer waiting: the arm changed (any thread)."""
-        self._models.dynamics_changed()
+    def dynamics_changed(self, since: Optional[float] = None) -> None:
+        """Drop the candidate and the offer waiting: the arm changed at ``since`` (s)."""
+        self._models.dynamics_changed(since)
 
     # ------------------------------------------------------------------ latency
 
@@ -374,6 +382,10 @@ class Predictor(ThreadPart):
         check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
                              None if theirs is None else theirs[0],
                              None if source == 'model' else positions, horizon.theta_d)
+        self._keep_start(latest.t, x0, horizon, cfg)
+        if candidate is not None and candidate is not self._replayed:
+            self._replayed = candidate
+            self._replay(candidate, joints, check)
         line = self._models.judge(check, latest.t, cfg['selfcheck.window'])
         if line is not None:
             self._decided_at = -math.inf
@@ -384,6 +396,40 @@ class Predictor(ThreadPart):
             self._uncertainty(check, t, self._decision.source)
         self._report(check, latest.t)
         return True
+
+    def _keep_start(self, t0: float, x0: np.ndarray, horizon: _Horizon, cfg) -> None:
+        """Keep a scored prediction's start and inputs, one per CANDIDATE_EVERY_S."""
+        starts = self._starts
+        if starts and not t0 - starts[-1][0] >= 0.75 * CANDIDATE_EVERY_S:
+            return
+        starts.append((t0, x0, horizon))
+        keep_from = t0 - cfg['selfcheck.window'] - cfg['prediction.horizon']
+        while starts and starts[0][0] < keep_from:
+            starts.popleft()
+
+    def _replay(self, slot: Slot, joints, check: SelfCheck) -> None:
+        """
+        Predict with a new candidate from the kept starts since a change (SelfCheck.replay_from).
+
+        Each rollout from a past state, with the inputs that state's prediction had (the
+        plan then, a PID's integral at that time), is recorded as the candidate's
+        prediction from that start, so its trial is judged as soon as those targets are
+        measured.
+        """
+        since = check.replay_from()
+        if since is None:
+            return
+        clock, made = time.perf_counter(), 0
+        for t0, x0, horizon in list(self._starts):
+            if t0 < since - 1e-9:
+                continue
+            rollout = self._rollout(slot, joints, x0, horizon, t0, check, carry=False)
+            if rollout is not None and check.set_candidate(t0, horizon.t, rollout[0]):
+                made += 1
+        if made:
+            self._publish(LogLine('info', f'{describe(slot)} predicted again from {made} '
+                                          f'states since the change at {since:.3f} s (in '
+                                          f'{time.perf_counter() - clock:.2f} s)'))
 
     def _uncertainty(self, check: SelfCheck, t: np.ndarray, source: str) -> np.ndarray:
         """Return the expected error at ``t`` (K, n) of ``source``, kept until rescored."""
@@ -404,6 +450,7 @@ class Predictor(ThreadPart):
         if self._check is None or key != self._check_key:
             self._check = self._new_check(key)
             self._check_key = key
+            self._starts.clear()
             self._decided_at = -math.inf
             self._models.restart_trial(self._fed)
         # taken in bulk: at 1 kHz, one call per sample cost the prediction thread more
@@ -424,6 +471,7 @@ class Predictor(ThreadPart):
             if stamp < self._fed - CLOCK_JUMP_S:  # the clock went back: a new timeline
                 self._check = self._new_check(key)
                 self._decided_at = -math.inf
+                self._starts.clear()
                 self._models.restart_trial(stamp)
                 for store in states + commands:
                     store.clear()
@@ -475,8 +523,12 @@ class Predictor(ThreadPart):
         return _Horizon(t, theta_d, theta_d_dot, reference, beyond, what)
 
     def _rollout(self, slot: Optional[Slot], joints, x0, horizon: _Horizon, t0: float,
-                 check: SelfCheck) -> Optional[Tuple[np.ndarray, np.ndarray]]:
-        """Return ``(θ, θ̇)`` (K, n) of a model's prediction, None if it has none."""
+                 check: SelfCheck, carry: bool = True) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+        """
+        Return ``(θ, θ̇)`` (K, n) of a model's prediction, None if it has none.
+
+        ``carry`` False: from a past state (a PID's integral is not carried to ``t0``).
+        """
         if not predicts(slot) or horizon.theta_d is None:
             return None
         model, loop = slot
@@ -488,7 +540,7 @@ class Predictor(ThreadPart):
         n = len(joints)
         if loop is not None and loop.model is model:  # closed with a fitted servo law
             states = loop.loop.simulate(x0, horizon.t, horizon.theta_d, horizon.theta_d_dot,
-                                        self._models.integral(loop, t0, check))
+                                        self._models.integral(loop, t0, check, carry))
         else:   # a searched model alone (case 1's and a rigid body's need their loop)
             # at most MAX_SUBSTEPS RKG steps per model_step, whatever step the model was made
             # with (model_step may have grown since): the rollout's memory stays bounded

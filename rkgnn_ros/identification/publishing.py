@@ -258,7 +258,7 @@ class Publishing:
         """Publish a change on ``~/change`` or a payload on ``~/payload`` (and keep it)."""
         if isinstance(item, DynamicsChange):
             self.last_change = item
-            self._predictor.dynamics_changed()
+            self._predictor.dynamics_changed(item.time)
             values = [('time', f'{item.time:.6f}'), ('joints', ','.join(item.joints))]
             values += [(f'statistic.{i}', f'{v:.4g}') for i, v in enumerate(item.statistic)]
             self._publishers['change'].publish(DiagnosticStatus(

@@ -362,3 +362,22 @@ def test_a_candidate_better_on_average_but_broken_on_one_joint_does_not_earn_the
     verdict = check.trial()
     assert verdict is not None and verdict.candidate < verdict.model   # the mean says yes
     assert not verdict.better and 'j7' in verdict.why
+
+
+def test_after_a_change_a_candidate_is_scored_on_predictions_made_again_since_it():
+    check = SelfCheck(N, horizons=(0.5, 1.0, 2.0))
+    run(check, 12.0, broken)
+    assert check.replay_from() is None                # no change: nothing made again
+    check.dynamics_changed(11.5)
+    assert check.replay_from() == 11.5
+    run(check, 3.0, broken, start=12.0)
+    # the candidate's predictions from the starts since the change, as a replay makes them
+    starts = np.arange(1150, 1500, 10) / RATE        # the starts, as run() makes them
+    assert all(check.set_candidate(t0, OFFSETS, perfect(t0)) for t0 in starts)
+    assert not check.set_candidate(11.55, OFFSETS, perfect(11.55))   # no prediction there
+    verdict = check.trial()
+    assert verdict is not None and verdict.better and verdict.candidate < 1e-12
+    check.promote()
+    assert check.decide().source == 'model'           # 5 scored 2 s ahead are enough now
+    run(check, 4.0, perfect, start=15.0)
+    assert check.decide().source == 'model' and check.replay_from() is None

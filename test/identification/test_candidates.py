@@ -17,6 +17,7 @@
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from rkgnn_ros.core.fitting.online_records import ClosedLoop
 from rkgnn_ros.core.selfcheck import SelfCheck
 from rkgnn_ros.identification.candidates import Models, predicts, Slot
@@ -89,6 +90,20 @@ def test_a_pid_loops_integral_is_carried_past_the_self_checks_window():
                                rtol=1e-9)
     # asked afresh from the loop's own time, 40 s back, the record no longer reaches it
     assert float(Models().integral(closed, 40.0, check)[0]) == 1.0
+
+
+def test_a_pid_loops_integral_at_a_past_state_is_not_carried():
+    # θd − θ = 0.1 rad; Ki 2; the law's term is 1 N m at its own time, 10 s: a prediction
+    # made again from 5 s starts from 1 − 2 · 0.1 · 5, and the carry stays where it was
+    check, models = SelfCheck(1, window=20.0), Models()
+    law = SimpleNamespace(ki=np.array([2.0]), integral_term=np.array([1.0]))
+    closed = ClosedLoop(stand_in(1), SimpleNamespace(law=law), 10.0)
+    t = np.arange(0.0, 15.01, 0.01)
+    check.add_references(t, np.full((t.size, 1), 0.6))
+    check.add_states(t, np.full((t.size, 1), 0.5))
+    assert float(models.integral(closed, 12.0, check)[0]) == pytest.approx(1.4)
+    assert float(models.integral(closed, 5.0, check, carry=False)[0]) == pytest.approx(0.0)
+    assert float(models.integral(closed, 14.0, check)[0]) == pytest.approx(1.8)
 
 
 def test_a_candidate_that_cannot_predict_gives_way_to_one_that_can():

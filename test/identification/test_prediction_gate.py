@@ -390,6 +390,64 @@ def test_after_a_change_the_new_models_trial_needs_half_the_scores():
     assert 2.0 <= quick <= 2.7 and quick <= full - 0.4, (quick, full)
 
 
+class PlanLoop(Loop):
+    """A loop that rolls out from the plan it is given: the arm's motion from any start."""
+
+    def simulate(self, x0, t, theta_d, theta_d_dot, integral=None):
+        lag = 0.1 * OMEGA    # θ(t) = θd(t − 0.1) from θd(t) and θ̇d(t)
+        theta = theta_d * np.cos(lag) - theta_d_dot / OMEGA * np.sin(lag)
+        theta = theta + self.error(self.arm.now, t)
+        return np.hstack([theta, np.zeros_like(theta)])
+
+
+def test_after_a_change_a_candidate_is_judged_at_once_on_the_states_since_it():
+    # offered 2.5 s after the change: its predictions from the states since then are made
+    # again at once, and the 2 s-ahead ones from the first 0.5 s are already measured
+    def offer(change, error):
+        rig = Rig()
+        rig.predictor.update_loop(None, rig.loop(off(0.004)))
+        rig.run(15.0)
+        if change:
+            rig.predictor.dynamics_changed(rig.arm.now - 0.2)   # said 0.2 s after it
+        rig.run(2.5)
+        offered = rig.arm.now
+        rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, error), 0.0))
+        rig.run(4.0)
+        return rig, offered
+
+    def swapped(rig, offered):
+        return [p[0] - offered for p in _models(rig.since(offered)) if _error(p) < 1e-9]
+
+    rig, offered = offer(True, exact)
+    assert swapped(rig, offered)[0] <= 0.3
+    again, = rig.lines('predicted again from')
+    assert int(again.split('from ')[1].split()[0]) >= 26    # every 0.1 s since the change
+    rig, offered = offer(False, exact)          # no change: a trial of its own predictions
+    assert swapped(rig, offered)[0] >= 2.0 and not rig.lines('predicted again')
+    rig, offered = offer(True, off(0.3, joint=6))   # bad on j7: refused at once
+    assert rig.lines('the closed loop is not used')
+    assert all(_error(p) < 0.3 for p in _models(rig.since(offered)))
+
+
+def test_after_a_change_the_newest_offer_takes_the_candidates_place_at_once():
+    # refits 1 s apart after a change: the newer (exact) replaces the older (3 mrad off)
+    # before its trial ends, and is judged on the same starts since the change
+    rig = Rig()
+    rig.predictor.update_loop(None, rig.loop(off(0.004)))
+    rig.run(15.0)
+    t = rig.arm.now
+    rig.predictor.dynamics_changed(t)
+    rig.run(1.0)
+    rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, off(0.003)), 0.0))
+    rig.run(1.0)
+    rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, exact), 0.0))
+    rig.run(3.0)
+    models = _models(rig.since(t))
+    assert models and all(_error(p) < 1e-9 for p in models)     # never the older one
+    assert models[0][0] - t <= 2.7                  # 5 scored 2 s ahead, then decided
+    assert len(rig.lines('predicted again from')) == 2
+
+
 def test_a_change_of_the_dynamics_withdraws_the_model_in_use_at_once(rig):
     # the detector judged it: a baseline goes out from the next prediction on, until a
     # model after the change is promoted
