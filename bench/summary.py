@@ -214,6 +214,11 @@ def _mean_rate(soak):
     return sum(rates) / len(rates) if rates else float('nan')
 
 
+def _ratio(value) -> str:
+    """Return a ratio with three decimals, '–' when missing."""
+    return '–' if value is None else f'{value:.3f}'
+
+
 def _num(value, fmt='{:.3g}'):
     return '–' if value is None else fmt.format(value)
 
@@ -280,7 +285,10 @@ def change_section(d):
     lines += ['', 'Worst recovery: with a robot description '
                   f"{_num(d.get('worst_recovery_s_urdf'))}"
                   f" s, without {_num(d.get('worst_recovery_s_no_urdf'))} s; changes said in "
-                  f"10 minutes without one: {d.get('false_alarms_10min', '–')}.", '']
+                  f"10 minutes without one: {d.get('false_alarms_10min', '–')}. What was "
+                  'published against the better baseline, worst 10 s window of 2 s-ahead '
+                  f"errors: {_ratio(d.get('self_check_worst_ratio'))} over the joints, "
+                  f"{_ratio(d.get('self_check_worst_joint_ratio'))} on the worst joint.", '']
     return lines
 
 
