@@ -70,7 +70,9 @@ its mean against the true Kp over theirs, the worst relative error),
 too: the online figure in case 3 (sensors ``no_effort``: no effort
 published, no gains given), under ``online_case_three_ratio_120s`` and
 ``online_case_three`` per arm; with ``--servo`` other than 'pd' the keys end in
-``_<servo>`` (``online_case_three_pid``, ...).
+``_<servo>`` (``online_case_three_pid``, ...). Case 2 (``--online --case-two``): the
+same without effort, the identifier given the servo's PD gains (the sim config's ``kp``,
+``kd``), under ``online_case_two_ratio_120s`` and ``online_case_two`` per arm.
 
 Writes ``bench/results/learned_chain.json`` (``--out``) and each learned arm beside it as
 ``learned_chain_<arm>.urdf``. Goals (issue 33): torque NRMSE <= 0.03, axes
@@ -255,14 +257,24 @@ def run_real_panda(settings, log, data, path=RESULTS):
             'report': found.report}
 
 
-def run_online(name, duration, domain, at=ONLINE_AT, sensors='exact', servo='pd'):
-    """Return the online figures of one arm (module docstring; 'no_effort': case 3)."""
+def run_online(name, duration, domain, at=ONLINE_AT, sensors='exact', servo='pd',
+               gains=False):
+    """
+    Return the online figures of one arm (module docstring; 'no_effort': case 3).
+
+    ``gains``: the identifier is given the servo's PD gains (case 2 with 'no_effort').
+    """
     import urdf_arms
     log_dir = os.path.join(ROOT, 'log', 'bench')
-    prefix = f'learned_chain_online_{name}_{sensors}_{servo}_'
+    prefix = f'learned_chain_online_{name}_{sensors}_{servo}_' + ('gains_' if gains else '')
+    given = list(NO_DESCRIPTION)
+    if gains:
+        values = _values(name)
+        given += ['-p', f"kp:={list(map(float, values['kp']))}",
+                  '-p', f"kd:={list(map(float, values['kd']))}"]
     began = time.monotonic()
     cell = urdf_arms.run_cell(name, servo, sensors, duration, 2.0, domain, log_dir,
-                              identifier_args=NO_DESCRIPTION, prefix=prefix, torque=False)
+                              identifier_args=given, prefix=prefix, torque=False)
     cell['wall_s'] = time.monotonic() - began
     lines = []
     path = os.path.join(log_dir, prefix + 'identifier.log')
@@ -304,6 +316,8 @@ def main(argv=None) -> int:
                         help='a ChainSettings field, e.g. --set refine_blocks=120')
     parser.add_argument('--case-three', action='store_true',
                         help='case 3 instead: the simulated arms without effort or gains')
+    parser.add_argument('--case-two', action='store_true',
+                        help="with --online: no effort, the servo's PD gains given")
     parser.add_argument('--servo', choices=SERVOS, default='pd',
                         help="case 3's servo: 'pid' has Ki = 0.5 Kp; its figures go under "
                         "'case_three_pid'")
@@ -371,16 +385,18 @@ def main_online(args) -> int:
         with open(args.out, encoding='utf-8') as f:
             results = json.load(f)
     names = [a for a in args.arms.split(',') if a in ARMS]
-    key = 'online_case_three' + ('' if args.servo == 'pd' else f'_{args.servo}')
+    key = ('online_case_two' if args.case_two else 'online_case_three') + (
+        '' if args.servo == 'pd' else f'_{args.servo}')
+    closed = args.case_three or args.case_two    # no effort published
     for i, name in enumerate(names):
         domain = (20 + (os.getpid() + 37 * i) % 200 if args.domain is None
                   else args.domain + i)
         print(f'== {name} online, no robot description: {args.online_duration:.0f} s on '
               f'ROS_DOMAIN_ID={domain}', flush=True)
         figures = run_online(name, args.online_duration, domain,
-                             sensors='no_effort' if args.case_three else 'exact',
-                             servo=args.servo)
-        if args.case_three:   # case 3: no effort, no gains; its own keys
+                             sensors='no_effort' if closed else 'exact',
+                             servo=args.servo, gains=args.case_two)
+        if closed:   # case 3 (no effort, no gains) or 2 (the gains given): their own keys
             figures = {f'{key}_ratio_120s': figures['online_ratio_120s'],
                        key: figures['online']}
         elif args.servo != 'pd':
@@ -397,10 +413,10 @@ def main_online(args) -> int:
         for line in cell.get('chain_log', []):
             print('  ' + line, flush=True)
     results['goals'] = dict(results.get('goals', {}), **GOALS)
-    results.setdefault('meta', {})[key if args.case_three else 'online'] = {
+    results.setdefault('meta', {})[key if closed else 'online'] = {
         'date': datetime.date.today().isoformat(), 'cpus': os.cpu_count(),
         'duration_s': args.online_duration, 'at_s': ONLINE_AT, 'servo': args.servo,
-        'sensors': 'no_effort' if args.case_three else 'exact',
+        'sensors': 'no_effort' if closed else 'exact', 'gains_given': args.case_two,
         'load_average_end': os.getloadavg(),
         'metric': 'module docstring of bench/learned_chain.py (online)'}
     with open(args.out, 'w', encoding='utf-8') as f:
