@@ -27,8 +27,10 @@ missed while the middleware discovers the publisher, which would put them early)
 ``exact`` or ``noisy`` (1e-4 rad of encoder noise, θ̇ by differences).
 
 Figures per cell (2 s-ahead error of what ``~/prediction`` published, RMSE over the
-predictions started in each 2 s bin / θ range, mean over joints): ``error_before`` (the 10 s
-before the attachment), ``error_after_peak`` (the worst bin of the 20 s after it),
+predictions started in each 2 s bin / θ range, mean over joints): ``error_before`` (the
+predictions whose target lies in the 10 s before the attachment: those started in the 2 s
+before it cross it), ``error_after_peak`` (the worst bin of the 20 s after it; per joint
+in ``error_bins_after_per_joint``),
 ``recovery_s`` (from the attachment to the end of the first 2 s span, slid by 0.1 s from
 the attachment on, whose error is at most twice ``error_before``; ``recovery_bins_s`` the
 same over the 2 s bins from the attachment), ``detection_delay_s`` (the arm's time when
@@ -131,11 +133,20 @@ def _bins(start, t0, error, theta_range, first, last):
 
 
 def _event_figures(start, t0, error, theta_range, at, listener, arm, payload_on):
-    before = _bins(start, t0, error, theta_range, at - 10.0, at)
-    level = (float(np.mean(np.sqrt(np.mean(error[(t0 - start >= at - 10.0)
-                                                 & (t0 - start < at)] ** 2, axis=0))
+    # the level before: the predictions whose target lies in the 10 s before the change
+    # (those started in the horizon before it cross it: their errors are the change's)
+    first, last = at - 10.0 - HORIZON, at - HORIZON
+    before = _bins(start, t0, error, theta_range, first, last)
+    level = (float(np.mean(np.sqrt(np.mean(error[(t0 - start >= first)
+                                                 & (t0 - start < last)] ** 2, axis=0))
                            / theta_range)) if before else None)
     after = _bins(start, t0, error, theta_range, at, at + 20.0)
+    joints_after = []
+    for a in np.arange(at, at + 20.0, BIN):
+        sel = (t0 - start >= a) & (t0 - start < a + BIN)
+        if np.any(sel):
+            joints_after.append([round(float(a), 2)] + [
+                float(v) for v in np.sqrt(np.mean(error[sel] ** 2, axis=0)) / theta_range])
     recovery = recovery_bins = None
     if level is not None:
         for a, value in after:
@@ -152,7 +163,8 @@ def _event_figures(start, t0, error, theta_range, at, listener, arm, payload_on)
             if when - start >= at - 1.0 and newest - start >= at - 1.0]
     out = {'error_before': level,
            'error_after_peak': max((v for _, v in after), default=None),
-           'error_bins_after': after, 'recovery_s': recovery, 'recovery_bins_s': recovery_bins,
+           'error_bins_after': after, 'error_bins_after_per_joint': joints_after,
+           'recovery_s': recovery, 'recovery_bins_s': recovery_bins,
            'detection_delay_s': min(said) if said else None}
     if payload_on is not None and arm == 'ur5':
         sign = 1.0 if payload_on else -1.0
