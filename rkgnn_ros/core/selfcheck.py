@@ -429,8 +429,9 @@ class SelfCheck(PredictionRecord):
         Return from when (s) a new candidate's predictions are made again, or None.
 
         After a change of the dynamics (:meth:`dynamics_changed`), until a model after it
-        holds with ``min_scored`` scored predictions at every horizon: the change's time.
-        A candidate then is fitted on the arm since the change, and each prediction it
+        holds with ``min_scored`` scored predictions at every horizon and for ``window``
+        seconds of states after it: the change's time. A candidate then is fitted on the
+        arm since the change (refits come every second or so), and each prediction it
         made from a state since then (:meth:`set_candidate`) is scored as soon as its
         target is measured, instead of 2 s after its trial starts. Its fit saw those
         targets, so these scores are in-sample; they are the price of seconds while a
@@ -438,7 +439,9 @@ class SelfCheck(PredictionRecord):
         once in use.
         """
         self._end_quick()
-        return self._changed_at if self._quick else None
+        latest = self._states.t[-1] if len(self._states) else -math.inf
+        recent = latest - self._changed_at <= self.window
+        return self._changed_at if self._quick or recent else None
 
     def _end_quick(self) -> None:
         """End the quick judging after a change once a model after it is scored in full."""

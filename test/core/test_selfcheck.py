@@ -380,4 +380,6 @@ def test_after_a_change_a_candidate_is_scored_on_predictions_made_again_since_it
     check.promote()
     assert check.decide().source == 'model'           # 5 scored 2 s ahead are enough now
     run(check, 4.0, perfect, start=15.0)
+    assert check.decide().source == 'model' and check.replay_from() == 11.5
+    run(check, 3.0, perfect, start=19.0)        # a window (10 s) of states since the change
     assert check.decide().source == 'model' and check.replay_from() is None

@@ -245,7 +245,7 @@ PAYLOAD_MIN_S = 0.5
 FULL_REFIT_S = 8.0
 #: [relative, per row] The last body's refit after a change is pulled towards the body before it by
 #: this ridge, relative to each column's scale.
-BODY_RIDGE = 0.001
+BODY_RIDGE = 1e-4
 
 # -- the excitation memory's feed (memory.py)
 #: [samples] One new sample in this many is offered to the memory (neighbouring samples say nearly

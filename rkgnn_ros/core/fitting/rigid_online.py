@@ -344,8 +344,9 @@ class RigidPolicy:
 
     :class:`~.online.OnlineIdentification` hands it every step whose observation carries a
     structure: it refits at most every :data:`RIGID_REFRESH_S` and publishes the model at most
-    every ``model_publish_period`` (the first after a change of the dynamics at once, its
-    refit tried at every check until the data since the change suffice; the first fit too is
+    every ``model_publish_period`` (after a change of the dynamics, each refit of the last
+    body at once, its refit tried at every check until the data since the change suffice;
+    the first fit too is
     tried at every check until the data suffice); a reset, another
     structure or another case starts it afresh. ``emit`` takes events,
     ``set_status(state, detail, **numbers)`` the status, ``staleness`` is the policy's
@@ -396,7 +397,10 @@ class RigidPolicy:
         if not refresh:
             return False
         self._last_refresh = now
-        publish = now - self._last_publish >= settings.model_publish_period
+        # after a change, each refit of the last body goes out: the predictor judges it on
+        # the motion since the change before it predicts
+        publish = (now - self._last_publish >= settings.model_publish_period
+                   or keeper.change is not None)
         events, update = refresh_events(keeper, settings, obs.data, now, publish)
         for event in events:
             self._emit(event)

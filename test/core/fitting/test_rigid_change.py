@@ -55,17 +55,18 @@ def picked_up():
     return RigidStructure(arm.urdf, arm.joint_names), before, after
 
 
-def test_a_payload_is_detected_within_a_second_and_identified(picked_up):
+def identify(picked_up, model_publish_period, until=29.9):
+    """Return the online policy's events (arm's time, event) on the arm's data."""
     structure, before, after = picked_up
     joints = tuple(structure.joint_names)
     buffer = StreamBuffer(joints, 0.01, 20.0, 0.1, need_tau=True, need_desired=True)
     clock = [100.0]
     policy = OnlineIdentification(lambda: clock[0])
     cfg = OnlineSettings(case='torque', min_window=2.0, validation_fraction=0.2,
-                         model_publish_period=0.5)
+                         model_publish_period=model_publish_period)
     samples = [(d, k) for d in (before, after) for k in range(d.n_samples - (d is before))]
     events, fed = [], 0
-    for step in range(int(29.9 / 0.05)):
+    for step in range(int(until / 0.05)):
         now = step * 0.05                        # seconds of the arm's time
         while fed < len(samples) and samples[fed][0].t[samples[fed][1]] <= now:
             d, k = samples[fed]
@@ -79,6 +80,11 @@ def test_a_payload_is_detected_within_a_second_and_identified(picked_up):
             obs = obs._replace(data=buffer.capture())
         for event in policy.step(obs).events:
             events.append((now, event))
+    return events
+
+
+def test_a_payload_is_detected_within_a_second_and_identified(picked_up):
+    events = identify(picked_up, 0.5)
     changes = [(now, e) for now, e in events if isinstance(e, DynamicsChange)]
     assert len(changes) == 1, changes                 # no false alarm before, one after
     said_at, change = changes[0]
@@ -93,6 +99,16 @@ def test_a_payload_is_detected_within_a_second_and_identified(picked_up):
     # after 8 s of new data the whole model is refitted on them alone
     updates = [e for now, e in events if isinstance(e, ModelUpdate) and now >= AT + 8.5]
     assert updates and 'payload' not in updates[-1].model.info
+
+
+def test_after_a_change_every_refit_of_the_last_body_goes_out(picked_up):
+    # ~/model at most every 5 s, but after the change each refit of the last body (one a
+    # second) is offered: the predictor judges each on the motion since the change
+    events = identify(picked_up, 5.0, until=AT + 6.0)
+    said_at = next(now for now, e in events if isinstance(e, DynamicsChange))
+    refits = [now for now, e in events if isinstance(e, ModelUpdate) and now >= said_at
+              and 'payload' in e.model.info]
+    assert len(refits) >= 4 and refits[0] - said_at <= 1.0, refits
 
 
 def test_a_residual_at_its_normal_level_is_no_change():
