@@ -246,6 +246,11 @@ FULL_REFIT_S = 8.0
 #: [relative, per row] The last body's refit after a change is pulled towards the body before it by
 #: this ridge, relative to each column's scale.
 BODY_RIDGE = 1e-4
+#: [relative, per row] ... and the change of its inertia towards a point mass's of the change's
+#: mass and first moment by this one ...
+POINT_MASS_RIDGE = 0.1
+#: ... computed again this many times from the refit before.
+POINT_MASS_PASSES = 2
 
 # -- the excitation memory's feed (memory.py)
 #: [samples] One new sample in this many is offered to the memory (neighbouring samples say nearly
