@@ -346,27 +346,6 @@ class PredictionRecord:
             return
         self._stale = True
 
-    def set_candidate(self, t0: float, offsets, theta) -> bool:
-        """
-        Record a candidate's prediction θ (K, n) at ``offsets`` (K,) from a start already made.
-
-        For a prediction :meth:`add_prediction` recorded from ``t0`` (the same float): the
-        candidate's block of that row is replaced. Return whether there was such a row.
-        """
-        offsets = np.asarray(offsets, dtype=float).reshape(-1)
-        t = self._predictions.t
-        i = int(np.searchsorted(t, t0, side='right')) - 1
-        if offsets.size < 2 or i < 0 or t[i] != t0:
-            return False
-        at, reason = at_horizons(self.horizons, self.n, offsets, theta)
-        if reason:
-            self.rejected[reason] += 1
-            return False
-        self._blocks()['candidate'][i] = at
-        self._stale = True
-        self._cache = None
-        return True
-
     def _blocks(self) -> Dict[str, np.ndarray]:
         """Return the stored predictions' θ (M, H, n) per kind and 'source' (M,), views."""
         m, size = len(self._predictions), len(self.horizons) * self.n

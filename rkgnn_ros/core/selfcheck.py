@@ -59,8 +59,8 @@ import numpy as np
 
 from .band import band_width, Excursion, leaves_band
 from .noise import encoder_noise
-from .scoring import (ahead_errors, BASELINES, finite_rows, HORIZONS, PredictionRecord,
-                      range_normalised_rmse, rollout_spread, SOURCES)
+from .scoring import (ahead_errors, at_horizons, BASELINES, finite_rows, HORIZONS,
+                      PredictionRecord, range_normalised_rmse, rollout_spread, SOURCES)
 
 __all__ = ['HORIZONS', 'SOURCES', 'BASELINES', 'FLOOR_FACTOR', 'MIN_NOISE_RAD', 'QUICK_MIN',
            'QUICK_SHARE', 'Decision',
@@ -462,6 +462,27 @@ class SelfCheck(PredictionRecord):
         self._withdrawn = (-math.inf, '')
         self._quick = 'new' if self._quick else ''
         self._cache = None
+
+    def set_candidate(self, t0: float, offsets, theta) -> bool:
+        """
+        Record a candidate's prediction θ (K, n) at ``offsets`` (K,) from a start already made.
+
+        For a prediction :meth:`add_prediction` recorded from ``t0`` (the same float): the
+        candidate's block of that row is replaced. Return whether there was such a row.
+        """
+        offsets = np.asarray(offsets, dtype=float).reshape(-1)
+        t = self._predictions.t
+        i = int(np.searchsorted(t, t0, side='right')) - 1
+        if offsets.size < 2 or i < 0 or t[i] != t0:
+            return False
+        at, reason = at_horizons(self.horizons, self.n, offsets, theta)
+        if reason:
+            self.rejected[reason] += 1
+            return False
+        self._blocks()['candidate'][i] = at
+        self._stale = True
+        self._cache = None
+        return True
 
     def discard_candidate(self) -> None:
         """Forget the candidate's predictions."""

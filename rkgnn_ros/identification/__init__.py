@@ -20,7 +20,9 @@ The parts of the ``identifier`` node, one job each; :mod:`rkgnn_ros.identifier` 
 - :mod:`.drops`: the node's drop accounting: a counter per reason, throttled warnings.
 - :mod:`.worker`: the thread that runs the online policy
   (:mod:`rkgnn_ros.core.fitting.online`) and queues its events.
-- :mod:`.prediction`: the prediction thread.
+- :mod:`.prediction`: the prediction thread (:mod:`.candidates`: which model predicts;
+  :mod:`.horizon`: what a prediction covers; :mod:`.replay`: a candidate after a change
+  predicts again from the starts since it).
 - :mod:`.publishing`: the outbox and everything the executor thread publishes.
 - :mod:`.model_file`: loading and saving ``model_file``.
 """

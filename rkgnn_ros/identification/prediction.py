@@ -34,11 +34,8 @@ What is published (:mod:`rkgnn_ros.core.selfcheck` keeps the score):
   learned law) is a *candidate* (:mod:`rkgnn_ros.identification.candidates`): it predicts
   beside the model in use, and replaces it only once its own scored predictions earned it
   on the same targets (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.trial`). Nothing
-  reaches ``~/prediction`` unjudged. After a change of the arm's dynamics, a new
-  candidate also predicts again from the states kept since the change (one per
-  ``CANDIDATE_EVERY_S``, with the inputs their predictions had), so its trial is judged as
-  soon as those targets are measured (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.
-  replay_from`).
+  reaches ``~/prediction`` unjudged. After a change of the dynamics a new candidate also
+  predicts again from the starts since it (:mod:`rkgnn_ros.identification.replay`).
 - A rollout that leaves the band the plan and the recent errors allow
   (:mod:`rkgnn_ros.core.band`) is not believed: the model in use is withdrawn at once (a
   baseline goes out instead of that very prediction) until its predictions since are
@@ -77,6 +74,8 @@ from rkgnn_ros.core.fitting.online import ClosedLoop, LogLine
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
 from rkgnn_ros.identification.candidates import describe, Models, predicts, Slot
+from rkgnn_ros.identification.horizon import FromReference, HeldCommand, Horizon
+from rkgnn_ros.identification.replay import Replay
 from rkgnn_ros.identification.threads import ThreadPart
 from rkgnn_ros.wire.conversions import make_joint_state, serialize_joint_trajectory
 from sensor_msgs.msg import JointState
@@ -98,10 +97,6 @@ CANDIDATE_EVERY_S = 0.1
 #: self-check still gets 50 scored predictions a second; at prediction.rate 10 Hz it gets
 #: every one.
 SCORE_EVERY_S = 0.02
-#: A candidate after a change predicts again from at most this many starts, the newest (one
-#: per CANDIDATE_EVERY_S: 4 s of them, 2 s with their 2 s-ahead targets measured); a UR5
-#: rigid-body loop made 28 in 0.09 s of the prediction thread.
-REPLAY_MAX = 40
 REPORT_EVERY_S = 1.0   # scores handed to the executor this often (stamp time)
 CLOCK_JUMP_S = 1.0     # a state this much older than the last restarts the self-check
 MIN_GAP_S = 0.25       # states further apart: the predictions over them are not scored
@@ -140,29 +135,6 @@ def _on_schedule(now: float, due: float, every: float) -> bool:
 def _next_due(now: float, due: float, every: float) -> float:
     """Return when the task of :func:`_on_schedule` run at ``now`` is due next (s)."""
     return due + every if -0.25 * every <= now - due <= 0.75 * every else now + every
-
-
-class _FromReference:
-    """A planned reference from absolute time ``t0`` on (the rollout's ``evaluate`` API)."""
-
-    def __init__(self, plan, t0: float):
-        self._plan, self._t0 = plan, t0
-
-    def evaluate(self, times):
-        """Return (θd, θ̇d), each (M, n), at ``times`` (M,) relative to ``t0``."""
-        return self._plan.at(self._t0 + np.asarray(times, dtype=float))
-
-
-class _HeldCommand:
-    """The latest commanded position held, at zero velocity (``evaluate`` API)."""
-
-    def __init__(self, theta_d: np.ndarray):
-        self._theta_d = np.asarray(theta_d, dtype=float)
-
-    def evaluate(self, times):
-        """Return (θd, θ̇d), each (M, n), at ``times`` (M,)."""
-        m = np.asarray(times).size
-        return np.tile(self._theta_d, (m, 1)), np.zeros((m, self._theta_d.size))
 
 
 class Prediction(NamedTuple):
@@ -204,17 +176,6 @@ class ScoreReport(NamedTuple):
     labels: Tuple[str, ...] = SCORE_LABELS  # the columns (:func:`score_labels`)
 
 
-class _Horizon(NamedTuple):
-    """The times a prediction covers, the commands over them and how far the plan goes."""
-
-    t: np.ndarray                  # (K,) offsets from the state
-    theta_d: Optional[np.ndarray]  # (K, n), None: no plan and no command
-    theta_d_dot: Optional[np.ndarray]
-    reference: Optional[object]    # the same, for the rollout's exact stage times
-    beyond: Optional[float]        # offset where the plan ends, if before the last point
-    what: str
-
-
 class Predictor(ThreadPart):
     """
     Predictions from the newest state, scored and chosen, in a thread of their own.
@@ -248,10 +209,7 @@ class Predictor(ThreadPart):
         self._reported_at = -math.inf
         self._candidate_due = -math.inf  # stamp time the candidate's next rollout is due
         self._scored_at = -math.inf  # stamp time of the last prediction scored
-        # (t0, x0, _Horizon) of scored predictions, one per CANDIDATE_EVERY_S: a candidate
-        # after a change predicts again from them (SelfCheck.replay_from)
-        self._starts: deque = deque()
-        self._replayed: Optional[Slot] = None  # the candidate last predicted again so
+        self._replay = Replay(CANDIDATE_EVERY_S)  # starts a candidate after a change redoes
         self._ready = threading.Event()  # the rollout kernels ran once (compiled)
         self._wanted = threading.Event()
         self._stop = threading.Event()
@@ -386,10 +344,12 @@ class Predictor(ThreadPart):
         check.add_prediction(latest.t, t, None if mine is None else mine[0], source,
                              None if theirs is None else theirs[0],
                              None if source == 'model' else positions, horizon.theta_d)
-        self._keep_start(latest.t, x0, horizon, cfg)
-        if candidate is not None and candidate is not self._replayed:
-            self._replayed = candidate
-            self._replay(candidate, joints, check)
+        self._replay.keep(latest.t, x0, horizon,
+                          cfg['selfcheck.window'] + cfg['prediction.horizon'])
+        again = self._replay.again(candidate, check, lambda x, h, t0: self._rollout(
+            candidate, joints, x, h, t0, check, carry=False))
+        if again is not None:
+            self._publish(LogLine('info', f'{describe(candidate)} {again}'))
         line = self._models.judge(check, latest.t, cfg['selfcheck.window'])
         if line is not None:
             self._decided_at = -math.inf
@@ -400,38 +360,6 @@ class Predictor(ThreadPart):
             self._uncertainty(check, t, self._decision.source)
         self._report(check, latest.t)
         return True
-
-    def _keep_start(self, t0: float, x0: np.ndarray, horizon: _Horizon, cfg) -> None:
-        """Keep a scored prediction's start and inputs, one per CANDIDATE_EVERY_S."""
-        starts = self._starts
-        if starts and not t0 - starts[-1][0] >= 0.75 * CANDIDATE_EVERY_S:
-            return
-        starts.append((t0, x0, horizon))
-        keep_from = t0 - cfg['selfcheck.window'] - cfg['prediction.horizon']
-        while starts and starts[0][0] < keep_from:
-            starts.popleft()
-
-    def _replay(self, slot: Slot, joints, check: SelfCheck) -> None:
-        """
-        Predict with a new candidate from the kept starts since a change (SelfCheck.replay_from).
-
-        Each rollout from a past state, with the inputs that state's prediction had (the
-        plan then, a PID's integral at that time), is recorded as the candidate's
-        prediction from that start, so its trial is judged as soon as those targets are
-        measured.
-        """
-        since = check.replay_from()
-        if since is None:
-            return
-        clock, made = time.perf_counter(), 0
-        for t0, x0, horizon in [s for s in self._starts if s[0] >= since - 1e-9][-REPLAY_MAX:]:
-            rollout = self._rollout(slot, joints, x0, horizon, t0, check, carry=False)
-            if rollout is not None and check.set_candidate(t0, horizon.t, rollout[0]):
-                made += 1
-        if made:
-            self._publish(LogLine('info', f'{describe(slot)} predicted again from {made} '
-                                          f'states since the change at {since:.3f} s (in '
-                                          f'{time.perf_counter() - clock:.2f} s)'))
 
     def _uncertainty(self, check: SelfCheck, t: np.ndarray, source: str) -> np.ndarray:
         """Return the expected error at ``t`` (K, n) of ``source``, kept until rescored."""
@@ -452,7 +380,7 @@ class Predictor(ThreadPart):
         if self._check is None or key != self._check_key:
             self._check = self._new_check(key)
             self._check_key = key
-            self._starts.clear()
+            self._replay.clear()
             self._decided_at = -math.inf
             self._models.restart_trial(self._fed)
         # taken in bulk: at 1 kHz, one call per sample cost the prediction thread more
@@ -473,7 +401,7 @@ class Predictor(ThreadPart):
             if stamp < self._fed - CLOCK_JUMP_S:  # the clock went back: a new timeline
                 self._check = self._new_check(key)
                 self._decided_at = -math.inf
-                self._starts.clear()
+                self._replay.clear()
                 self._models.restart_trial(stamp)
                 for store in states + commands:
                     store.clear()
@@ -492,7 +420,7 @@ class Predictor(ThreadPart):
         return SelfCheck(len(joints), horizons, window=window, margin=margin, max_gap=max_gap,
                          rescore_every=RESCORE_EVERY_S, joint_names=joints)
 
-    def _horizon(self, cfg, t0: float) -> Optional[_Horizon]:
+    def _horizon(self, cfg, t0: float) -> Optional[Horizon]:
         """Return what a prediction from ``t0`` covers (None: nothing, see the module)."""
         step = cfg['model_step']
         k = max(1, int(round(cfg['prediction.horizon'] / step)))
@@ -511,7 +439,7 @@ class Predictor(ThreadPart):
         t = np.arange(k + 1) * step
         beyond = None
         if plan is not None and t0 + plan.times[0] <= plan.end:
-            reference = _FromReference(plan, t0)
+            reference = FromReference(plan, t0)
             what = 'reference'
             if left < t[-1] - 1e-9:
                 beyond = max(0.0, left)
@@ -519,12 +447,12 @@ class Predictor(ThreadPart):
         else:
             command = self._ingestion.latest_command
             if command is None:
-                return _Horizon(t, None, None, None, 0.0 if hold else None, 'no plan')
-            reference, what, beyond = _HeldCommand(command), 'held command', 0.0
+                return Horizon(t, None, None, None, 0.0 if hold else None, 'no plan')
+            reference, what, beyond = HeldCommand(command), 'held command', 0.0
         theta_d, theta_d_dot = reference.evaluate(t)
-        return _Horizon(t, theta_d, theta_d_dot, reference, beyond, what)
+        return Horizon(t, theta_d, theta_d_dot, reference, beyond, what)
 
-    def _rollout(self, slot: Optional[Slot], joints, x0, horizon: _Horizon, t0: float,
+    def _rollout(self, slot: Optional[Slot], joints, x0, horizon: Horizon, t0: float,
                  check: SelfCheck, carry: bool = True) -> Optional[Tuple[np.ndarray, np.ndarray]]:
         """
         Return ``(θ, θ̇)`` (K, n) of a model's prediction, None if it has none.
@@ -560,7 +488,7 @@ class Predictor(ThreadPart):
         return theta, theta_dot
 
     @staticmethod
-    def _published(source: str, mine, horizon: _Horizon, latest):
+    def _published(source: str, mine, horizon: Horizon, latest):
         """Return the published positions and velocities (K, n): the model's or a baseline's."""
         if source == 'model':
             return mine
@@ -586,7 +514,7 @@ class Predictor(ThreadPart):
                                              f'{decision.reason}'))
         return decision
 
-    def _outside(self, check: SelfCheck, latest, horizon: _Horizon, theta: np.ndarray, joints,
+    def _outside(self, check: SelfCheck, latest, horizon: Horizon, theta: np.ndarray, joints,
                  candidate: bool = False) -> bool:
         """
         Return whether a rollout left the band the plan and the recent errors allow.
