@@ -249,7 +249,7 @@ BODY_RIDGE = 1e-4
 #: [relative, per row] ... and the change of its inertia towards a point mass's of the change's
 #: mass and first moment by this one ...
 POINT_MASS_RIDGE = 0.1
-#: ... computed again this many times from the refit before.
+#: [solves] ... that point mass computed again this many times from the refit before.
 POINT_MASS_PASSES = 2
 
 # -- the excitation memory's feed (memory.py)
