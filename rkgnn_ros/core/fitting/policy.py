@@ -230,8 +230,9 @@ CHANGE_RELATIVE_FLOOR = 0.01
 #: detector.
 CHANGE_LEVEL_GROWTH = 2.0
 #: [filter widths (the fit's sigma, s)] The data after a change detected on a rigid body count from
-#: this far after its onset, clear of the filter's reach back.
-CHANGE_MARGIN_SIGMAS = 2.0
+#: this far after its onset: the onset is found on filtered rows, which rise up to the filter's
+#: reach (FILTER_REACH_SIGMAS) before the change, and each row reaches back as far.
+CHANGE_MARGIN_SIGMAS = 8.0
 #: [s] The data after a change detected on the trigonometric arm count from this far after its
 #: onset.
 TRIG_CHANGE_MARGIN_S = 0.05

@@ -22,7 +22,7 @@ import pytest
 
 pytest.importorskip('pinocchio')
 
-from rkgnn_ros.core.fitting import rigid_change  # noqa: E402
+from rkgnn_ros.core.fitting import rigid_change, rigid_online  # noqa: E402
 from rkgnn_ros.core.fitting.change import Change, ChangeDetector  # noqa: E402
 from rkgnn_ros.core.fitting.online import OnlineIdentification  # noqa: E402
 from rkgnn_ros.core.fitting.online_records import (DynamicsChange, ModelUpdate,  # noqa: E402
@@ -114,6 +114,22 @@ def test_after_a_change_every_refit_of_the_last_body_goes_out(picked_up):
     refits = [now for now, e in events if isinstance(e, ModelUpdate) and now >= said_at
               and 'payload' in e.model.info]
     assert len(refits) >= 4 and refits[0] - said_at <= 1.0, refits
+
+
+def test_the_refit_after_a_change_takes_no_row_from_before_it(picked_up, monkeypatch):
+    # the onset is found on filtered rows, which rise before the change (here 0.04 s): rows
+    # from 2 filter widths after it still held samples of the arm before; from 8, none
+    def com_error():
+        events = identify(picked_up, 0.5, until=AT + 2.5)
+        said = next(e.time - T0 for _, e in events if isinstance(e, DynamicsChange))
+        assert AT - 0.1 <= said < AT
+        payload = next(e for now, e in events
+                       if isinstance(e, PayloadEstimate) and now >= AT + 1.5)
+        return float(np.linalg.norm(np.array(payload.com) - COM))
+
+    clear = com_error()
+    monkeypatch.setattr(rigid_online, 'CHANGE_MARGIN_SIGMAS', 2.0)
+    assert clear < 0.6 * com_error()
 
 
 def test_a_residual_at_its_normal_level_is_no_change():
