@@ -47,7 +47,7 @@ prediction (:meth:`Models.take`):
   predictions until a model holds again (:meth:`SelfCheck.dynamics_changed`); the
   predictor makes each new candidate's predictions again from the states since the change
   (:meth:`SelfCheck.replay_from`), so its trial need not wait 2 s for scores of its own,
-  and the newest offer then takes the place of the candidate on trial at once.
+  and the newest offer then takes the place of a candidate on trial for :data:`REPLACE_S`.
 
 A loop with an integral term (a PID) predicts from its integral at each prediction's start
 (:meth:`Models.integral`): the law's term at the data it was fitted on, carried on with the
@@ -65,9 +65,13 @@ from rkgnn_ros.core.fitting.online import ClosedLoop
 from rkgnn_ros.core.model.model import RKGNNModel
 from rkgnn_ros.core.selfcheck import SelfCheck
 
-__all__ = ['Slot', 'Models', 'same_rollout', 'predicts', 'describe']
+__all__ = ['REPLACE_S', 'Slot', 'Models', 'same_rollout', 'predicts', 'describe']
 
 OFFER_LIMIT = 64  # offers kept between two predictions (older ones are superseded anyway)
+#: After a change, the newest offer takes the place of a candidate on trial this long (s of
+#: stamp time) at least: each takes a replay of up to 40 rollouts (0.3 s of the prediction
+#: thread for the paper arm's trigonometric loop, whose refits came every 0.3-0.4 s).
+REPLACE_S = 1.0
 
 
 class Slot(NamedTuple):
@@ -163,7 +167,7 @@ class Models:
             self._place(kind, slot, check)
         if self.candidate is not None and self._waiting is not None and (
                 not predicts(self.candidate) and predicts(self._waiting)
-                or check.replay_from() is not None):
+                or check.replay_from() is not None and not now - self._trial_start < REPLACE_S):
             # it cannot predict: it would hold the trial for nothing; or after a change,
             # where the newest offer's predictions are made again from the change on
             self.candidate = None

@@ -448,6 +448,20 @@ def test_after_a_change_the_newest_offer_takes_the_candidates_place_at_once():
     assert len(rig.lines('predicted again from')) == 2
 
 
+def test_after_a_change_offers_faster_than_a_second_are_predicted_again_once_a_second():
+    # a loop refitted every 0.3 s after a change: each replay costs the prediction thread
+    # up to 40 rollouts, so a candidate keeps its place for a second at least
+    rig = Rig()
+    rig.predictor.update_loop(None, rig.loop(off(0.004)))
+    rig.run(15.0)
+    t = rig.arm.now
+    rig.predictor.dynamics_changed(t)
+    for _ in range(7):      # before 2.4 s, when the first trial could end
+        rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, off(0.003)), 0.0))
+        rig.run(0.3)
+    assert 2 <= len(rig.lines('predicted again from')) <= 3    # once a second; 7 without
+
+
 def test_a_change_of_the_dynamics_withdraws_the_model_in_use_at_once(rig):
     # the detector judged it: a baseline goes out from the next prediction on, until a
     # model after the change is promoted
