@@ -400,18 +400,30 @@ class PlanLoop(Loop):
         return np.hstack([theta, np.zeros_like(theta)])
 
 
+def changed(change=True, late=0.0):
+    """Return a rig whose loop 4 mrad off is published after 15 s, then changed; and when."""
+    rig = Rig()
+    rig.predictor.update_loop(None, rig.loop(off(0.004)))
+    rig.run(15.0)
+    t = rig.arm.now
+    if change:
+        rig.predictor.dynamics_changed(t - late)    # said ``late`` s after it
+    return rig, t
+
+
+def offer_plan_loop(rig, error):
+    """Offer a loop that rolls out from its plan (any start), ``error`` added."""
+    rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, error), 0.0))
+
+
 def test_after_a_change_a_candidate_is_judged_at_once_on_the_states_since_it():
     # offered 2.5 s after the change: its predictions from the states since then are made
     # again at once, and the 2 s-ahead ones from the first 0.5 s are already measured
     def offer(change, error):
-        rig = Rig()
-        rig.predictor.update_loop(None, rig.loop(off(0.004)))
-        rig.run(15.0)
-        if change:
-            rig.predictor.dynamics_changed(rig.arm.now - 0.2)   # said 0.2 s after it
+        rig, _ = changed(change, late=0.2)
         rig.run(2.5)
         offered = rig.arm.now
-        rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, error), 0.0))
+        offer_plan_loop(rig, error)
         rig.run(4.0)
         return rig, offered
 
@@ -432,15 +444,11 @@ def test_after_a_change_a_candidate_is_judged_at_once_on_the_states_since_it():
 def test_after_a_change_the_newest_offer_takes_the_candidates_place_at_once():
     # refits 1 s apart after a change: the newer (exact) replaces the older (3 mrad off)
     # before its trial ends, and is judged on the same starts since the change
-    rig = Rig()
-    rig.predictor.update_loop(None, rig.loop(off(0.004)))
-    rig.run(15.0)
-    t = rig.arm.now
-    rig.predictor.dynamics_changed(t)
+    rig, t = changed()
     rig.run(1.0)
-    rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, off(0.003)), 0.0))
+    offer_plan_loop(rig, off(0.003))
     rig.run(1.0)
-    rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, exact), 0.0))
+    offer_plan_loop(rig, exact)
     rig.run(3.0)
     models = _models(rig.since(t))
     assert models and all(_error(p) < 1e-9 for p in models)     # never the older one
@@ -451,13 +459,9 @@ def test_after_a_change_the_newest_offer_takes_the_candidates_place_at_once():
 def test_after_a_change_offers_faster_than_a_second_are_predicted_again_once_a_second():
     # a loop refitted every 0.3 s after a change: each replay costs the prediction thread
     # up to 40 rollouts, so a candidate keeps its place for a second at least
-    rig = Rig()
-    rig.predictor.update_loop(None, rig.loop(off(0.004)))
-    rig.run(15.0)
-    t = rig.arm.now
-    rig.predictor.dynamics_changed(t)
+    rig, _ = changed()
     for _ in range(7):      # before 2.4 s, when the first trial could end
-        rig.predictor.update_loop(None, ClosedLoop(None, PlanLoop(rig.arm, off(0.003)), 0.0))
+        offer_plan_loop(rig, off(0.003))
         rig.run(0.3)
     assert 2 <= len(rig.lines('predicted again from')) <= 3    # once a second; 7 without
 
