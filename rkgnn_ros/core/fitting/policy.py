@@ -233,9 +233,10 @@ CHANGE_LEVEL_GROWTH = 2.0
 #: this far after its onset: the onset is found on filtered rows, which rise up to the filter's
 #: reach (FILTER_REACH_SIGMAS) before the change, and each row reaches back as far.
 CHANGE_MARGIN_SIGMAS = 8.0
-#: [s] The data after a change detected on the trigonometric arm count from this far after its
-#: onset.
-TRIG_CHANGE_MARGIN_S = 0.05
+#: [centred-derivative windows (CENTRED_WINDOW samples)] The data after a change detected on the
+#: trigonometric arm count from this far after its onset: the onset is found on rows whose θ̈ is
+#: a centred derivative over that window, which rise up to half of it before the change.
+TRIG_CHANGE_MARGIN_WINDOWS = 1.0
 #: [filter widths (the fit's sigma, s)] The last body's refit after a change takes this much from
 #: before its data as the filter's support (its rows are all after the change's margin).
 FILTER_REACH_SIGMAS = 4.0

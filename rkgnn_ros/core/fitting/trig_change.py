@@ -36,7 +36,7 @@ from .change import Change, ChangeDetector
 from .fitness import Interrupted
 from .online_records import DynamicsChange, LogLine
 from .policy import (CHECK_EVERY_S, CHECK_MAX_S, CHECK_S, DETECT_MIN_S, MIN_SEGMENT_SAMPLES,
-                     TRIG_CHANGE_MARGIN_S)
+                     TRIG_CHANGE_MARGIN_WINDOWS)
 from .rigid_change import since
 from .trig_loop import data_span
 from .validation import split_validation
@@ -167,7 +167,8 @@ class TrigChangeMonitor:
             return None
         change = self.detector.check(found[0], found[2])
         if change is not None:
-            self.since = change.time + TRIG_CHANGE_MARGIN_S
+            margin = TRIG_CHANGE_MARGIN_WINDOWS * CENTRED_WINDOW * segments[-1].dt
+            self.since = change.time + margin
             self.detector = ChangeDetector()
             self._armed_by = None
         return change
