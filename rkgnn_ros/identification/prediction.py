@@ -347,7 +347,7 @@ class Predictor(ThreadPart):
         self._replay.keep(latest.t, x0, horizon,
                           cfg['selfcheck.window'] + cfg['prediction.horizon'])
         again = self._replay.again(candidate, check, lambda x, h, t0: self._rollout(
-            candidate, joints, x, h, t0, check, carry=False))
+            candidate, joints, x, h, t0, check, carry=False), latest.t)
         if again is not None:
             self._publish(LogLine('info', f'{describe(candidate)} {again}'))
         line = self._models.judge(check, latest.t, cfg['selfcheck.window'])

@@ -20,7 +20,10 @@ prediction and the inputs it had (the state x0 = [θ, θ̇] and the horizon: its
 plan over them); :meth:`Replay.again` rolls a new candidate out from those since the change
 (:meth:`~rkgnn_ros.core.selfcheck.SelfCheck.replay_from`) and records each rollout as the
 candidate's prediction from that start, so its trial is judged as soon as those targets are
-measured instead of 2 s after it starts.
+measured instead of 2 s after it starts. Each replay costs the prediction thread up to
+:data:`REPLAY_MAX` rollouts, and the worker that fits the arm shares the interpreter with it:
+after a replay that took c seconds the next one waits :data:`REPLAY_REST` times c of stamp
+time (a candidate offered meanwhile is predicted again once that has passed).
 """
 
 from collections import deque
@@ -29,12 +32,15 @@ from typing import Callable, Optional
 
 from rkgnn_ros.core.selfcheck import SelfCheck
 
-__all__ = ['REPLAY_MAX', 'Replay']
+__all__ = ['REPLAY_MAX', 'REPLAY_REST', 'Replay']
 
 #: A candidate predicts again from at most this many starts, the newest (one per 0.1 s: 4 s
 #: of them, 2 s with their 2 s-ahead targets measured); a UR5 rigid-body loop made 28 in
 #: 0.09 s of the prediction thread.
 REPLAY_MAX = 40
+#: After a replay that took c s, the next one waits at least this times c (s of stamp time):
+#: replays take at most a quarter of the prediction thread.
+REPLAY_REST = 3.0
 
 
 class Replay:
@@ -44,6 +50,7 @@ class Replay:
         self.every = float(every)
         self._starts: deque = deque()   # (t0, x0, horizon), oldest first
         self._last = None               # the candidate last predicted again
+        self._rest_until = -float('inf')  # stamp time (s) before which none is made again
 
     def clear(self) -> None:
         """Forget the kept starts (the self-check was made anew)."""
@@ -58,16 +65,18 @@ class Replay:
         while starts and starts[0][0] < t0 - keep_for:
             starts.popleft()
 
-    def again(self, candidate, check: SelfCheck, rollout: Callable) -> Optional[str]:
+    def again(self, candidate, check: SelfCheck, rollout: Callable,
+              now: float) -> Optional[str]:
         """
         Predict with a new ``candidate`` from the starts since a change; return a log line.
 
         ``rollout(x0, horizon, t0)`` returns the candidate's (θ, θ̇), each (K, n), at the
-        horizon's offsets, or None. Nothing is done for a candidate already predicted
-        again, or when no change is recent (None is returned then, and when no prediction
-        was made).
+        horizon's offsets, or None. ``now``: the stamp time (s). Nothing is done for a
+        candidate already predicted again, while the last replay's rest lasts (module
+        docstring), or when no change is recent (None is returned then, and when no
+        prediction was made).
         """
-        if candidate is None or candidate is self._last:
+        if candidate is None or candidate is self._last or now < self._rest_until:
             return None
         self._last = candidate
         since = check.replay_from()
@@ -78,7 +87,9 @@ class Replay:
             out = rollout(x0, horizon, t0)
             if out is not None and check.set_candidate(t0, horizon.t, out[0]):
                 made += 1
+        cost = time.perf_counter() - clock
+        self._rest_until = now + REPLAY_REST * cost
         if not made:
             return None
         return (f'predicted again from {made} states since the change at {since:.3f} s (in '
-                f'{time.perf_counter() - clock:.2f} s)')
+                f'{cost:.2f} s)')

@@ -24,6 +24,7 @@ the model's ``simulate``. Each knows the arm's true motion and adds its own erro
 
 from collections import deque
 import math
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -464,6 +465,34 @@ def test_after_a_change_offers_faster_than_a_second_are_predicted_again_once_a_s
         offer_plan_loop(rig, off(0.003))
         rig.run(0.3)
     assert 2 <= len(rig.lines('predicted again from')) <= 3    # once a second; 7 without
+
+
+class SlowPlanLoop(PlanLoop):
+    """A :class:`PlanLoop` whose rollouts take 5 ms each (a replay of 40: 0.2 s)."""
+
+    def simulate(self, x0, t, theta_d, theta_d_dot, integral=None):
+        time.sleep(0.005)
+        return super().simulate(x0, t, theta_d, theta_d_dot, integral)
+
+
+def test_after_a_change_replays_rest_three_times_as_long_as_they_took():
+    # loops refused at once (bad on j7), offered every 0.1 s from 1 s after a change: each
+    # is made again from the 10-30 starts since it (50-150 ms here), then the replays rest
+    # three times that (of stamp time), so the worker that fits the arm keeps its share of
+    # the interpreter; 0.3 s apart without the rest
+    rig, _ = changed()
+    rig.run(1.0)
+    made = []       # (stamp time, cost in s) of each replay
+    for step in range(50):
+        if step < 20:
+            offered = SlowPlanLoop(rig.arm, off(0.3, joint=6))
+            rig.predictor.update_loop(None, ClosedLoop(None, offered, 0.0))
+        rig.run(0.1)
+        for line in rig.lines('predicted again from')[len(made):]:
+            made.append((rig.arm.now, float(line.split('(in ')[1].split()[0])))
+    assert len(made) >= 2
+    for (t, cost), (later, _) in zip(made, made[1:]):
+        assert later - t >= 3.0 * cost - 0.1, made
 
 
 def test_a_change_of_the_dynamics_withdraws_the_model_in_use_at_once(rig):
