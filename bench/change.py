@@ -249,7 +249,7 @@ def event_stamps(log_path):
     return out
 
 
-def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=()):
+def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=(), dump=None):
     """Run sim_arm and the identifier for one cell; return its figures."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -285,6 +285,8 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
             if simulated >= duration:
                 break
         snap = monitor.snapshot()
+        with monitor.lock:
+            frames = list(monitor.pred_frame)
         executor.shutdown()
         monitor.node.destroy_node()
         rclpy.try_shutdown(context=ctx)
@@ -296,6 +298,10 @@ def run_cell(arm, sensors, duration, attach, detach, domain, log_dir, extra_sim=
     start = float(meas_t[0])
     pt0, err = ahead_errors(t0s, offs, thetas, meas_t, meas_theta, HORIZON)
     theta_range = np.ptp(meas_theta, axis=0)
+    if dump:    # every prediction, for a look at what was published when
+        os.makedirs(dump, exist_ok=True)
+        np.savez(os.path.join(dump, f'{prefix}predictions.npz'), start=start, pt0=pt0, err=err,
+                 theta_range=theta_range, t0=np.array(t0s), frame=np.array(frames))
     ratio, joint_ratio, where, worst_at = self_check_figures(pt0, err, meas_t, meas_theta,
                                                              listener, theta_range)
     cell = {'exit_codes': codes,
@@ -348,6 +354,8 @@ def main(argv=None):
                         help='also the 10-minute UR5 run without a change')
     parser.add_argument('--merge', action='store_true')
     parser.add_argument('--domain', type=int, default=None)
+    parser.add_argument('--dump', default=None,
+                        help="a directory for each cell's predictions and their errors (npz)")
     parser.add_argument('--out', default=os.path.join(HERE, 'results', 'change.json'))
     args = parser.parse_args(argv)
     log_dir = os.path.join(os.path.dirname(HERE), 'log', 'bench')
@@ -360,7 +368,8 @@ def main(argv=None):
         domain = 20 + (os.getpid() + 37 * i) % 200 if args.domain is None else args.domain + i
         print(f'== {arm} x {sensors}: {args.duration:.0f} s on ROS_DOMAIN_ID={domain}',
               flush=True)
-        cell = run_cell(arm, sensors, args.duration, args.attach, args.detach, domain, log_dir)
+        cell = run_cell(arm, sensors, args.duration, args.attach, args.detach, domain, log_dir,
+                        dump=args.dump)
         results.setdefault(arm, {})[sensors] = cell
         print('  ' + json.dumps({k: cell.get(k) for k in (
             'error_before', 'error_after_peak', 'recovery_s', 'detection_delay_s',

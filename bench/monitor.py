@@ -63,6 +63,7 @@ class Monitor:
         self.horizon = horizon
         self.meas_t, self.meas_theta = [], []
         self.pred_t0, self.pred_off, self.pred_theta = [], [], []
+        self.pred_frame = []     # each prediction's frame_id ('model', 'baseline:...')
         self.evolution = []
         self.labels = None
         self.first_model = None  # stamp of the first prediction the model made (not a baseline)
@@ -96,6 +97,7 @@ class Monitor:
             self.pred_t0.append(self._stamp(msg.header))
             self.pred_off.append(off)
             self.pred_theta.append(theta)
+            self.pred_frame.append(msg.header.frame_id)
 
     def _on_evolution(self, msg):
         if self.labels is None and msg.layout.dim:
