@@ -268,6 +268,20 @@ class LawKeeper:
         self.trig: Optional[TrigLoop] = None    # the global arm closed with the law
         self._trig_tried = -math.inf             # when it was last fitted (clock s)
         self._trig_failures = 0                  # fits in a row that did not hold
+        self.after_change = False                # see :meth:`changed`
+
+    def changed(self) -> None:
+        """
+        Say that the arm's dynamics changed: the trigonometric arm is dropped.
+
+        If it held before (the basis holds this arm), then until the search publishes a model
+        of the arm after the change (:attr:`after_change`, cleared by the caller) the arm is
+        fitted again at every call while the data since are young, and an arm fitted since
+        stays in use when a refit does not hold: the model it would go back to is the arm
+        before the change.
+        """
+        self.after_change = self.after_change or self.trig is not None
+        self.trig = None
 
     @property
     def trig_tried(self) -> bool:
@@ -287,13 +301,15 @@ class LawKeeper:
         second more is what makes the fit hold), that wait doubles with each further failure up to
         :data:`TRIG_RETRY_S`: an arm the planar basis does not hold (a spatial one) would
         pay the fit at every refresh for nothing.
+        After a change of the dynamics see :meth:`changed`.
         ``prior`` (:class:`~.linear.Samples`, the excitation memory's) joins the training
         samples, so the arm keeps what it learned where the window no longer goes.
         Returns whether it was fitted, and the (level, text) to log when whether it predicts
         changed.
         """
-        wait = retry_wait(self._trig_failures, data_span(paired) < YOUNG_DATA_S,
-                          TRIG_FIRST_RETRY_S, TRIG_RETRY_S)
+        young = data_span(paired) < YOUNG_DATA_S
+        wait = 0.0 if self.after_change and young else retry_wait(
+            self._trig_failures, young, TRIG_FIRST_RETRY_S, TRIG_RETRY_S)
         if self.trig is None and now - self._trig_tried < wait:
             return False, None
         train, validation, _ = split_validation(paired, validation_fraction,
@@ -312,7 +328,7 @@ class LawKeeper:
             why = 'no law or too few samples'
         if loop is None and before:
             error = trig_torque_error(self.trig, validation)
-            if still_holds(error, TRIG_MAX_TORQUE_ERROR):
+            if still_holds(error, TRIG_MAX_TORQUE_ERROR) or self.after_change:
                 self._trig_failures = 0
                 return True, None
             why += f'; the arm in use {error:.1%}'

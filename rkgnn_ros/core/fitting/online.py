@@ -193,6 +193,7 @@ class _Publishing:
             gains = (law.kp, law.kd)
             loop = self._laws.close(model, closed)
         self._model, self._loop = model, loop
+        self._laws.after_change = False     # a model of the arm as it is now
         self._published_genome = (closed or model).genome.copy()
         self._last_model_pub = self._clock()
         self._out.append(model_update(model, loop, gains))
@@ -379,7 +380,8 @@ class OnlineIdentification(ChainSteps, _Publishing):
     def _changed(self, events: List[object]) -> None:
         """Say the change; drop what the data before it built; restart the search."""
         self._out.extend(events)
-        self._laws.trig, self._memory = None, MemoryFeed()
+        self._laws.changed()
+        self._memory = MemoryFeed()
         self._chain.changed(self._changes.since)
         if self._evo is not None:
             self._drop_search('the dynamics changed')

@@ -219,6 +219,30 @@ def test_the_keeper_keeps_the_arm_in_use_while_it_explains_the_newest_data(pd_da
     assert keeper.trig is in_use
 
 
+def test_after_a_change_the_arm_fitted_since_stays_and_refits_come_at_every_call(pd_data):
+    # the alternative to an arm fitted after a change is the model of the arm before it
+    keeper = LawKeeper()
+    keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
+    assert keeper.fit_trig([pd_data.slice(0, 1800)], 300 / 1800, 0.0)[0]
+    rng = np.random.default_rng(3)
+    young = pd_data.slice(0, 800)
+    wrong = [replace(young, tau=young.tau + rng.normal(0.0, 3.0 * young.tau.std(axis=0),
+                                                       young.tau.shape))]
+    for now, after_change in ((10.0, True), (20.0, False)):
+        keeper.changed()
+        keeper.after_change = after_change      # False: the search published since
+        assert keeper.trig is None
+        ran, line = keeper.fit_trig([young], 0.2, now)
+        in_use = keeper.trig
+        assert ran and in_use is not None
+        ran, line = keeper.fit_trig(wrong, 0.2, now + 0.1)   # neither the refit nor it holds
+        assert ran and (keeper.trig is in_use) == after_change
+        assert (line is None) == after_change
+        # none in use: tried again at once after a change, after TRIG_FIRST_RETRY_S else
+        keeper.trig = None
+        assert keeper.fit_trig(wrong, 0.2, now + 0.2)[0] == after_change
+
+
 def test_the_keeper_waits_for_enough_samples_without_starting_its_retry_clock(pd_data):
     keeper = LawKeeper()
     keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
