@@ -294,7 +294,8 @@ class LawKeeper:
         Fit the trigonometric arm on ``paired`` and close it with the law in use.
 
         The newest ``validation_fraction`` is held out; the arm predicts (:meth:`close`)
-        while its torque error there is at most :data:`TRIG_MAX_TORQUE_ERROR`. Until
+        while its torque error there is at most :data:`TRIG_MAX_TORQUE_ERROR`, fitted again
+        on all of ``paired`` once it held (``torque_error`` stays the held-out one). Until
         :data:`TRIG_MIN_SAMPLES` training samples are buffered it is not tried. Where it did
         not hold, it is fitted again :data:`TRIG_FIRST_RETRY_S` after the try (clock ``now``,
         s); once the data span :data:`~.policy.YOUNG_DATA_S` (young data grow fast, and each
@@ -321,11 +322,14 @@ class LawKeeper:
         before = self.trig is not None
         loop = (fit_trig_loop(train, validation, self.law, TRIG_MIN_SAMPLES, prior)
                 if self.law is not None else None)
+        why = 'no law or too few samples'
         if loop is not None and not loop.torque_error <= TRIG_MAX_TORQUE_ERROR:
             why = f'held-out torque error {loop.torque_error:.1%}'
             loop = None
-        else:
-            why = 'no law or too few samples'
+        elif loop is not None:   # it held: the arm is fitted again on the newest data too
+            whole = fit_trig_loop(paired, [], self.law, TRIG_MIN_SAMPLES, prior)
+            if whole is not None:
+                whole.torque_error, loop = loop.torque_error, whole
         if loop is None and before:
             error = trig_torque_error(self.trig, validation)
             if still_holds(error, TRIG_MAX_TORQUE_ERROR) or self.after_change:

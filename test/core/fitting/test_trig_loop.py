@@ -26,9 +26,9 @@ import numpy as np
 import pytest
 from rkgnn_ros.core.fitting.case_one import fit_law, LawKeeper
 from rkgnn_ros.core.fitting.case_three import ArmKeeper
-from rkgnn_ros.core.fitting.policy import (MAX_LOOP_ERROR, REFIT_S, RETRY_S, TRIG_FIRST_RETRY_S,
-                                           TRIG_MAX_TORQUE_ERROR, TRIG_MIN_SAMPLES, TRIG_RETRY_S,
-                                           YOUNG_DATA_S)
+from rkgnn_ros.core.fitting.policy import (MAX_LOOP_ERROR, MIN_SEGMENT_SAMPLES, REFIT_S,
+                                           RETRY_S, TRIG_FIRST_RETRY_S, TRIG_MAX_TORQUE_ERROR,
+                                           TRIG_MIN_SAMPLES, TRIG_RETRY_S, YOUNG_DATA_S)
 from rkgnn_ros.core.fitting.trig_loop import (closed_loop_error, fit_closed_trig_loop,
                                               fit_trig_loop, trig_torque_error)
 from rkgnn_ros.core.fitting.validation import split_validation
@@ -241,6 +241,22 @@ def test_after_a_change_the_arm_fitted_since_stays_and_refits_come_at_every_call
         # none in use: tried again at once after a change, after TRIG_FIRST_RETRY_S else
         keeper.trig = None
         assert keeper.fit_trig(wrong, 0.2, now + 0.2)[0] == after_change
+
+
+def test_an_arm_that_holds_is_fitted_again_on_all_the_data(pd_data):
+    # the newest samples judge the fit, then join it: after a change they are a fifth of
+    # the few seconds there are
+    keeper = LawKeeper()
+    keeper.refit([pd_data.slice(0, 1500)], 0.0, None)
+    data, fraction = [pd_data.slice(0, 1800)], 300 / 1800
+    assert keeper.fit_trig(data, fraction, 0.0)[0]
+    held = fit_trig_loop(*split_validation(data, fraction, MIN_SEGMENT_SAMPLES)[:2],
+                         keeper.law)
+    whole = fit_trig_loop(data, [], keeper.law)
+    coefficients = keeper.trig.arm.full_coefficients
+    np.testing.assert_allclose(coefficients, whole.arm.full_coefficients)
+    assert not np.allclose(coefficients, held.arm.full_coefficients)
+    assert keeper.trig.torque_error == held.torque_error <= TRIG_MAX_TORQUE_ERROR
 
 
 def test_the_keeper_waits_for_enough_samples_without_starting_its_retry_clock(pd_data):
